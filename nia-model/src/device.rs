@@ -1,0 +1,34 @@
+//! Backend selection at run time (burn 0.22: the `Device` picks the backend).
+
+use burn::tensor::Device;
+
+/// The compute backends nia-rs supports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// burn-ndarray on the CPU (the reference backend for tests).
+    Ndarray,
+    /// burn's flex CPU backend.
+    Flex,
+    /// wgpu (Vulkan/Metal/DX12; Mesa lavapipe without a GPU). Needs the `wgpu` feature.
+    Wgpu,
+}
+
+/// Error when a backend was not compiled in.
+#[derive(Debug, thiserror::Error)]
+#[error("backend `{0}` is not available in this build (rebuild with `--features wgpu`)")]
+pub struct BackendUnavailable(pub &'static str);
+
+impl Backend {
+    /// The inference device of this backend.
+    pub fn device(self) -> Result<Device, BackendUnavailable> {
+        match self {
+            Backend::Ndarray => Ok(Device::ndarray()),
+            Backend::Flex => Ok(Device::flex()),
+            #[cfg(feature = "wgpu")]
+            Backend::Wgpu => Ok(Device::wgpu(Default::default())),
+            #[cfg(not(feature = "wgpu"))]
+            Backend::Wgpu => Err(BackendUnavailable("wgpu")),
+        }
+    }
+}

@@ -1,0 +1,15 @@
+//! nia-model: the NIA network as Burn modules (encoder, body volume with sparse convolution,
+//! view-wise cross-attention, heads, image-based rendering, blending, volume rendering,
+//! reposing). One code path for every backend; the `Device` picks it at run time.
+
+pub mod attention;
+pub mod blender;
+pub mod body_volume;
+pub mod device;
+pub mod encoder;
+pub mod encoding;
+pub mod heads;
+pub mod ibr;
+pub mod loss;
+pub mod renderer;
+pub mod variant;
