@@ -11,9 +11,10 @@ pub const IN_MEMORY: &str = "<in-memory body model>";
 /// [`IN_MEMORY`]) and the field or key at fault, with the expected shape or value.
 #[derive(Debug, thiserror::Error)]
 pub enum BodyError {
-    /// The file could not be read or decoded (the format error names the file).
+    /// The file could not be read or decoded (the format error names the file). Boxed: format
+    /// errors are large and body errors travel through every `Result` of this module.
     #[error(transparent)]
-    Format(#[from] FormatError),
+    Format(Box<FormatError>),
     /// A key the SMPL model needs is absent from the file.
     #[error("{}: body model key `{key}` is missing (keys present: {present})", path.display())]
     MissingKey {
@@ -36,6 +37,12 @@ pub enum BodyError {
         expected: String,
         found: String,
     },
+}
+
+impl From<FormatError> for BodyError {
+    fn from(e: FormatError) -> Self {
+        BodyError::Format(Box::new(e))
+    }
 }
 
 impl BodyError {

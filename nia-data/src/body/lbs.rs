@@ -137,7 +137,7 @@ pub fn inverse_lbs(point: Vec3, weights: &[f32], transforms: &[Mat4]) -> Option<
     let blended = blend_transform(weights, transforms).as_dmat4();
     let linear = DMat3::from_mat4(blended);
     let det = linear.determinant();
-    if !(det.abs() >= INVERSE_LBS_MIN_DET) {
+    if det.is_nan() || det.abs() < INVERSE_LBS_MIN_DET {
         return None;
     }
     let x = linear.inverse() * (point.as_dvec3() - blended.w_axis.truncate());

@@ -102,7 +102,8 @@ pub struct BodyModel {
 impl BodyModel {
     /// Build a model from its arrays (shapes as documented on the fields) and validate it.
     ///
-    /// `shapedirs` holds `V * 3 * S` values for any `S >= 0`. Errors name the field and the
+    /// `shapedirs` holds `V * 3 * S` values for any `S >= 0`. Regressor rows are brought to a
+    /// canonical form (sorted by vertex, repeated vertices summed, zero weights dropped). Errors name the field and the
     /// expected shape; the model is attributed to [`super::error::IN_MEMORY`] (see [`BodyError::with_path`]).
     pub fn new(
         v_template: Vec<Vec3>,
@@ -113,6 +114,22 @@ impl BodyModel {
         parents: Vec<i32>,
         faces: Vec<[u32; 3]>,
     ) -> Result<Self, BodyError> {
+        // Canonical sparse rows: sorted by vertex, duplicates summed, zeros dropped.
+        let j_regressor = j_regressor
+            .into_iter()
+            .map(|mut row| {
+                row.sort_by_key(|&(i, _)| i);
+                let mut merged: Vec<(u32, f32)> = Vec::with_capacity(row.len());
+                for (i, w) in row {
+                    match merged.last_mut() {
+                        Some(last) if last.0 == i => last.1 += w,
+                        _ => merged.push((i, w)),
+                    }
+                }
+                merged.retain(|&(_, w)| w != 0.0);
+                merged
+            })
+            .collect();
         let model = BodyModel {
             v_template,
             shapedirs,
@@ -143,7 +160,7 @@ impl BodyModel {
                 format!("{:?} at vertex {i}", self.v_template[i]),
             ));
         }
-        if self.shapedirs.len() % (3 * v) != 0 {
+        if self.shapedirs.len() / (3 * v) * (3 * v) != self.shapedirs.len() {
             return Err(BodyError::field(
                 "shapedirs",
                 format!("[V, 3, S] = [{v}, 3, S]: a multiple of {} values", 3 * v),
@@ -173,7 +190,10 @@ impl BodyModel {
             if row.is_empty() {
                 return Err(BodyError::field(
                     "J_regressor",
-                    format!("at least one non-zero weight in row {k} ({})", JOINT_NAMES[k]),
+                    format!(
+                        "at least one non-zero weight in row {k} ({})",
+                        JOINT_NAMES[k]
+                    ),
                     "an empty row",
                 ));
             }
@@ -212,7 +232,11 @@ impl BodyModel {
             ));
         }
         for (k, &p) in self.parents.iter().enumerate() {
-            let ok = if k == 0 { p == -1 } else { p >= 0 && (p as usize) < k };
+            let ok = if k == 0 {
+                p == -1
+            } else {
+                p >= 0 && (p as usize) < k
+            };
             if !ok {
                 return Err(BodyError::field(
                     "kintree_table",
@@ -305,7 +329,7 @@ impl BodyModel {
     /// [V,3,S]`, `posedirs [V,3,207]`, `J_regressor [24,V]`, `weights [V,24]`, `kintree_table
     /// [2,24]` and `f [F,3]` (other keys are ignored). Values may be numpy arrays, chumpy `Ch`
     /// objects or (for `J_regressor`) a scipy sparse matrix, whatever
-    /// [`formats::dense_array`] decodes. `path` names the source in errors.
+    /// [`formats::dense_array_checked`] decodes. `path` names the source in errors.
     pub fn from_dict(dict: &PyValue, path: &Path) -> Result<Self, BodyError> {
         if !matches!(dict, PyValue::Dict(_)) {
             return Err(BodyError::Field {
@@ -327,7 +351,12 @@ impl BodyModel {
             .collect();
 
         let shapedirs_arr = reader.array("shapedirs")?;
-        reader.expect_shape(&shapedirs_arr, "shapedirs", &[Some(v), Some(3), None], "[V, 3, S]")?;
+        reader.expect_shape(
+            &shapedirs_arr,
+            "shapedirs",
+            &[Some(v), Some(3), None],
+            "[V, 3, S]",
+        )?;
         let shapedirs = reader.floats(&shapedirs_arr, "shapedirs")?;
 
         let posedirs_arr = reader.array("posedirs")?;
@@ -445,13 +474,17 @@ impl BodyModel {
     }
 
     /// The model as SMPL's key set, ready for the npz writer, in [`SMPL_KEYS`] order:
-    /// `v_template` float64 `[V, 3]`, `shapedirs` float64 `[V, 3, S]`, `posedirs` float64
-    /// `[V, 3, 207]`, `J_regressor` float64 `[24, V]` (dense), `weights` float64 `[V, 24]`,
+    /// `v_template` float32 `[V, 3]`, `shapedirs` float32 `[V, 3, S]`, `posedirs` float32
+    /// `[V, 3, 207]`, `J_regressor` float64 `[24, V]` (dense), `weights` float32 `[V, 24]`,
     /// `kintree_table` uint32 `[2, 24]` (parents, with [`KINTREE_ROOT`] = 4294967295 for the
-    /// root, over joint ids 0..23), `f` uint32 `[F, 3]`. Float dtypes follow SMPL's own files.
+    /// root, over joint ids 0..23), `f` uint32 `[F, 3]`.
+    ///
+    /// The per-vertex arrays are written in the model's own precision, float32 (SMPL's pickle
+    /// has float64, which would double `posedirs` to 8 bytes x 621 per vertex for no extra
+    /// information); readers of SMPL files accept either.
     pub fn to_arrays(&self) -> Vec<(String, NdArray)> {
         let v = self.num_vertices();
-        let f64s = |x: &[f32]| ArrayData::F64(x.iter().map(|&a| a as f64).collect());
+        let f32s = |x: &[f32]| ArrayData::F32(x.to_vec());
         let v_template: Vec<f32> = self.v_template.iter().flat_map(|p| p.to_array()).collect();
         let mut regressor = vec![0.0f64; NUM_JOINTS * v];
         for (k, row) in self.j_regressor.iter().enumerate().take(NUM_JOINTS) {
@@ -470,11 +503,11 @@ impl BodyModel {
         kintree.extend(0..self.parents.len() as u32);
         let faces: Vec<u32> = self.faces.iter().flatten().copied().collect();
         let arrays = [
-            NdArray::new(vec![v, 3], f64s(&v_template)),
-            NdArray::new(vec![v, 3, self.num_betas()], f64s(&self.shapedirs)),
-            NdArray::new(vec![v, 3, NUM_POSE_FEATURES], f64s(&self.posedirs)),
+            NdArray::new(vec![v, 3], ArrayData::F32(v_template)),
+            NdArray::new(vec![v, 3, self.num_betas()], f32s(&self.shapedirs)),
+            NdArray::new(vec![v, 3, NUM_POSE_FEATURES], f32s(&self.posedirs)),
             NdArray::new(vec![NUM_JOINTS, v], ArrayData::F64(regressor)),
-            NdArray::new(vec![v, NUM_JOINTS], f64s(&weights)),
+            NdArray::new(vec![v, NUM_JOINTS], ArrayData::F32(weights)),
             NdArray::new(vec![2, self.parents.len()], ArrayData::U32(kintree)),
             NdArray::new(vec![self.faces.len(), 3], ArrayData::U32(faces)),
         ];
@@ -529,11 +562,11 @@ impl DictReader<'_> {
             key: key.into(),
             present: self.dict.keys().join(", "),
         })?;
-        let array = formats::dense_array(value).ok_or_else(|| {
+        let array = formats::dense_array_checked(value).map_err(|reason| {
             self.err(
                 key,
                 "a numeric array (numpy array, chumpy Ch or scipy sparse matrix)",
-                value.type_name(),
+                format!("{} ({reason})", value.type_name()),
             )
         })?;
         if array.numel() != array.data.len() {
@@ -566,7 +599,10 @@ impl DictReader<'_> {
         pattern: &str,
     ) -> Result<(), BodyError> {
         let ok = a.shape.len() == want.len()
-            && a.shape.iter().zip(want).all(|(&d, w)| w.is_none_or(|w| w == d));
+            && a.shape
+                .iter()
+                .zip(want)
+                .all(|(&d, w)| w.is_none_or(|w| w == d));
         if ok {
             return Ok(());
         }
@@ -649,7 +685,14 @@ mod tests {
         }
         assert_eq!(arrays[3].1.shape, vec![NUM_JOINTS, 4]);
         let back = BodyModel::from_dict(&model.to_dict(), Path::new("mem.npz")).unwrap();
-        assert_eq!(back, model);
+        // Field by field, so a failure prints only the field that differs.
+        assert_eq!(back.v_template, model.v_template);
+        assert_eq!(back.shapedirs, model.shapedirs);
+        assert_eq!(back.posedirs, model.posedirs);
+        assert_eq!(back.j_regressor, model.j_regressor);
+        assert_eq!(back.weights, model.weights);
+        assert_eq!(back.parents, model.parents);
+        assert_eq!(back.faces, model.faces);
     }
 
     #[test]

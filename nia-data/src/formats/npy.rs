@@ -31,7 +31,11 @@ pub enum NpyError {
     #[error("unsupported .npy version {major}.{minor} (expected 1.0, 2.0 or 3.0)")]
     UnsupportedVersion { major: u8, minor: u8 },
     #[error("truncated .npy: {what} needs {expected} bytes, only {found} present")]
-    Truncated { what: &'static str, expected: usize, found: usize },
+    Truncated {
+        what: &'static str,
+        expected: usize,
+        found: usize,
+    },
     #[error("bad .npy header: {msg}")]
     Header { msg: String },
     #[error("unsupported dtype '{descr}': {reason}")]
@@ -40,7 +44,12 @@ pub enum NpyError {
         "data size mismatch: shape {shape:?} of dtype '{descr}' needs {expected} bytes, \
          file has {found}"
     )]
-    SizeMismatch { shape: Vec<usize>, descr: String, expected: usize, found: usize },
+    SizeMismatch {
+        shape: Vec<usize>,
+        descr: String,
+        expected: usize,
+        found: usize,
+    },
     #[error("object array payload: {0}")]
     Pickle(#[from] PickleError),
     #[error("object array payload: {msg}")]
@@ -105,18 +114,25 @@ impl Dtype {
             ('u', Some(s @ (1 | 2 | 4 | 8))) => (DtypeKind::UInt, s),
             ('f', Some(s @ (2 | 4 | 8))) => (DtypeKind::Float, s),
             ('O', None) | ('O', Some(8)) | ('O', Some(4)) => (DtypeKind::Object, 8),
-            ('U', Some(n)) => {
-                (DtypeKind::Unicode, n.checked_mul(4).ok_or("unicode width overflows")?)
-            }
-            ('U', None) => (DtypeKind::Unicode, 0),
-            ('S', Some(n)) | ('a', Some(n)) => (DtypeKind::Bytes, n),
-            ('S', None) | ('a', None) => (DtypeKind::Bytes, 0),
+            // Zero-width strings would let a tiny file claim any number of elements.
+            ('U', Some(n)) if n > 0 => (
+                DtypeKind::Unicode,
+                n.checked_mul(4).ok_or("unicode width overflows")?,
+            ),
+            ('S', Some(n)) | ('a', Some(n)) if n > 0 => (DtypeKind::Bytes, n),
+            ('U' | 'S' | 'a', _) => return Err("zero-width string dtype".into()),
             ('c' | 'M' | 'm' | 'V', _) => {
-                return Err(format!("kind '{kind_char}' (complex/datetime/void) is not supported"))
+                return Err(format!(
+                    "kind '{kind_char}' (complex/datetime/void) is not supported"
+                ))
             }
             _ => return Err(format!("unknown kind '{kind_char}' with size {size:?}")),
         };
-        Ok(Dtype { kind, itemsize, big_endian })
+        Ok(Dtype {
+            kind,
+            itemsize,
+            big_endian,
+        })
     }
 
     /// The dtype `write_array` uses for an element storage (native little-endian).
@@ -135,7 +151,11 @@ impl Dtype {
             ArrayData::Bool(_) => (DtypeKind::Bool, 1),
             ArrayData::Object(_) => (DtypeKind::Object, 8),
         };
-        Dtype { kind, itemsize, big_endian: false }
+        Dtype {
+            kind,
+            itemsize,
+            big_endian: false,
+        }
     }
 
     fn kind_char(&self) -> char {
@@ -160,7 +180,10 @@ impl Dtype {
     /// Byte-order character as numpy prints it (`|` where order does not apply).
     pub fn order_char(&self) -> char {
         let single_byte = self.itemsize <= 1
-            || matches!(self.kind, DtypeKind::Object | DtypeKind::Bytes | DtypeKind::Bool);
+            || matches!(
+                self.kind,
+                DtypeKind::Object | DtypeKind::Bytes | DtypeKind::Bool
+            );
         if single_byte {
             '|'
         } else if self.big_endian {
@@ -174,7 +197,12 @@ impl Dtype {
     pub fn descr(&self) -> String {
         match self.kind {
             DtypeKind::Object => "|O".into(),
-            _ => format!("{}{}{}", self.order_char(), self.kind_char(), self.size_number()),
+            _ => format!(
+                "{}{}{}",
+                self.order_char(),
+                self.kind_char(),
+                self.size_number()
+            ),
         }
     }
 
@@ -238,7 +266,11 @@ impl Dtype {
                     let mut s = String::new();
                     for c in cell.chunks_exact(4) {
                         let b = [c[0], c[1], c[2], c[3]];
-                        let cp = if be { u32::from_be_bytes(b) } else { u32::from_le_bytes(b) };
+                        let cp = if be {
+                            u32::from_be_bytes(b)
+                        } else {
+                            u32::from_le_bytes(b)
+                        };
                         if cp == 0 {
                             break;
                         }
@@ -260,7 +292,9 @@ impl Dtype {
                 ArrayData::Object(out)
             }
             (kind, size) => {
-                return Err(format!("cannot decode raw bytes of kind {kind:?} size {size}"))
+                return Err(format!(
+                    "cannot decode raw bytes of kind {kind:?} size {size}"
+                ))
             }
         })
     }
@@ -313,9 +347,10 @@ pub fn encode_le(data: &ArrayData) -> Result<Vec<u8>, String> {
 }
 
 /// Reorder Fortran-ordered (column-major) elements into C order for `shape`.
-/// `data.len()` must equal the product of `shape`.
+/// If `data.len()` is not the product of `shape` the data is returned unchanged (callers
+/// validate sizes first).
 pub fn fortran_to_c<T: Clone>(data: &[T], shape: &[usize]) -> Vec<T> {
-    if shape.len() < 2 || data.is_empty() {
+    if shape.len() < 2 || data.is_empty() || checked_numel(shape) != Some(data.len()) {
         return data.to_vec();
     }
     // Fortran strides (in elements): stride[0] = 1, stride[k] = stride[k-1] * shape[k-1].
@@ -386,12 +421,18 @@ pub struct NpyHeader {
 pub fn parse_header(bytes: &[u8]) -> Result<NpyHeader, NpyError> {
     let found_magic = bytes.get(..MAGIC.len()).unwrap_or(bytes);
     if found_magic != MAGIC {
-        return Err(NpyError::BadMagic { found: found_magic.to_vec() });
+        return Err(NpyError::BadMagic {
+            found: found_magic.to_vec(),
+        });
     }
     let (major, minor) = match bytes.get(6..8) {
         Some(v) => (v[0], v[1]),
         None => {
-            return Err(NpyError::Truncated { what: "version", expected: 8, found: bytes.len() })
+            return Err(NpyError::Truncated {
+                what: "version",
+                expected: 8,
+                found: bytes.len(),
+            })
         }
     };
     let (len_bytes, utf8) = match (major, minor) {
@@ -419,12 +460,18 @@ pub fn parse_header(bytes: &[u8]) -> Result<NpyHeader, NpyError> {
     })?;
     let text: String = if utf8 {
         std::str::from_utf8(raw)
-            .map_err(|e| NpyError::Header { msg: format!("header is not UTF-8: {e}") })?
+            .map_err(|e| NpyError::Header {
+                msg: format!("header is not UTF-8: {e}"),
+            })?
             .to_string()
     } else {
         raw.iter().map(|&b| b as char).collect() // latin-1
     };
-    let dict = HeaderParser { s: text.as_bytes(), pos: 0 }.parse_all()?;
+    let dict = HeaderParser {
+        s: text.as_bytes(),
+        pos: 0,
+    }
+    .parse_all()?;
     let field = |key: &str| {
         dict.get(key).ok_or_else(|| NpyError::Header {
             msg: format!("missing key '{key}' (expected 'descr', 'fortran_order', 'shape')"),
@@ -443,7 +490,10 @@ pub fn parse_header(bytes: &[u8]) -> Result<NpyHeader, NpyError> {
         PyValue::Bool(b) => *b,
         other => {
             return Err(NpyError::Header {
-                msg: format!("'fortran_order' must be True or False, found {}", other.type_name()),
+                msg: format!(
+                    "'fortran_order' must be True or False, found {}",
+                    other.type_name()
+                ),
             })
         }
     };
@@ -464,7 +514,13 @@ pub fn parse_header(bytes: &[u8]) -> Result<NpyHeader, NpyError> {
             })
         }
     };
-    Ok(NpyHeader { version: (major, minor), descr, fortran_order, shape, data_offset })
+    Ok(NpyHeader {
+        version: (major, minor),
+        descr,
+        fortran_order,
+        shape,
+        data_offset,
+    })
 }
 
 /// Decode a whole `.npy` byte stream into an array (C order). Object arrays are decoded with
@@ -482,9 +538,11 @@ pub fn read_bytes(bytes: &[u8]) -> Result<NdArray, NpyError> {
     if dtype.kind == DtypeKind::Object {
         return read_object_payload(payload, &header.shape);
     }
-    let expected = numel.checked_mul(dtype.itemsize).ok_or_else(|| NpyError::Header {
-        msg: format!("shape {:?} overflows", header.shape),
-    })?;
+    let expected = numel
+        .checked_mul(dtype.itemsize)
+        .ok_or_else(|| NpyError::Header {
+            msg: format!("shape {:?} overflows", header.shape),
+        })?;
     if payload.len() != expected {
         return Err(NpyError::SizeMismatch {
             shape: header.shape,
@@ -493,9 +551,14 @@ pub fn read_bytes(bytes: &[u8]) -> Result<NdArray, NpyError> {
             found: payload.len(),
         });
     }
-    let data = dtype.decode(payload, numel).map_err(|msg| NpyError::Header { msg })?;
-    let data =
-        if header.fortran_order { array_data_fortran_to_c(data, &header.shape) } else { data };
+    let data = dtype
+        .decode(payload, numel)
+        .map_err(|msg| NpyError::Header { msg })?;
+    let data = if header.fortran_order {
+        array_data_fortran_to_c(data, &header.shape)
+    } else {
+        data
+    };
     Ok(NdArray::new(header.shape, data))
 }
 
@@ -503,21 +566,31 @@ fn read_object_payload(payload: &[u8], shape: &[usize]) -> Result<NdArray, NpyEr
     match read_pickle(payload)? {
         PyValue::Array(a) if a.shape.as_slice() == shape => Ok(a),
         PyValue::Array(a) => Err(NpyError::ObjectPayload {
-            msg: format!("header shape {shape:?} but the pickled array has shape {:?}", a.shape),
+            msg: format!(
+                "header shape {shape:?} but the pickled array has shape {:?}",
+                a.shape
+            ),
         }),
-        other if shape.is_empty() => {
-            Ok(NdArray::new(Vec::new(), ArrayData::Object(vec![other])))
-        }
+        other if shape.is_empty() => Ok(NdArray::new(Vec::new(), ArrayData::Object(vec![other]))),
         other => Err(NpyError::ObjectPayload {
-            msg: format!("expected a pickled ndarray of shape {shape:?}, found {}", other.type_name()),
+            msg: format!(
+                "expected a pickled ndarray of shape {shape:?}, found {}",
+                other.type_name()
+            ),
         }),
     }
 }
 
 /// Read a `.npy` file.
 pub fn read(path: &Path) -> Result<NdArray, FormatError> {
-    let bytes = std::fs::read(path).map_err(|source| FormatError::Io { path: path.into(), source })?;
-    read_bytes(&bytes).map_err(|source| FormatError::Npy { path: path.into(), source })
+    let bytes = std::fs::read(path).map_err(|source| FormatError::Io {
+        path: path.into(),
+        source,
+    })?;
+    read_bytes(&bytes).map_err(|source| FormatError::Npy {
+        path: path.into(),
+        source,
+    })
 }
 
 /// Minimal parser for the Python literal subset of `.npy` headers: dicts, tuples, lists,
@@ -529,11 +602,17 @@ struct HeaderParser<'a> {
 
 impl HeaderParser<'_> {
     fn err(&self, what: &str) -> NpyError {
-        NpyError::Header { msg: format!("{what} at header byte {}", self.pos) }
+        NpyError::Header {
+            msg: format!("{what} at header byte {}", self.pos),
+        }
     }
 
     fn skip_ws(&mut self) {
-        while self.s.get(self.pos).is_some_and(|b| b.is_ascii_whitespace()) {
+        while self
+            .s
+            .get(self.pos)
+            .is_some_and(|b| b.is_ascii_whitespace())
+        {
             self.pos += 1;
         }
     }
@@ -558,7 +637,9 @@ impl HeaderParser<'_> {
             return Err(self.err("trailing characters after the header dict"));
         }
         if !matches!(v, PyValue::Dict(_)) {
-            return Err(NpyError::Header { msg: format!("expected a dict, found {}", v.type_name()) });
+            return Err(NpyError::Header {
+                msg: format!("expected a dict, found {}", v.type_name()),
+            });
         }
         Ok(v)
     }
@@ -631,7 +712,10 @@ impl HeaderParser<'_> {
                     }
                     self.pos += 1;
                 }
-                let body = self.s.get(start..self.pos).ok_or_else(|| self.err("bad string"))?;
+                let body = self
+                    .s
+                    .get(start..self.pos)
+                    .ok_or_else(|| self.err("bad string"))?;
                 if self.s.get(self.pos) != Some(&q) {
                     return Err(self.err("unterminated string"));
                 }
@@ -649,11 +733,17 @@ impl HeaderParser<'_> {
                 if self.s.get(self.pos) == Some(&b'L') {
                     self.pos += 1;
                 }
-                text.parse::<i64>().map(PyValue::Int).map_err(|_| self.err("bad integer"))
+                text.parse::<i64>()
+                    .map(PyValue::Int)
+                    .map_err(|_| self.err("bad integer"))
             }
             Some(c) if c.is_ascii_alphabetic() => {
                 let start = self.pos;
-                while self.s.get(self.pos).is_some_and(|b| b.is_ascii_alphanumeric()) {
+                while self
+                    .s
+                    .get(self.pos)
+                    .is_some_and(|b| b.is_ascii_alphanumeric())
+                {
                     self.pos += 1;
                 }
                 match &self.s[start..self.pos] {
@@ -750,21 +840,29 @@ pub fn to_bytes(array: &NdArray) -> Result<Vec<u8>, NpyError> {
 pub fn object_to_bytes(value: &PyValue) -> Result<Vec<u8>, NpyError> {
     match value {
         PyValue::Array(a) => to_bytes(a),
-        other => to_bytes(&NdArray::new(Vec::new(), ArrayData::Object(vec![other.clone()]))),
+        other => to_bytes(&NdArray::new(
+            Vec::new(),
+            ArrayData::Object(vec![other.clone()]),
+        )),
     }
 }
 
 /// Write an array as `.npy` (atomically: a temporary file in the same directory, then rename).
 pub fn write_array(path: &Path, array: &NdArray) -> Result<(), FormatError> {
-    let bytes = to_bytes(array).map_err(|source| FormatError::Npy { path: path.into(), source })?;
+    let bytes = to_bytes(array).map_err(|source| FormatError::Npy {
+        path: path.into(),
+        source,
+    })?;
     write_atomic(path, &bytes)
 }
 
 /// Write a Python value as `np.save(path, value, allow_pickle=True)` does (see
 /// [`object_to_bytes`]); atomic like [`write_array`].
 pub fn write_object(path: &Path, value: &PyValue) -> Result<(), FormatError> {
-    let bytes =
-        object_to_bytes(value).map_err(|source| FormatError::Npy { path: path.into(), source })?;
+    let bytes = object_to_bytes(value).map_err(|source| FormatError::Npy {
+        path: path.into(),
+        source,
+    })?;
     write_atomic(path, &bytes)
 }
 

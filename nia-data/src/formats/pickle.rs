@@ -11,6 +11,7 @@
 //! anything is allocated, integer arithmetic is checked, the materialised tree is limited in
 //! depth ([`MAX_DEPTH`]) and in the total size that aliasing may copy ([`ALIAS_COPY_BUDGET_MIN`]).
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 
 use super::npy::{array_data_fortran_to_c, checked_numel, Dtype, DtypeKind};
@@ -33,13 +34,26 @@ pub const HIGHEST_PROTOCOL: u8 = 5;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PickleError {
     #[error("pickle truncated at byte {offset}: {what} needs {needed} bytes, {available} left")]
-    Truncated { offset: usize, what: &'static str, needed: usize, available: usize },
+    Truncated {
+        offset: usize,
+        what: &'static str,
+        needed: usize,
+        available: usize,
+    },
     #[error("unknown pickle opcode 0x{opcode:02x} at byte {offset}")]
     UnknownOpcode { offset: usize, opcode: u8 },
     #[error("pickle opcode {op} at byte {offset} is not supported: {reason}")]
-    Unsupported { offset: usize, op: &'static str, reason: String },
+    Unsupported {
+        offset: usize,
+        op: &'static str,
+        reason: String,
+    },
     #[error("pickle opcode {op} at byte {offset}: {msg}")]
-    Invalid { offset: usize, op: &'static str, msg: String },
+    Invalid {
+        offset: usize,
+        op: &'static str,
+        msg: String,
+    },
     #[error("pickle ended after {len} bytes without a STOP opcode")]
     NoStop { len: usize },
     #[error("pickle exceeds a safety limit: {msg}")]
@@ -56,7 +70,10 @@ enum ArrayNode {
     Pending,
     Numeric(NdArray),
     /// dtype `object`: element node ids in C order.
-    Objects { shape: Vec<usize>, items: Vec<Id> },
+    Objects {
+        shape: Vec<usize>,
+        items: Vec<Id>,
+    },
 }
 
 /// A decoded object in the arena.
@@ -71,12 +88,25 @@ enum Node {
     List(Vec<Id>),
     Tuple(Vec<Id>),
     Dict(Vec<(Id, Id)>),
-    Set { frozen: bool, items: Vec<Id> },
-    Global { module: String, name: String },
+    Set {
+        frozen: bool,
+        items: Vec<Id>,
+    },
+    Global {
+        module: String,
+        name: String,
+    },
     /// `numpy.dtype(typestr, align, copy)`; `order` is set by its `BUILD` state.
-    Dtype { typestr: String, order: Option<char> },
+    Dtype {
+        typestr: String,
+        order: Option<char>,
+    },
     Array(ArrayNode),
-    Object { class: String, args: Vec<Id>, state: Option<Id> },
+    Object {
+        class: String,
+        args: Vec<Id>,
+        state: Option<Id>,
+    },
     /// Placeholder left behind once a node's content has been moved into the output tree.
     Taken,
 }
@@ -132,8 +162,8 @@ pub fn read_pickle(bytes: &[u8]) -> std::result::Result<PyValue, PickleError> {
         memo: HashMap::new(),
     };
     let root = m.run()?;
-    let budget = ALIAS_COPY_BUDGET_MIN
-        .max(ALIAS_COPY_BUDGET_FACTOR.saturating_mul(bytes.len() as u64));
+    let budget =
+        ALIAS_COPY_BUDGET_MIN.max(ALIAS_COPY_BUDGET_FACTOR.saturating_mul(bytes.len() as u64));
     Materialiser::new(m.nodes, root, budget).value(root, 0)
 }
 
@@ -153,11 +183,19 @@ impl<'a> Machine<'a> {
     // --- errors -------------------------------------------------------------------------------
 
     fn invalid(&self, msg: impl Into<String>) -> PickleError {
-        PickleError::Invalid { offset: self.op_start, op: self.op, msg: msg.into() }
+        PickleError::Invalid {
+            offset: self.op_start,
+            op: self.op,
+            msg: msg.into(),
+        }
     }
 
     fn unsupported(&self, reason: impl Into<String>) -> PickleError {
-        PickleError::Unsupported { offset: self.op_start, op: self.op, reason: reason.into() }
+        PickleError::Unsupported {
+            offset: self.op_start,
+            op: self.op,
+            reason: reason.into(),
+        }
     }
 
     // --- input --------------------------------------------------------------------------------
@@ -165,7 +203,12 @@ impl<'a> Machine<'a> {
     fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8]> {
         let available = self.input.len().saturating_sub(self.pos);
         if n > available {
-            return Err(PickleError::Truncated { offset: self.op_start, what, needed: n, available });
+            return Err(PickleError::Truncated {
+                offset: self.op_start,
+                what,
+                needed: n,
+                available,
+            });
         }
         let s = &self.input[self.pos..self.pos + n];
         self.pos += n;
@@ -233,7 +276,9 @@ impl<'a> Machine<'a> {
         if self.stack.len() <= floor {
             return Err(self.invalid("stack underflow"));
         }
-        self.stack.pop().ok_or_else(|| self.invalid("stack underflow"))
+        self.stack
+            .pop()
+            .ok_or_else(|| self.invalid("stack underflow"))
     }
 
     fn top(&self) -> Result<Id> {
@@ -241,12 +286,18 @@ impl<'a> Machine<'a> {
         if self.stack.len() <= floor {
             return Err(self.invalid("empty stack"));
         }
-        self.stack.last().copied().ok_or_else(|| self.invalid("empty stack"))
+        self.stack
+            .last()
+            .copied()
+            .ok_or_else(|| self.invalid("empty stack"))
     }
 
     /// Items pushed since the last MARK (the mark is removed).
     fn pop_mark(&mut self) -> Result<Vec<Id>> {
-        let mark = self.marks.pop().ok_or_else(|| self.invalid("no MARK on the stack"))?;
+        let mark = self
+            .marks
+            .pop()
+            .ok_or_else(|| self.invalid("no MARK on the stack"))?;
         if mark > self.stack.len() {
             return Err(self.invalid("MARK above the stack"));
         }
@@ -254,7 +305,9 @@ impl<'a> Machine<'a> {
     }
 
     fn node(&self, id: Id) -> Result<&Node> {
-        self.nodes.get(id).ok_or_else(|| self.invalid("dangling reference"))
+        self.nodes
+            .get(id)
+            .ok_or_else(|| self.invalid("dangling reference"))
     }
 
     fn node_mut(&mut self, id: Id) -> Result<&mut Node> {
@@ -269,7 +322,10 @@ impl<'a> Machine<'a> {
     }
 
     fn get(&mut self, index: u64) -> Result<()> {
-        let id = *self.memo.get(&index).ok_or_else(|| self.invalid(format!("memo {index} unset")))?;
+        let id = *self
+            .memo
+            .get(&index)
+            .ok_or_else(|| self.invalid(format!("memo {index} unset")))?;
         self.stack.push(id);
         Ok(())
     }
@@ -278,7 +334,9 @@ impl<'a> Machine<'a> {
         match self.node(id)? {
             Node::Str(s) => Ok(s.clone()),
             Node::Bytes(b) => Ok(String::from_utf8_lossy(b).into_owned()),
-            other => Err(self.invalid(format!("{what} must be a str, found {}", other.type_name()))),
+            other => {
+                Err(self.invalid(format!("{what} must be a str, found {}", other.type_name())))
+            }
         }
     }
 
@@ -286,16 +344,20 @@ impl<'a> Machine<'a> {
         match self.node(id)? {
             Node::Int(n) => Ok(*n),
             Node::Bool(b) => Ok(*b as i64),
-            other => Err(self.invalid(format!("{what} must be an int, found {}", other.type_name()))),
+            other => Err(self.invalid(format!(
+                "{what} must be an int, found {}",
+                other.type_name()
+            ))),
         }
     }
 
     fn seq_of(&self, id: Id, what: &str) -> Result<Vec<Id>> {
         match self.node(id)? {
             Node::Tuple(v) | Node::List(v) => Ok(v.clone()),
-            other => {
-                Err(self.invalid(format!("{what} must be a tuple, found {}", other.type_name())))
-            }
+            other => Err(self.invalid(format!(
+                "{what} must be a tuple, found {}",
+                other.type_name()
+            ))),
         }
     }
 
@@ -312,7 +374,9 @@ impl<'a> Machine<'a> {
         loop {
             self.op_start = self.pos;
             let Some(&code) = self.input.get(self.pos) else {
-                return Err(PickleError::NoStop { len: self.input.len() });
+                return Err(PickleError::NoStop {
+                    len: self.input.len(),
+                });
             };
             self.pos += 1;
             self.op = opcode_name(code);
@@ -402,8 +466,10 @@ impl<'a> Machine<'a> {
                 }
                 b'F' => {
                     let text = self.line_str("FLOAT text")?;
-                    let v: f64 =
-                        text.trim().parse().map_err(|_| self.invalid(format!("bad float {text:?}")))?;
+                    let v: f64 = text
+                        .trim()
+                        .parse()
+                        .map_err(|_| self.invalid(format!("bad float {text:?}")))?;
                     self.push_node(Node::Float(v));
                 }
                 // Strings and bytes.
@@ -457,11 +523,15 @@ impl<'a> Machine<'a> {
                     self.push_node(Node::Tuple(Vec::new()));
                 }
                 0x8f => {
-                    self.push_node(Node::Set { frozen: false, items: Vec::new() });
+                    self.push_node(Node::Set {
+                        frozen: false,
+                        items: Vec::new(),
+                    });
                 }
                 b'd' => {
                     let items = self.pop_mark()?;
-                    let pairs = pairs_of(&items).ok_or_else(|| self.invalid("odd number of items"))?;
+                    let pairs =
+                        pairs_of(&items).ok_or_else(|| self.invalid("odd number of items"))?;
                     self.push_node(Node::Dict(pairs));
                 }
                 b'l' => {
@@ -474,7 +544,10 @@ impl<'a> Machine<'a> {
                 }
                 0x91 => {
                     let items = self.pop_mark()?;
-                    self.push_node(Node::Set { frozen: true, items });
+                    self.push_node(Node::Set {
+                        frozen: true,
+                        items,
+                    });
                 }
                 0x85..=0x87 => {
                     let n = (code - 0x84) as usize;
@@ -503,7 +576,8 @@ impl<'a> Machine<'a> {
                 }
                 b'u' => {
                     let items = self.pop_mark()?;
-                    let pairs = pairs_of(&items).ok_or_else(|| self.invalid("odd number of items"))?;
+                    let pairs =
+                        pairs_of(&items).ok_or_else(|| self.invalid("odd number of items"))?;
                     let d = self.top()?;
                     self.extend_dict(d, pairs)?;
                 }
@@ -533,7 +607,10 @@ impl<'a> Machine<'a> {
                 }
                 b'p' => {
                     let t = self.line_str("PUT index")?;
-                    let i = t.trim().parse::<u64>().map_err(|_| self.invalid("bad memo index"))?;
+                    let i = t
+                        .trim()
+                        .parse::<u64>()
+                        .map_err(|_| self.invalid("bad memo index"))?;
                     self.put(i)?;
                 }
                 b'h' => {
@@ -546,7 +623,10 @@ impl<'a> Machine<'a> {
                 }
                 b'g' => {
                     let t = self.line_str("GET index")?;
-                    let i = t.trim().parse::<u64>().map_err(|_| self.invalid("bad memo index"))?;
+                    let i = t
+                        .trim()
+                        .parse::<u64>()
+                        .map_err(|_| self.invalid("bad memo index"))?;
                     self.get(i)?;
                 }
                 // Globals and objects.
@@ -592,18 +672,29 @@ impl<'a> Machine<'a> {
                 b'P' | b'Q' => {
                     return Err(self.unsupported("persistent ids need an external object store"))
                 }
-                0x82..=0x84 => return Err(self.unsupported("the extension registry is not available")),
-                0x97 | 0x98 => return Err(self.unsupported("out-of-band buffers are not available")),
+                0x82..=0x84 => {
+                    return Err(self.unsupported("the extension registry is not available"))
+                }
+                0x97 | 0x98 => {
+                    return Err(self.unsupported("out-of-band buffers are not available"))
+                }
                 b'S' | b'V' | b'i' | b'o' => {
                     return Err(self.unsupported("protocol-0 text strings and instances"))
                 }
-                _ => return Err(PickleError::UnknownOpcode { offset: self.op_start, opcode: code }),
+                _ => {
+                    return Err(PickleError::UnknownOpcode {
+                        offset: self.op_start,
+                        opcode: code,
+                    })
+                }
             }
         }
     }
 
     fn parse_text_int(&self, t: &str) -> Result<i64> {
-        t.trim().parse::<i64>().map_err(|_| self.invalid(format!("bad or out-of-range integer {t:?}")))
+        t.trim()
+            .parse::<i64>()
+            .map_err(|_| self.invalid(format!("bad or out-of-range integer {t:?}")))
     }
 
     /// Little-endian two's complement integer (LONG1/LONG4) that must fit in an i64.
@@ -657,10 +748,17 @@ impl<'a> Machine<'a> {
         let class = self.class_of(cls)?;
         Ok(match class.as_str() {
             "collections.OrderedDict" | "collections.defaultdict" => Node::Dict(Vec::new()),
-            "builtins.set" | "__builtin__.set" => Node::Set { frozen: false, items: Vec::new() },
+            "builtins.set" | "__builtin__.set" => Node::Set {
+                frozen: false,
+                items: Vec::new(),
+            },
             "builtins.list" | "__builtin__.list" => Node::List(Vec::new()),
             "builtins.dict" | "__builtin__.dict" => Node::Dict(Vec::new()),
-            _ => Node::Object { class, args, state: None },
+            _ => Node::Object {
+                class,
+                args,
+                state: None,
+            },
         })
     }
 
@@ -676,7 +774,10 @@ impl<'a> Machine<'a> {
         };
         let arg = |i: usize| -> Result<Id> {
             args.get(i).copied().ok_or_else(|| {
-                self.invalid(format!("{module}.{name} needs argument {i}, got {}", args.len()))
+                self.invalid(format!(
+                    "{module}.{name} needs argument {i}, got {}",
+                    args.len()
+                ))
             })
         };
         match (module, name) {
@@ -685,7 +786,10 @@ impl<'a> Machine<'a> {
             }
             ("numpy", "dtype") => {
                 let typestr = self.str_of(arg(0)?, "dtype type string")?;
-                Ok(Node::Dtype { typestr, order: None })
+                Ok(Node::Dtype {
+                    typestr,
+                    order: None,
+                })
             }
             ("numpy.core.multiarray" | "numpy._core.multiarray", "scalar") => {
                 self.numpy_scalar(arg(0)?, args.get(1).copied())
@@ -709,7 +813,7 @@ impl<'a> Machine<'a> {
             }
             ("builtins" | "__builtin__", "bytes" | "bytearray") => match args.as_slice() {
                 [] => Ok(Node::Bytes(Vec::new())),
-                [b] => Ok(Node::Bytes(self.raw_bytes_of(*b)?)),
+                [b] => Ok(Node::Bytes(self.raw_bytes_of(*b)?.into_owned())),
                 [s, e, ..] => {
                     let s = self.str_of(*s, "bytes text")?;
                     let e = self.str_of(*e, "bytes encoding")?;
@@ -721,7 +825,10 @@ impl<'a> Machine<'a> {
                     Some(&a) => self.seq_of(a, "set items")?,
                     None => Vec::new(),
                 };
-                Ok(Node::Set { frozen: name == "frozenset", items })
+                Ok(Node::Set {
+                    frozen: name == "frozenset",
+                    items,
+                })
             }
             ("collections", "OrderedDict") => {
                 // OrderedDict(()) or OrderedDict([[k, v], ...]); items usually follow as SETITEMS.
@@ -740,13 +847,25 @@ impl<'a> Machine<'a> {
             ("copy_reg" | "copyreg", "_reconstructor") => {
                 // Python 2 / protocol <2 object: _reconstructor(cls, base, base_state).
                 let class = self.class_of(arg(0)?)?;
-                Ok(Node::Object { class, args: Vec::new(), state: None })
+                Ok(Node::Object {
+                    class,
+                    args: Vec::new(),
+                    state: None,
+                })
             }
             ("copy_reg" | "copyreg", "__newobj__") => {
                 let class = self.class_of(arg(0)?)?;
-                Ok(Node::Object { class, args: args.get(1..).unwrap_or(&[]).to_vec(), state: None })
+                Ok(Node::Object {
+                    class,
+                    args: args.get(1..).unwrap_or(&[]).to_vec(),
+                    state: None,
+                })
             }
-            _ => Ok(Node::Object { class: format!("{module}.{name}"), args, state: None }),
+            _ => Ok(Node::Object {
+                class: format!("{module}.{name}"),
+                args,
+                state: None,
+            }),
         }
     }
 
@@ -772,7 +891,10 @@ impl<'a> Machine<'a> {
                 };
                 Dtype::parse(&full).map_err(|e| self.unsupported(format!("dtype '{full}': {e}")))
             }
-            other => Err(self.invalid(format!("expected a numpy.dtype, found {}", other.type_name()))),
+            other => Err(self.invalid(format!(
+                "expected a numpy.dtype, found {}",
+                other.type_name()
+            ))),
         }
     }
 
@@ -786,20 +908,33 @@ impl<'a> Machine<'a> {
             .collect()
     }
 
-    fn raw_bytes_of(&self, id: Id) -> Result<Vec<u8>> {
+    /// Raw bytes of a bytes node (borrowed: array payloads can be tens of megabytes).
+    fn raw_bytes_of(&self, id: Id) -> Result<Cow<'_, [u8]>> {
         match self.node(id)? {
-            Node::Bytes(b) => Ok(b.clone()),
+            Node::Bytes(b) => Ok(Cow::Borrowed(b)),
             // A Python 2 str read as unicode: numpy's latin-1 convention.
-            Node::Str(s) => self.encode_text(s, "latin1"),
+            Node::Str(s) => self.encode_text(s, "latin1").map(Cow::Owned),
             other => Err(self.invalid(format!("expected raw bytes, found {}", other.type_name()))),
         }
     }
 
-    fn numeric_array(&self, dtype: &Dtype, shape: Vec<usize>, fortran: bool, raw: &[u8]) -> Result<NdArray> {
+    fn numeric_array(
+        &self,
+        dtype: &Dtype,
+        shape: Vec<usize>,
+        fortran: bool,
+        raw: &[u8],
+    ) -> Result<NdArray> {
         let numel = checked_numel(&shape)
             .ok_or_else(|| self.invalid(format!("shape {shape:?} overflows")))?;
-        let data = dtype.decode(raw, numel).map_err(|e| self.invalid(format!("array data: {e}")))?;
-        let data = if fortran { array_data_fortran_to_c(data, &shape) } else { data };
+        let data = dtype
+            .decode(raw, numel)
+            .map_err(|e| self.invalid(format!("array data: {e}")))?;
+        let data = if fortran {
+            array_data_fortran_to_c(data, &shape)
+        } else {
+            data
+        };
         Ok(NdArray::new(shape, data))
     }
 
@@ -812,7 +947,9 @@ impl<'a> Machine<'a> {
             return self.shallow_copy(payload);
         }
         let raw = self.raw_bytes_of(payload)?;
-        let data = dtype.decode(&raw, 1).map_err(|e| self.invalid(format!("numpy scalar: {e}")))?;
+        let data = dtype
+            .decode(&raw, 1)
+            .map_err(|e| self.invalid(format!("numpy scalar: {e}")))?;
         Ok(match data {
             ArrayData::Bool(v) => Node::Bool(v.first().copied().unwrap_or(false)),
             ArrayData::F32(v) => Node::Float(v.first().copied().unwrap_or(0.0) as f64),
@@ -848,7 +985,9 @@ impl<'a> Machine<'a> {
             Node::Tuple(v) => Node::Tuple(v.clone()),
             Node::Dict(v) => Node::Dict(v.clone()),
             other => {
-                return Err(self.unsupported(format!("object numpy scalar of {}", other.type_name())))
+                return Err(
+                    self.unsupported(format!("object numpy scalar of {}", other.type_name()))
+                )
             }
         })
     }
@@ -864,7 +1003,9 @@ impl<'a> Machine<'a> {
             Node::Dtype { .. } => {
                 // State (version, byteorder, subarray, names, fields, elsize, alignment, flags).
                 let items = self.seq_of(state, "dtype state")?;
-                let order_id = *items.get(1).ok_or_else(|| self.invalid("dtype state too short"))?;
+                let order_id = *items
+                    .get(1)
+                    .ok_or_else(|| self.invalid("dtype state too short"))?;
                 let order = self.str_of(order_id, "dtype byte order")?;
                 let c = match order.as_str() {
                     "<" | ">" | "|" | "=" => order.chars().next(),
@@ -882,11 +1023,14 @@ impl<'a> Machine<'a> {
                 Ok(())
             }
             // OrderedDict/defaultdict instance attributes: nothing we keep.
-            Node::Dict(_) | Node::List(_) | Node::Set { .. } => match self.node(state)? {
-                Node::None => Ok(()),
-                Node::Dict(v) if v.is_empty() => Ok(()),
-                other => Err(self.unsupported(format!("BUILD state {} on a container", other.type_name()))),
-            },
+            Node::Dict(_) | Node::List(_) | Node::Set { .. } => {
+                match self.node(state)? {
+                    Node::None => Ok(()),
+                    Node::Dict(v) if v.is_empty() => Ok(()),
+                    other => Err(self
+                        .unsupported(format!("BUILD state {} on a container", other.type_name()))),
+                }
+            }
             other => Err(self.invalid(format!("BUILD on a {}", other.type_name()))),
         }
     }
@@ -919,16 +1063,22 @@ impl<'a> Machine<'a> {
                     items.len()
                 )));
             }
-            let items = if fortran { super::npy::fortran_to_c(&items, &shape) } else { items };
+            let items = if fortran {
+                super::npy::fortran_to_c(&items, &shape)
+            } else {
+                items
+            };
             return Ok(ArrayNode::Objects { shape, items });
         }
         let raw = self.raw_bytes_of(raw_id)?;
-        Ok(ArrayNode::Numeric(self.numeric_array(&dtype, shape, fortran, &raw)?))
+        Ok(ArrayNode::Numeric(
+            self.numeric_array(&dtype, shape, fortran, &raw)?,
+        ))
     }
 }
 
 fn pairs_of(items: &[Id]) -> Option<Vec<(Id, Id)>> {
-    if items.len() % 2 != 0 {
+    if items.len() % 2 == 1 {
         return None;
     }
     Some(items.chunks_exact(2).map(|c| (c[0], c[1])).collect())
@@ -960,7 +1110,14 @@ impl Materialiser {
             *r = r.saturating_add(1);
         }
         let visiting = vec![false; nodes.len()];
-        Self { nodes, remaining, cache: HashMap::new(), visiting, copied: 0, budget }
+        Self {
+            nodes,
+            remaining,
+            cache: HashMap::new(),
+            visiting,
+            copied: 0,
+            budget,
+        }
     }
 
     fn limit(msg: impl Into<String>) -> PickleError {
@@ -974,9 +1131,14 @@ impl Materialiser {
     /// The value of node `id` and its approximate size in bytes (for the copy budget).
     fn value_with_cost(&mut self, id: Id, depth: usize) -> Result<(PyValue, u64)> {
         if depth > MAX_DEPTH {
-            return Err(Self::limit(format!("containers nest deeper than {MAX_DEPTH} levels")));
+            return Err(Self::limit(format!(
+                "containers nest deeper than {MAX_DEPTH} levels"
+            )));
         }
-        let remaining = self.remaining.get_mut(id).ok_or_else(|| Self::limit("dangling node"))?;
+        let remaining = self
+            .remaining
+            .get_mut(id)
+            .ok_or_else(|| Self::limit("dangling node"))?;
         *remaining = remaining.saturating_sub(1);
         let last_use = *remaining == 0;
         if let Some((_, cost)) = self.cache.get(&id) {
@@ -998,7 +1160,11 @@ impl Materialiser {
         }
         match self.visiting.get(id) {
             Some(false) => {}
-            _ => return Err(Self::limit("recursive (self-referencing) structures are not supported")),
+            _ => {
+                return Err(Self::limit(
+                    "recursive (self-referencing) structures are not supported",
+                ))
+            }
         }
         self.visiting[id] = true;
         let node = std::mem::replace(&mut self.nodes[id], Node::Taken);
@@ -1049,7 +1215,11 @@ impl Materialiser {
             Node::Tuple(v) => PyValue::Tuple(self.many(&v, depth, &mut cost)?),
             Node::Set { frozen, items } => {
                 let items = self.many(&items, depth, &mut cost)?;
-                let class = if frozen { "builtins.frozenset" } else { "builtins.set" };
+                let class = if frozen {
+                    "builtins.frozenset"
+                } else {
+                    "builtins.set"
+                };
                 PyValue::Object {
                     class: class.into(),
                     args: vec![PyValue::List(items)],
@@ -1072,7 +1242,9 @@ impl Materialiser {
                 args: vec![PyValue::Str(format!("{}{typestr}", order.unwrap_or('=')))],
                 state: Box::new(PyValue::None),
             },
-            Node::Array(ArrayNode::Pending) => PyValue::Array(NdArray::new(vec![0], ArrayData::I8(Vec::new()))),
+            Node::Array(ArrayNode::Pending) => {
+                PyValue::Array(NdArray::new(vec![0], ArrayData::I8(Vec::new())))
+            }
             Node::Array(ArrayNode::Numeric(a)) => {
                 cost = cost.saturating_add(estimated_bytes(&a.data));
                 PyValue::Array(a)
@@ -1091,7 +1263,11 @@ impl Materialiser {
                     }
                     None => PyValue::None,
                 };
-                PyValue::Object { class, args, state: Box::new(state) }
+                PyValue::Object {
+                    class,
+                    args,
+                    state: Box::new(state),
+                }
             }
             Node::Taken => return Err(Self::limit("internal: node converted twice")),
         };

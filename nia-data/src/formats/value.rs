@@ -105,7 +105,9 @@ impl NdArray {
     pub fn to_f32_vec(&self) -> Option<Vec<f32>> {
         match &self.data {
             ArrayData::F32(v) => Some(v.clone()),
-            other => other.to_f64_vec().map(|v| v.into_iter().map(|x| x as f32).collect()),
+            other => other
+                .to_f64_vec()
+                .map(|v| v.into_iter().map(|x| x as f32).collect()),
         }
     }
 
@@ -121,11 +123,19 @@ impl NdArray {
             ArrayData::F32(_) | ArrayData::F64(_) => {
                 let v = self.data.to_f64_vec()?;
                 v.iter()
-                    .map(|&x| if x.fract() == 0.0 && x.is_finite() { Some(x as i64) } else { None })
+                    .map(|&x| {
+                        if x.fract() == 0.0 && x.is_finite() {
+                            Some(x as i64)
+                        } else {
+                            None
+                        }
+                    })
                     .collect()
             }
             ArrayData::U64(v) => Some(v.iter().map(|&x| x as i64).collect()),
-            other => other.to_f64_vec().map(|v| v.into_iter().map(|x| x as i64).collect()),
+            other => other
+                .to_f64_vec()
+                .map(|v| v.into_iter().map(|x| x as i64).collect()),
         }
     }
 }
@@ -147,10 +157,17 @@ pub enum PyValue {
     Dict(Vec<(PyValue, PyValue)>),
     Array(NdArray),
     /// A global reference (`GLOBAL`/`STACK_GLOBAL`), e.g. a class: `module.name`.
-    Global { module: String, name: String },
+    Global {
+        module: String,
+        name: String,
+    },
     /// An instance of a class the reader knows only by name, with its `BUILD` state
     /// (chumpy `Ch`, scipy sparse matrices, ...). `args` holds the constructor arguments.
-    Object { class: String, args: Vec<PyValue>, state: Box<PyValue> },
+    Object {
+        class: String,
+        args: Vec<PyValue>,
+        state: Box<PyValue>,
+    },
 }
 
 impl PyValue {
