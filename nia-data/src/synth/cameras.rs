@@ -42,10 +42,12 @@ pub fn camera_ring(spec: &RingSpec, rng: &mut Rng) -> Result<Vec<Camera>, Camera
             let azimuth = start + spacing * (k as f32 + rng.range(-AZIMUTH_JITTER, AZIMUTH_JITTER));
             let radius = rng.range(RING_RADIUS_M.0, RING_RADIUS_M.1);
             let height = rng.range(HEIGHT_OFFSET_M.0, HEIGHT_OFFSET_M.1);
-            let eye = spec.centre + Vec3::new(radius * azimuth.cos(), radius * azimuth.sin(), height);
+            let eye =
+                spec.centre + Vec3::new(radius * azimuth.cos(), radius * azimuth.sin(), height);
             let distance = (spec.centre - eye).length();
             let f = BODY_FILL * size * distance / spec.body_height_m.max(0.1);
-            let mut camera = Camera::look_at(eye, spec.centre, Vec3::Z, f, f, spec.size, spec.size)?;
+            let mut camera =
+                Camera::look_at(eye, spec.centre, Vec3::Z, f, f, spec.size, spec.size)?;
             camera.k.z_axis.x += size * rng.range(-PRINCIPAL_JITTER, PRINCIPAL_JITTER);
             camera.k.z_axis.y += size * rng.range(-PRINCIPAL_JITTER, PRINCIPAL_JITTER);
             camera.validate()?;
@@ -60,13 +62,21 @@ mod tests {
 
     #[test]
     fn ring_looks_at_the_centre_from_the_right_distance() {
-        let spec = RingSpec { count: 5, size: 100, centre: Vec3::new(0.1, -0.2, 0.9), body_height_m: 1.7 };
+        let spec = RingSpec {
+            count: 5,
+            size: 100,
+            centre: Vec3::new(0.1, -0.2, 0.9),
+            body_height_m: 1.7,
+        };
         let cams = camera_ring(&spec, &mut Rng::new(3)).unwrap();
         assert_eq!(cams.len(), 5);
         for cam in &cams {
             let (uv, depth) = cam.project(spec.centre).unwrap();
             // Within the principal point jitter of the image centre.
-            assert!((uv.x - 50.0).abs() <= 1.0 + 1e-3 && (uv.y - 50.0).abs() <= 1.0 + 1e-3, "{uv}");
+            assert!(
+                (uv.x - 50.0).abs() <= 1.0 + 1e-3 && (uv.y - 50.0).abs() <= 1.0 + 1e-3,
+                "{uv}"
+            );
             assert!(depth > RING_RADIUS_M.0 && depth < 3.1);
             // A point 0.85 m above the centre lands about 35% of the image above it.
             let (top, _) = cam.project(spec.centre + Vec3::Z * 0.85).unwrap();

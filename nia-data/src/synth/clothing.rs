@@ -26,8 +26,14 @@ pub enum Part {
 /// Number of [`Part`]s.
 pub const PART_COUNT: usize = 6;
 
-const PARTS: [Part; PART_COUNT] =
-    [Part::Torso, Part::Head, Part::LeftArm, Part::RightArm, Part::LeftLeg, Part::RightLeg];
+const PARTS: [Part; PART_COUNT] = [
+    Part::Torso,
+    Part::Head,
+    Part::LeftArm,
+    Part::RightArm,
+    Part::LeftLeg,
+    Part::RightLeg,
+];
 
 /// SMPL joint index -> part index in [`PARTS`] (pelvis, spine and collars are torso; neck and
 /// head are head; shoulder..hand are arms; hip..foot are legs).
@@ -142,12 +148,24 @@ impl BodyFrame {
         }
         if !head_top_y.is_finite() {
             // No head vertices: fall back to the extent of the whole body.
-            head_top_y = rest_vertices.iter().map(|v| v.y).fold(f32::NEG_INFINITY, f32::max);
-            face_front_z = rest_vertices.iter().map(|v| v.z).fold(f32::NEG_INFINITY, f32::max);
+            head_top_y = rest_vertices
+                .iter()
+                .map(|v| v.y)
+                .fold(f32::NEG_INFINITY, f32::max);
+            face_front_z = rest_vertices
+                .iter()
+                .map(|v| v.z)
+                .fold(f32::NEG_INFINITY, f32::max);
         }
         let torso_axis_z =
             (joints[PELVIS].z + joints[SPINE1].z + joints[SPINE2].z + joints[SPINE3].z) / 4.0;
-        Some(Self { joints, head_top_y, face_front_z, sole_y, torso_axis_z })
+        Some(Self {
+            joints,
+            head_top_y,
+            face_front_z,
+            sole_y,
+            torso_axis_z,
+        })
     }
 
     /// Natural waist height (between pelvis and spine1), metres.
@@ -170,14 +188,16 @@ impl BodyFrame {
 
     /// Neck-to-chest distance, the unit the neckline is cut in, metres.
     fn neck_drop(&self) -> f32 {
-        (self.joints[NECK].y - self.joints[SPINE3].y).abs().max(0.05)
+        (self.joints[NECK].y - self.joints[SPINE3].y)
+            .abs()
+            .max(0.05)
     }
 
     /// Canonical height at or below which the hair stops, for a point at canonical z.
     /// Front of the head: a forehead hairline; back: down to the nape.
     pub fn hairline_y(&self, z: f32, hair_length: f32) -> f32 {
         let head = self.head();
-        let front = head.y + 0.45 * (self.head_top_y - head.y);
+        let front = head.y + 0.6 * (self.head_top_y - head.y);
         let back = self.neck().y + (0.2 + 0.6 * (1.0 - hair_length)) * (head.y - self.neck().y);
         let t = smoothstep(head.z - 0.02, self.face_front_z - 0.03, z);
         back + (front - back) * t
@@ -246,7 +266,11 @@ pub struct GarmentPoint {
 
 /// Where `p` sits along a four-joint chain: (chain coordinate, arc length in metres, the
 /// closest point on the chain, that segment's unit axis).
-fn chain_coords(joints: &[Vec3; SMPL_JOINTS], chain: &[usize; 4], p: Vec3) -> (f32, f32, Vec3, Vec3) {
+fn chain_coords(
+    joints: &[Vec3; SMPL_JOINTS],
+    chain: &[usize; 4],
+    p: Vec3,
+) -> (f32, f32, Vec3, Vec3) {
     let mut best = (f32::INFINITY, 0.0, 0.0, Vec3::ZERO, Vec3::X);
     let mut cum = 0.0;
     for i in 0..3 {
@@ -338,7 +362,11 @@ pub fn classify(frame: &BodyFrame, cut: &Cut, p: Vec3, parts: &[f32; PART_COUNT]
             }
         }
         Part::LeftArm | Part::RightArm => {
-            let chain = if part == Part::LeftArm { &LEFT_ARM } else { &RIGHT_ARM };
+            let chain = if part == Part::LeftArm {
+                &LEFT_ARM
+            } else {
+                &RIGHT_ARM
+            };
             let (s, arc, centre, axis) = chain_coords(j, chain, p);
             gp.chain = s;
             gp.along_m = arc;
@@ -351,7 +379,11 @@ pub fn classify(frame: &BodyFrame, cut: &Cut, p: Vec3, parts: &[f32; PART_COUNT]
             }
         }
         Part::LeftLeg | Part::RightLeg => {
-            let chain = if part == Part::LeftLeg { &LEFT_LEG } else { &RIGHT_LEG };
+            let chain = if part == Part::LeftLeg {
+                &LEFT_LEG
+            } else {
+                &RIGHT_LEG
+            };
             let (s, _arc, centre, axis) = chain_coords(j, chain, p);
             gp.chain = s;
             gp.angle = angle_around(p, centre, axis);
@@ -409,7 +441,11 @@ pub fn garment_offset_m(frame: &BodyFrame, cut: &Cut, gp: &GarmentPoint) -> f32 
                 }
             };
             // The collar hugs the neck.
-            let collar = if gp.part == Part::Torso { smoothstep(0.0, 0.05, gp.edge_m) } else { 1.0 };
+            let collar = if gp.part == Part::Torso {
+                smoothstep(0.0, 0.05, gp.edge_m)
+            } else {
+                1.0
+            };
             ((ease + flare) * (0.35 + 0.65 * collar) + folds).max(0.002)
         }
         Garment::Trousers => {
@@ -429,7 +465,12 @@ pub fn garment_offset_m(frame: &BodyFrame, cut: &Cut, gp: &GarmentPoint) -> f32 
 /// The clothed surface: each posed vertex `[V]` pushed out along its unit posed normal `[V]` by
 /// its offset `[V]` (metres).
 pub fn clothe(posed: &[Vec3], normals: &[Vec3], offsets_m: &[f32]) -> Vec<Vec3> {
-    posed.iter().zip(normals).zip(offsets_m).map(|((&v, &n), &o)| v + n * o).collect()
+    posed
+        .iter()
+        .zip(normals)
+        .zip(offsets_m)
+        .map(|((&v, &n), &o)| v + n * o)
+        .collect()
 }
 
 /// Area-weighted unit vertex normals `[V]` of a mesh with vertices `[V]` and faces `[F][3]`
@@ -447,7 +488,9 @@ pub fn vertex_normals(vertices: &[Vec3], faces: &[[u32; 3]]) -> Vec<Vec3> {
         acc[b] += n;
         acc[c] += n;
     }
-    acc.into_iter().map(|n| n.try_normalize().unwrap_or(Vec3::Z)).collect()
+    acc.into_iter()
+        .map(|n| n.try_normalize().unwrap_or(Vec3::Z))
+        .collect()
 }
 
 #[cfg(test)]
@@ -477,7 +520,11 @@ mod tests {
         assert!((s - 1.5).abs() < 1e-5, "s = {s}");
         assert!((arc - 0.375).abs() < 1e-5);
         assert!((axis - Vec3::X).length() < 1e-6);
-        let front = angle_around(Vec3::new(0.575, 0.3, 0.04), Vec3::new(0.575, 0.3, 0.0), axis);
+        let front = angle_around(
+            Vec3::new(0.575, 0.3, 0.04),
+            Vec3::new(0.575, 0.3, 0.0),
+            axis,
+        );
         assert!(front.abs() < 1e-6);
     }
 

@@ -100,7 +100,10 @@ impl Fabric {
                     _ => self.base.lerp(self.accent, 0.5),
                 }
             }
-            Pattern::Dots { spacing_m, radius_m } => {
+            Pattern::Dots {
+                spacing_m,
+                radius_m,
+            } => {
                 let q = Vec2::new(around_m, along_m) / spacing_m;
                 let cell = q.floor();
                 let (cx, cy) = (cell.x as i64, cell.y as i64);
@@ -304,8 +307,8 @@ fn seam(d_m: f32, along_m: f32) -> Option<f32> {
     if d < 0.5 * SEAM_WIDTH_M {
         return Some(0.55);
     }
-    let stitch = (d - STITCH_OFFSET_M).abs() < 0.5 * STITCH_WIDTH_M
-        && frac(along_m / STITCH_PERIOD_M) < 0.6;
+    let stitch =
+        (d - STITCH_OFFSET_M).abs() < 0.5 * STITCH_WIDTH_M && frac(along_m / STITCH_PERIOD_M) < 0.6;
     if stitch {
         Some(-1.0)
     } else {
@@ -321,9 +324,13 @@ impl Look {
             Garment::Skin => self.skin_albedo(frame, gp),
             Garment::Hair => {
                 // Strands: fine streaks around the head, broken by noise along them.
-                let strand = value_noise(self.seed ^ 0x4A1, Vec2::new(gp.around_m / 0.002, p.y / 0.03));
+                let strand = value_noise(
+                    self.seed ^ 0x4A1,
+                    Vec2::new(gp.around_m / 0.002, p.y / 0.03),
+                );
                 let shine = smoothstep(0.55, 0.95, strand);
-                (self.hair * (0.75 + 0.35 * strand)).lerp(self.hair * 1.6 + Vec3::splat(0.05), 0.25 * shine)
+                (self.hair * (0.75 + 0.35 * strand))
+                    .lerp(self.hair * 1.6 + Vec3::splat(0.05), 0.25 * shine)
             }
             Garment::Shirt => self.shirt_albedo(frame, gp),
             Garment::Trousers => self.trouser_albedo(frame, gp),
@@ -338,9 +345,8 @@ impl Look {
                         self.buckle
                     }
                 } else {
-                    let holes = (front - 0.06).abs() < 0.025
-                        && frac(front / 0.012) < 0.35
-                        && mid < 0.003;
+                    let holes =
+                        (front - 0.06).abs() < 0.025 && frac(front / 0.012) < 0.35 && mid < 0.003;
                     if holes {
                         self.belt * 0.3
                     } else {
@@ -380,16 +386,26 @@ impl Look {
             return skin;
         }
         let dx = p.x - head.x;
-        let eye_y = head.y + 0.28 * hh;
-        let eye = Vec2::new((dx.abs() - 0.3 * hh) / (0.1 * hh), (p.y - eye_y) / (0.055 * hh));
+        let eye_y = head.y + 0.36 * hh;
+        let eye = Vec2::new(
+            (dx.abs() - 0.19 * hh) / (0.085 * hh),
+            (p.y - eye_y) / (0.045 * hh),
+        );
         if eye.length() < 1.0 {
-            return if eye.length() < 0.5 { Vec3::splat(0.05) } else { Vec3::splat(0.9) };
+            return if eye.length() < 0.5 {
+                Vec3::splat(0.05)
+            } else {
+                Vec3::splat(0.9)
+            };
         }
-        let brow = Vec2::new((dx.abs() - 0.3 * hh) / (0.16 * hh), (p.y - eye_y - 0.14 * hh) / (0.03 * hh));
+        let brow = Vec2::new(
+            (dx.abs() - 0.19 * hh) / (0.11 * hh),
+            (p.y - eye_y - 0.11 * hh) / (0.025 * hh),
+        );
         if brow.length() < 1.0 {
             return self.hair;
         }
-        let mouth = Vec2::new(dx / (0.2 * hh), (p.y - (head.y - 0.22 * hh)) / (0.045 * hh));
+        let mouth = Vec2::new(dx / (0.13 * hh), (p.y - (head.y - 0.04 * hh)) / (0.03 * hh));
         if mouth.length() < 1.0 {
             return self.lips;
         }
@@ -403,7 +419,11 @@ impl Look {
         if gp.part == Part::Torso {
             let u = p.x - frame.joints[0].x;
             let front = p.z > frame.torso_axis_z;
-            let print = if front { Some(&self.front_print) } else { self.back_print.as_ref() };
+            let print = if front {
+                Some(&self.front_print)
+            } else {
+                self.back_print.as_ref()
+            };
             if let Some(print) = print {
                 let top = frame.waist_y() + print.height_above_waist_m + 0.5 * print.height_m();
                 let u = if front { u } else { -u };
@@ -498,7 +518,10 @@ mod tests {
         let f = Fabric {
             base: Vec3::ZERO,
             accent: Vec3::ONE,
-            pattern: Pattern::Stripes { period_m: 0.04, duty: 0.5 },
+            pattern: Pattern::Stripes {
+                period_m: 0.04,
+                duty: 0.5,
+            },
             seed: 1,
         };
         assert!(f.albedo(0.01, 0.0).x > 0.5);

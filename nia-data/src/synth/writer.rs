@@ -42,12 +42,17 @@ pub fn image_rel_path(camera: usize, frame: usize) -> String {
 
 /// `<subject>/Camera_B<k>/<frame:06>.jpg`.
 pub fn image_path(subject_dir: &Path, camera: usize, frame: usize) -> PathBuf {
-    subject_dir.join(camera_dir_name(camera)).join(format!("{frame:06}.jpg"))
+    subject_dir
+        .join(camera_dir_name(camera))
+        .join(format!("{frame:06}.jpg"))
 }
 
 /// `<subject>/mask/Camera_B<k>/<frame:06>.png`.
 pub fn mask_path(subject_dir: &Path, camera: usize, frame: usize) -> PathBuf {
-    subject_dir.join("mask").join(camera_dir_name(camera)).join(format!("{frame:06}.png"))
+    subject_dir
+        .join("mask")
+        .join(camera_dir_name(camera))
+        .join(format!("{frame:06}.png"))
 }
 
 /// `<subject>/params/<frame>.npy`.
@@ -94,25 +99,48 @@ pub fn annots_value(cameras: &[Camera], frames: usize) -> PyValue {
     let list = |f: &dyn Fn(&Camera) -> PyValue| PyValue::List(cameras.iter().map(f).collect());
     let cams = PyValue::Dict(vec![
         (str_key("K"), list(&|c| f64_array(vec![3, 3], rows(&c.k)))),
-        (str_key("D"), list(&|c| f64_array(vec![5, 1], c.dist.iter().map(|&d| d as f64).collect()))),
+        (
+            str_key("D"),
+            list(&|c| f64_array(vec![5, 1], c.dist.iter().map(|&d| d as f64).collect())),
+        ),
         (str_key("R"), list(&|c| f64_array(vec![3, 3], rows(&c.r)))),
         (
             str_key("T"),
-            list(&|c| f64_array(vec![3, 1], c.t.to_array().iter().map(|&t| t as f64 * MM_PER_M).collect())),
+            list(&|c| {
+                f64_array(
+                    vec![3, 1],
+                    c.t.to_array()
+                        .iter()
+                        .map(|&t| t as f64 * MM_PER_M)
+                        .collect(),
+                )
+            }),
         ),
     ]);
     let ims = (0..frames)
         .map(|i| {
-            let paths = (0..cameras.len()).map(|c| PyValue::Str(image_rel_path(c, i))).collect();
+            let paths = (0..cameras.len())
+                .map(|c| PyValue::Str(image_rel_path(c, i)))
+                .collect();
             PyValue::Dict(vec![(str_key("ims"), PyValue::List(paths))])
         })
         .collect();
-    PyValue::Dict(vec![(str_key("cams"), cams), (str_key("ims"), PyValue::List(ims))])
+    PyValue::Dict(vec![
+        (str_key("cams"), cams),
+        (str_key("ims"), PyValue::List(ims)),
+    ])
 }
 
 /// Write `<subject>/annots.npy`.
-pub fn write_annots(subject_dir: &Path, cameras: &[Camera], frames: usize) -> Result<(), SynthError> {
-    npy::write_object(&subject_dir.join("annots.npy"), &annots_value(cameras, frames))?;
+pub fn write_annots(
+    subject_dir: &Path,
+    cameras: &[Camera],
+    frames: usize,
+) -> Result<(), SynthError> {
+    npy::write_object(
+        &subject_dir.join("annots.npy"),
+        &annots_value(cameras, frames),
+    )?;
     Ok(())
 }
 
@@ -137,12 +165,19 @@ pub fn write_params(
     th: Vec3,
     shapes: &[f32],
 ) -> Result<(), SynthError> {
-    npy::write_object(&params_path(subject_dir, frame), &params_value(poses, rh, th, shapes))?;
+    npy::write_object(
+        &params_path(subject_dir, frame),
+        &params_value(poses, rh, th, shapes),
+    )?;
     Ok(())
 }
 
 /// Write `<subject>/vertices/<frame>.npy`: [V, 3] float32 world vertices, metres.
-pub fn write_vertices(subject_dir: &Path, frame: usize, vertices: &[Vec3]) -> Result<(), SynthError> {
+pub fn write_vertices(
+    subject_dir: &Path,
+    frame: usize,
+    vertices: &[Vec3],
+) -> Result<(), SynthError> {
     let data = vertices.iter().flat_map(|v| v.to_array()).collect();
     let array = NdArray::new(vec![vertices.len(), 3], ArrayData::F32(data));
     npy::write_array(&vertices_path(subject_dir, frame), &array)?;
@@ -150,7 +185,10 @@ pub fn write_vertices(subject_dir: &Path, frame: usize, vertices: &[Vec3]) -> Re
 }
 
 fn write_file(path: &Path, bytes: &[u8]) -> Result<(), SynthError> {
-    std::fs::write(path, bytes).map_err(|source| SynthError::Io { path: path.to_path_buf(), source })
+    std::fs::write(path, bytes).map_err(|source| SynthError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Encode `rgb` ([H * W * 3] row-major, u8) as a JPEG at [`JPEG_QUALITY`] and write it.
@@ -158,7 +196,10 @@ pub fn write_jpeg(path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<()
     let mut bytes = Vec::new();
     JpegEncoder::new_with_quality(&mut bytes, JPEG_QUALITY)
         .encode(rgb, width, height, ExtendedColorType::Rgb8)
-        .map_err(|source| SynthError::Image { path: path.to_path_buf(), source })?;
+        .map_err(|source| SynthError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?;
     write_file(path, &bytes)
 }
 
@@ -167,7 +208,10 @@ pub fn write_mask(path: &Path, mask: &[u8], width: u32, height: u32) -> Result<(
     let mut bytes = Vec::new();
     PngEncoder::new(&mut bytes)
         .write_image(mask, width, height, ExtendedColorType::L8)
-        .map_err(|source| SynthError::Image { path: path.to_path_buf(), source })?;
+        .map_err(|source| SynthError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?;
     write_file(path, &bytes)
 }
 
@@ -181,25 +225,47 @@ mod tests {
         assert_eq!(image_rel_path(0, 12), "Camera_B1/000012.jpg");
         let p = mask_path(Path::new("/x"), 22, 3);
         assert_eq!(p, Path::new("/x/mask/Camera_B23/000003.png"));
-        assert_eq!(params_path(Path::new("/x"), 7), Path::new("/x/params/7.npy"));
+        assert_eq!(
+            params_path(Path::new("/x"), 7),
+            Path::new("/x/params/7.npy")
+        );
     }
 
     #[test]
     fn annots_rows_are_row_major_and_t_in_mm() {
-        let cam = Camera::look_at(Vec3::new(0.0, -2.5, 1.0), Vec3::new(0.0, 0.0, 1.0), Vec3::Z, 100.0, 100.0, 64, 64)
-            .unwrap();
+        let cam = Camera::look_at(
+            Vec3::new(0.0, -2.5, 1.0),
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::Z,
+            100.0,
+            100.0,
+            64,
+            64,
+        )
+        .unwrap();
         let v = annots_value(&[cam], 2);
-        let k = v.get("cams").and_then(|c| c.get("K")).and_then(|k| k.as_seq()).unwrap();
+        let k = v
+            .get("cams")
+            .and_then(|c| c.get("K"))
+            .and_then(|k| k.as_seq())
+            .unwrap();
         let k = k[0].as_array().unwrap().to_f64_vec().unwrap();
         assert_eq!(k[2], 32.0); // K[0][2] = cx
         assert_eq!(k[6], 0.0); // K[2][0]
-        let t = v.get("cams").and_then(|c| c.get("T")).and_then(|t| t.as_seq()).unwrap();
+        let t = v
+            .get("cams")
+            .and_then(|c| c.get("T"))
+            .and_then(|t| t.as_seq())
+            .unwrap();
         let t = t[0].as_array().unwrap();
         assert_eq!(t.shape, vec![3, 1]);
         let t = t.to_f64_vec().unwrap();
         assert!((t[2] - cam.t.z as f64 * 1000.0).abs() < 1e-9);
         let ims = v.get("ims").and_then(|i| i.as_seq()).unwrap();
         assert_eq!(ims.len(), 2);
-        assert_eq!(ims[1].get("ims").and_then(|l| l.as_seq()).unwrap()[0].as_str(), Some("Camera_B1/000001.jpg"));
+        assert_eq!(
+            ims[1].get("ims").and_then(|l| l.as_seq()).unwrap()[0].as_str(),
+            Some("Camera_B1/000001.jpg")
+        );
     }
 }
