@@ -15,6 +15,9 @@
 //! `cv2.undistort` (bilinear, constant black border), including OpenCV's pixel convention for
 //! that step: the pixel with index `i` has its centre at coordinate `i` (not `i + 0.5`).
 
+// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use glam::{Mat3, Vec2, Vec3};
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
@@ -508,6 +511,7 @@ impl UndistortMap {
         }
         let w = self.width as usize;
         let mut out = vec![0u8; data.len()];
+        // Callers pass 1 (grey) or 3 (RGB) channels.
         out.par_chunks_mut(w * channels)
             .zip(self.source.par_chunks(w))
             .for_each(|(row, src)| {
@@ -528,7 +532,6 @@ impl UndistortMap {
 
 /// Bilinear sample at `s` (pixel index = centre) of an interleaved image; taps outside the
 /// image count as 0 (OpenCV `BORDER_CONSTANT`). Calls `add(channel, weighted value)` per tap.
-/// At most 4 channels are supported for `u8` data (RGB, grey), any number for `f32`.
 fn bilinear_zero_border<T: Copy + Into<f32>>(
     data: &[T],
     width: u32,

@@ -5,6 +5,9 @@
 //! image; pixel `(i, j)` has its centre at `(i + 0.5, j + 0.5)`. Directions are unit vectors,
 //! so ray parameters `t` are distances in metres along the ray (not camera depths).
 
+// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::camera::Camera;
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -202,25 +205,49 @@ pub fn near_far(ray: &Ray, aabb: &Aabb) -> Option<(f32, f32)> {
 /// NHP's `mask_at_box`: [H * W] row-major, true for pixels whose centre ray hits the box (in
 /// front of the camera). This is the projection of the 3D box, i.e. the convex hull of its 8
 /// projected corners when the box is in front of the camera, computed exactly by a ray/box test
-/// per pixel.
+/// per pixel. When every corner is in front of the camera only the pixels of the corners'
+/// bounding rectangle (plus a one-pixel margin) are tested: no ray outside the hull can hit.
 pub fn mask_at_box(camera: &Camera, aabb: &Aabb) -> Vec<bool> {
     let rt = camera.r.transpose();
     let origin = camera.centre();
-    let w = camera.width as usize;
-    let mut mask = vec![false; w * camera.height as usize];
-    if w == 0 {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let mut mask = vec![false; w * h];
+    if w == 0 || h == 0 {
         return mask;
     }
-    mask.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, m) in row.iter_mut().enumerate() {
-            let ray = ray_with(
-                camera,
-                rt,
-                origin,
-                Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
-            );
-            *m = near_far(&ray, aabb).is_some();
-        }
-    });
+    let (mut x0, mut x1, mut y0, mut y1) = (0usize, w, 0usize, h);
+    let projected: Option<Vec<Vec2>> = aabb
+        .corners()
+        .iter()
+        .map(|c| camera.project(*c).map(|(uv, _)| uv))
+        .collect();
+    if let Some(uv) = projected.filter(|uv| uv.iter().all(|p| p.is_finite())) {
+        let lo = uv.iter().fold(Vec2::INFINITY, |m, p| m.min(*p));
+        let hi = uv.iter().fold(Vec2::NEG_INFINITY, |m, p| m.max(*p));
+        // Pixel i is tested when its centre i + 0.5 may lie in [lo, hi] (one pixel of margin).
+        let clamp = |v: f32, n: usize| v.clamp(0.0, n as f32) as usize;
+        x0 = clamp((lo.x - 1.5).floor(), w);
+        x1 = clamp((hi.x + 1.5).ceil(), w);
+        y0 = clamp((lo.y - 1.5).floor(), h);
+        y1 = clamp((hi.y + 1.5).ceil(), h);
+    }
+    if x0 >= x1 || y0 >= y1 {
+        return mask;
+    }
+    mask[y0 * w..y1 * w]
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(dy, row)| {
+            let y = y0 + dy;
+            for (x, m) in row.iter_mut().enumerate().take(x1).skip(x0) {
+                let ray = ray_with(
+                    camera,
+                    rt,
+                    origin,
+                    Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
+                );
+                *m = near_far(&ray, aabb).is_some();
+            }
+        });
     mask
 }

@@ -9,6 +9,9 @@
 //! point-triangle distance uses the Voronoi-region method of Ericson (Real-Time Collision
 //! Detection, 5.1.5), which also yields the barycentrics.
 
+// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use crate::raster::{validate_faces, MeshError};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -549,6 +552,7 @@ pub fn interpolate_weights(
     out: &mut [f32],
 ) -> Result<(), MeshError> {
     const WHAT: &str = "interpolate_weights";
+    #[allow(clippy::manual_is_multiple_of)] // `is_multiple_of` needs Rust 1.87; MSRV is 1.85.
     if k == 0 || weights.len() % k != 0 {
         return Err(MeshError::Invalid {
             what: WHAT,

@@ -1,18 +1,23 @@
 //! Per-vertex visibility of a mesh in a camera (NIA's per-view SMPL vertex visibility, 0/1).
 //!
-//! A vertex is visible when it projects inside the image and, at some pixel of the
-//! `(2 r + 1) x (2 r + 1)` neighbourhood (r = [`NEIGHBOURHOOD_RADIUS`]) of the pixel it falls
-//! in, either
-//! - its camera depth is within `depth_tol_m` of the z-buffer (`z_v <= z_buf + tol`; an empty
-//!   pixel has `z_buf = +inf`, so silhouette vertices that fall just outside the coverage are
-//!   visible), or
+//! A vertex is visible when it projects inside the image and either the pixel it falls in is
+//! empty (the vertex sits on the silhouette, just outside its faces' coverage), or at some
+//! covered pixel of the `(2 r + 1) x (2 r + 1)` neighbourhood (r = [`NEIGHBOURHOOD_RADIUS`])
+//! of that pixel
+//! - its camera depth is within `depth_tol_m` of the z-buffer (`z_v <= z_buf + tol`), or
 //! - the face drawn there is one of the vertex's own faces.
+//!
+//! Empty neighbours do not count (otherwise every hidden vertex within a pixel of the
+//! silhouette would pass).
 //!
 //! The neighbourhood (as NHP-style implementations that test the pixel and its neighbours) and
 //! the incident-face rule make the decision independent of where inside its pixel a vertex
 //! lands; the z-buffer is sampled at pixel centres, which can sit up to 0.7 pixels from the
 //! vertex on a steep surface. The price is a band about one pixel wide around occlusion
 //! boundaries where a just-hidden vertex counts as visible.
+
+// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::camera::Camera;
 use crate::raster::{rasterize, validate_faces, Fragments, MeshError, EMPTY_FACE};
@@ -92,16 +97,23 @@ pub fn vertex_visibility(
                 return 0;
             }
             let (px, py) = (uv.x.floor() as i64, uv.y.floor() as i64);
+            // The vertex's own pixel: empty means the vertex lies on the silhouette, just
+            // outside the coverage of its faces.
+            if fragments.face[(py * w + px) as usize] == EMPTY_FACE {
+                return 1;
+            }
             for qy in (py - NEIGHBOURHOOD_RADIUS).max(0)..=(py + NEIGHBOURHOOD_RADIUS).min(h - 1) {
                 for qx in
                     (px - NEIGHBOURHOOD_RADIUS).max(0)..=(px + NEIGHBOURHOOD_RADIUS).min(w - 1)
                 {
                     let q = (qy * w + qx) as usize;
-                    if z <= fragments.depth[q] + depth_tol_m {
-                        return 1;
-                    }
                     let f = fragments.face[q];
-                    if f != EMPTY_FACE && faces[f as usize].iter().any(|&c| c as usize == vi) {
+                    if f == EMPTY_FACE {
+                        continue;
+                    }
+                    if z <= fragments.depth[q] + depth_tol_m
+                        || faces[f as usize].iter().any(|&c| c as usize == vi)
+                    {
                         return 1;
                     }
                 }

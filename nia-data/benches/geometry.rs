@@ -1,0 +1,260 @@
+//! Geometry core timings: rasteriser, vertex visibility and nearest-surface queries on a
+//! body-sized mesh (6,856 vertices, 13,688 faces: six closed ellipsoids laid out like a
+//! standing person, so limbs occlude each other) in 512x512 views.
+//!
+//! `CARGO_TARGET_DIR=/work/target-data cargo bench -p nia-data --bench geometry`
+//! Plain `main` with `std::time::Instant`: warm-up, then the median and best of several
+//! repetitions.
+
+use glam::Vec3;
+use nia_data::camera::Camera;
+use nia_data::raster::{rasterize, rasterize_into};
+use nia_data::rays::{mask_at_box, Aabb};
+use nia_data::rng::Rng;
+use nia_data::surface::SurfaceIndex;
+use nia_data::visibility::{vertex_visibility, visibility, DEFAULT_DEPTH_TOL_M};
+use std::time::Instant;
+
+const WARMUP: usize = 3;
+const REPS: usize = 15;
+
+/// A closed UV ellipsoid appended to the mesh.
+fn ellipsoid(
+    v: &mut Vec<Vec3>,
+    f: &mut Vec<[u32; 3]>,
+    centre: Vec3,
+    radii: Vec3,
+    n_lat: u32,
+    n_lon: u32,
+) {
+    let base = v.len() as u32;
+    v.push(centre + Vec3::new(0.0, radii.y, 0.0));
+    for i in 1..n_lat {
+        let theta = std::f32::consts::PI * i as f32 / n_lat as f32;
+        for j in 0..n_lon {
+            let phi = std::f32::consts::TAU * j as f32 / n_lon as f32;
+            let d = Vec3::new(
+                theta.sin() * phi.cos(),
+                theta.cos(),
+                theta.sin() * phi.sin(),
+            );
+            v.push(centre + d * radii);
+        }
+    }
+    v.push(centre - Vec3::new(0.0, radii.y, 0.0));
+    let south = v.len() as u32 - 1;
+    let ring = |i: u32, j: u32| base + 1 + (i - 1) * n_lon + (j % n_lon);
+    for j in 0..n_lon {
+        f.push([base, ring(1, j + 1), ring(1, j)]);
+        f.push([south, ring(n_lat - 1, j), ring(n_lat - 1, j + 1)]);
+    }
+    for i in 1..n_lat - 1 {
+        for j in 0..n_lon {
+            let (a, b, c, d) = (
+                ring(i, j),
+                ring(i, j + 1),
+                ring(i + 1, j),
+                ring(i + 1, j + 1),
+            );
+            f.push([a, d, c]);
+            f.push([a, b, d]);
+        }
+    }
+}
+
+/// Torso, head, arms and legs (metres, y up, person ~1.75 m tall facing +z).
+fn body_like_mesh() -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let (mut v, mut f) = (Vec::new(), Vec::new());
+    ellipsoid(
+        &mut v,
+        &mut f,
+        Vec3::new(0.0, 1.2, 0.0),
+        Vec3::new(0.19, 0.32, 0.12),
+        30,
+        60,
+    );
+    ellipsoid(
+        &mut v,
+        &mut f,
+        Vec3::new(0.0, 1.63, 0.0),
+        Vec3::new(0.09, 0.12, 0.1),
+        24,
+        48,
+    );
+    for s in [-1.0f32, 1.0] {
+        ellipsoid(
+            &mut v,
+            &mut f,
+            Vec3::new(0.26 * s, 1.15, 0.05),
+            Vec3::new(0.05, 0.33, 0.05),
+            26,
+            40,
+        );
+        ellipsoid(
+            &mut v,
+            &mut f,
+            Vec3::new(0.1 * s, 0.45, 0.0),
+            Vec3::new(0.075, 0.45, 0.08),
+            26,
+            40,
+        );
+    }
+    (v, f)
+}
+
+/// Runs `f` WARMUP + REPS times; returns (median, best) seconds.
+fn time<T>(mut f: impl FnMut() -> T) -> (f64, f64) {
+    for _ in 0..WARMUP {
+        std::hint::black_box(f());
+    }
+    let mut t: Vec<f64> = (0..REPS)
+        .map(|_| {
+            let s = Instant::now();
+            std::hint::black_box(f());
+            s.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    (t[REPS / 2], t[0])
+}
+
+fn report(name: &str, (median, best): (f64, f64), items: Option<(f64, &str)>) {
+    match items {
+        Some((n, unit)) => println!(
+            "{name:<44} median {:>9.3} ms  best {:>9.3} ms  {:>12.0} {unit}/s (median)",
+            median * 1e3,
+            best * 1e3,
+            n / median
+        ),
+        None => println!(
+            "{name:<44} median {:>9.3} ms  best {:>9.3} ms",
+            median * 1e3,
+            best * 1e3
+        ),
+    }
+}
+
+fn main() {
+    let (vertices, faces) = body_like_mesh();
+    println!(
+        "mesh: {} vertices, {} faces; rayon threads (default pool): {}",
+        vertices.len(),
+        faces.len(),
+        rayon::current_num_threads()
+    );
+    // ZJU-like view at 512x512: the person spans most of the image height (~390 px).
+    let camera = Camera::look_at(
+        Vec3::new(0.6, 1.0, 2.4),
+        Vec3::new(0.0, 0.9, 0.0),
+        Vec3::Y,
+        560.0,
+        560.0,
+        512,
+        512,
+    )
+    .expect("camera");
+
+    let frags = rasterize(&camera, &vertices, &faces).expect("raster");
+    let covered = frags.face.iter().filter(|f| **f != u32::MAX).count();
+    let vis = visibility(&camera, &vertices, &faces, DEFAULT_DEPTH_TOL_M).expect("vis");
+    println!(
+        "512x512 view: {covered} covered pixels, {} of {} vertices visible",
+        vis.iter().map(|v| *v as usize).sum::<usize>(),
+        vertices.len()
+    );
+
+    report(
+        "rasterize 512x512",
+        time(|| rasterize(&camera, &vertices, &faces).unwrap()),
+        None,
+    );
+    let mut reused = frags.clone();
+    report(
+        "rasterize_into 512x512 (reused buffers)",
+        time(|| rasterize_into(&camera, &vertices, &faces, &mut reused).unwrap()),
+        None,
+    );
+    report(
+        "visibility 512x512, reused buffers",
+        time(|| {
+            rasterize_into(&camera, &vertices, &faces, &mut reused).unwrap();
+            vertex_visibility(&camera, &vertices, &faces, &reused, DEFAULT_DEPTH_TOL_M).unwrap()
+        }),
+        None,
+    );
+    report(
+        "visibility 512x512 (rasterize + vertex test)",
+        time(|| visibility(&camera, &vertices, &faces, DEFAULT_DEPTH_TOL_M).unwrap()),
+        None,
+    );
+    report(
+        "vertex_visibility only (given fragments)",
+        time(|| {
+            vertex_visibility(&camera, &vertices, &faces, &frags, DEFAULT_DEPTH_TOL_M).unwrap()
+        }),
+        None,
+    );
+    let bounds = Aabb::from_points(&vertices).unwrap().padded(0.05);
+    report(
+        "mask_at_box 512x512",
+        time(|| mask_at_box(&camera, &bounds)),
+        Some((512.0 * 512.0, "pixels")),
+    );
+    report(
+        "undistort map 512x512",
+        time(|| {
+            Camera {
+                dist: [-0.3, 0.1, 1e-3, -1e-3, 0.0],
+                ..camera
+            }
+            .undistort_map()
+            .unwrap()
+        }),
+        None,
+    );
+
+    report(
+        "SurfaceIndex::new (BVH build)",
+        time(|| SurfaceIndex::new(&vertices, &faces).unwrap()),
+        None,
+    );
+    let index = SurfaceIndex::new(&vertices, &faces).unwrap();
+    // Query points within 10 cm of the surface: random surface samples pushed along a random
+    // direction by up to 10 cm.
+    let mut rng = Rng::new(2023);
+    let n_points = 200_000;
+    let points: Vec<Vec3> = (0..n_points)
+        .map(|_| {
+            let t = faces[rng.below(faces.len())];
+            let (a, b) = (rng.uniform(), rng.uniform());
+            let (a, b) = if a + b > 1.0 {
+                (1.0 - a, 1.0 - b)
+            } else {
+                (a, b)
+            };
+            let s = vertices[t[0] as usize] * (1.0 - a - b)
+                + vertices[t[1] as usize] * a
+                + vertices[t[2] as usize] * b;
+            let d = Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize_or_zero();
+            s + d * rng.range(0.0, 0.1)
+        })
+        .collect();
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool");
+        let t = pool.install(|| time(|| index.nearest_batch(&points)));
+        report(
+            &format!("nearest_batch, {threads} thread(s), 200k pts <10 cm"),
+            t,
+            Some((n_points as f64, "queries")),
+        );
+        let t = pool.install(|| time(|| index.nearest_batch_within(&points, 0.1)));
+        report(
+            &format!("nearest_batch_within 0.1 m, {threads} thread(s)"),
+            t,
+            Some((n_points as f64, "queries")),
+        );
+    }
+}
