@@ -10,10 +10,14 @@
 //! `x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)`,
 //! `y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y`.
 //!
+//! Pixel convention (OpenCV's and ZJU-MoCap's, used by the whole project): the centre of the
+//! pixel with index `(i, j)` (column `i`, row `j`) is at image coordinate
+//! `(i, j) + PIXEL_CENTRE_OFFSET = (i, j)`, not `(i + 0.5, j + 0.5)`; the pixel covers
+//! `[i - 0.5, i + 0.5) x [j - 0.5, j + 0.5)`. See [`PIXEL_CENTRE_OFFSET`].
+//!
 //! The datasets' images are undistorted with `cv2.undistort(img, K, D)` when loaded; after that
 //! the ideal pinhole [`Camera::project`] describes them. [`UndistortMap`] reproduces
-//! `cv2.undistort` (bilinear, constant black border), including OpenCV's pixel convention for
-//! that step: the pixel with index `i` has its centre at coordinate `i` (not `i + 0.5`).
+//! `cv2.undistort` (bilinear, constant black border) in the same convention.
 
 // `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -21,6 +25,19 @@
 use glam::{Mat3, Vec2, Vec3};
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
+
+/// Where the centre of a pixel lies relative to its integer index, in pixels: the centre of
+/// pixel `(i, j)` (column `i`, row `j`) is at image coordinate `(i + PIXEL_CENTRE_OFFSET,
+/// j + PIXEL_CENTRE_OFFSET)`.
+///
+/// The project follows OpenCV and ZJU-MoCap: the offset is 0, so a pixel's index *is* its
+/// centre and the pixel covers `[i - 0.5, i + 0.5)`; the image spans `[-0.5, W - 0.5)`. Real
+/// datasets' `K` are calibrated in this convention, NHP casts its rays through integer pixel
+/// coordinates, and `cv2.undistort` samples at integer coordinates. The rasteriser tests
+/// coverage at these centres and `image_rays` / `mask_at_box` cast rays through them, so a
+/// rendered pixel and the ray of the same pixel agree. (OpenGL and `grid_sample` with
+/// `align_corners = false` instead put centres at `i + 0.5`; convert at those boundaries.)
+pub const PIXEL_CENTRE_OFFSET: f32 = 0.0;
 
 /// Points closer than this to the camera plane (`z_c`, metres) have no pixel: their projection
 /// would overflow (subnormal depths) or be meaningless.
@@ -126,8 +143,9 @@ impl Camera {
     }
 
     /// A distortion-free camera at `eye` looking at `target`, with `up` pointing up in the image
-    /// (image v grows opposite to `up`), principal point at the image centre
-    /// `(width / 2, height / 2)`.
+    /// (image v grows opposite to `up`), principal point at `(width / 2, height / 2)` (with
+    /// [`PIXEL_CENTRE_OFFSET`] = 0 that is half a pixel right of and below the exact image
+    /// centre `((width - 1) / 2, (height - 1) / 2)`).
     #[allow(clippy::too_many_arguments)]
     pub fn look_at(
         eye: Vec3,
@@ -283,7 +301,9 @@ impl Camera {
         }
     }
 
-    /// True when the pixel lies inside the image, `0 <= u < width`, `0 <= v < height`.
+    /// True when `0 <= u < width` and `0 <= v < height`. Note this is not the extent of the
+    /// image's pixels under [`PIXEL_CENTRE_OFFSET`] = 0, `[-0.5, width - 0.5)`; to find the
+    /// pixel a position falls in, round it (`(uv - PIXEL_CENTRE_OFFSET + 0.5).floor()`).
     pub fn contains_pixel(&self, uv: Vec2) -> bool {
         uv.x >= 0.0 && uv.y >= 0.0 && uv.x < self.width as f32 && uv.y < self.height as f32
     }

@@ -5,7 +5,7 @@
 //! datasets are written in, and the synthetic ZJU-MoCap-layout generator.
 //!
 //! Conventions: right-handed world, metres; cameras are world-to-camera `x_c = R x_w + T`,
-//! OpenCV pixel convention (x right, y down, pixel centres at integer + 0.5 when casting rays).
+//! OpenCV pixel convention (x right, y down, the centre of pixel (i, j) is at (i, j): see `camera::PIXEL_CENTRE_OFFSET`).
 
 pub mod body;
 pub mod camera;

@@ -84,7 +84,11 @@ pub struct ImageView<'a> {
 
 impl fmt::Debug for ImageView<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "ImageView({}x{}x{})", self.width, self.height, self.channels)
+        write!(
+            f,
+            "ImageView({}x{}x{})",
+            self.width, self.height, self.channels
+        )
     }
 }
 
@@ -255,8 +259,20 @@ pub fn ssim(a: &ImageView, b: &ImageView, options: SsimOptions) -> Result<f64, M
     }
     let mut total = 0.0f64;
     for ch in 0..c {
-        let x: Vec<f64> = a.data.iter().skip(ch).step_by(c).map(|v| *v as f64).collect();
-        let y: Vec<f64> = b.data.iter().skip(ch).step_by(c).map(|v| *v as f64).collect();
+        let x: Vec<f64> = a
+            .data
+            .iter()
+            .skip(ch)
+            .step_by(c)
+            .map(|v| *v as f64)
+            .collect();
+        let y: Vec<f64> = b
+            .data
+            .iter()
+            .skip(ch)
+            .step_by(c)
+            .map(|v| *v as f64)
+            .collect();
         total += ssim_plane(&x, &y, w, h, options.data_range);
     }
     Ok(total / c as f64)
@@ -291,8 +307,7 @@ fn ssim_plane(x: &[f64], y: &[f64], width: usize, height: usize, data_range: f64
     let c2 = (SSIM_K2 * data_range).powi(2);
     let window = |s: &[f64], cy: usize, cx: usize| {
         let (y0, y1, x0, x1) = (cy - r, cy + r + 1, cx - r, cx + r + 1);
-        (s[y1 * stride + x1] - s[y0 * stride + x1] - s[y1 * stride + x0] + s[y0 * stride + x0])
-            / np
+        (s[y1 * stride + x1] - s[y0 * stride + x1] - s[y1 * stride + x0] + s[y0 * stride + x0]) / np
     };
     let mut sum = 0.0f64;
     let mut count = 0usize;
@@ -407,6 +422,9 @@ mod tests {
             ImageView::new("nan", &nan, 5, 5, 1),
             Err(MetricsError::NonFinite { index: 0, .. })
         ));
-        assert_eq!(bounding_rect(&[false, true, true, false], 2, 2), Some((0, 0, 2, 2)));
+        assert_eq!(
+            bounding_rect(&[false, true, true, false], 2, 2),
+            Some((0, 0, 2, 2))
+        );
     }
 }

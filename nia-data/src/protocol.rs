@@ -17,6 +17,14 @@
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
+use crate::synth::writer::subject_dir_name;
+use crate::synth::SynthSpec;
+
+/// Share of a synthetic training subject's frames used for training; the rest are its unseen
+/// poses (NHP's ZJU split trains on 300 of ~600-1400 frames per subject; with the few frames of
+/// a synthetic set, two thirds keeps both parts non-empty).
+pub const SYNTH_TRAIN_FRAME_FRACTION: f64 = 2.0 / 3.0;
+
 /// A protocol error: a definition that cannot be applied to the data.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ProtocolError {
@@ -293,39 +301,43 @@ impl Protocol {
         }
     }
 
-    /// The same kind of protocol for a synthetic set written by `synth`: the first subjects
-    /// train on their first `train_frames` frames; `test_subjects` are held out (all frames);
-    /// the training subjects' later frames are the unseen-pose split. Three input views spread
-    /// evenly, every other remaining view as a target, every `test_frame_stride`-th frame.
-    pub fn synthetic(
-        train_subjects: &[String],
-        test_subjects: &[String],
-        train_frames: usize,
-        test_frame_stride: usize,
-    ) -> Self {
+    /// The same kind of protocol for a synthetic set written by [`crate::synth::generate`]:
+    /// its suggested split ([`SynthSpec::split`]: train subjects, held-out test subjects) and
+    /// input views ([`SynthSpec::input_views`]); every other camera a target; training on the
+    /// first [`SYNTH_TRAIN_FRAME_FRACTION`] of each training subject's frames (at least one),
+    /// the rest being its unseen poses; every `test_frame_stride`-th frame evaluated.
+    pub fn synthetic(spec: &SynthSpec, test_frame_stride: usize) -> Self {
+        let (train_ids, test_ids) = spec.split();
+        let name = |id: &u32| subject_dir_name(*id);
+        let train_frames = ((spec.frames as f64 * SYNTH_TRAIN_FRAME_FRACTION).ceil() as usize)
+            .clamp(1, spec.frames);
         Protocol {
             name: "synthetic".into(),
-            train: train_subjects
+            train: train_ids
                 .iter()
-                .map(|s| SubjectFrames::new(s.clone(), FrameRange::new(0, train_frames, 1)))
+                .map(|s| SubjectFrames::new(name(s), FrameRange::new(0, train_frames, 1)))
                 .collect(),
-            train_num_input_views: 3,
+            train_num_input_views: spec.input_views().len().max(1),
             train_target_may_be_input: true,
-            input_views: ViewSet::Evenly { count: 3 },
+            input_views: ViewSet::explicit(&spec.input_views()),
             target_views: ViewSet::OthersThanInputs { stride: 1 },
             target_views_by_subject: BTreeMap::new(),
             test_frame_stride,
-            unseen_subjects: test_subjects
+            unseen_subjects: test_ids
                 .iter()
-                .map(|s| SubjectFrames::new(s.clone(), FrameRange::all_from(0)))
+                .map(|s| SubjectFrames::new(name(s), FrameRange::all_from(0)))
                 .collect(),
-            seen_subjects_unseen_poses: train_subjects
+            seen_subjects_unseen_poses: if train_frames < spec.frames {
+                train_ids
+                    .iter()
+                    .map(|s| SubjectFrames::new(name(s), FrameRange::all_from(train_frames)))
+                    .collect()
+            } else {
+                Vec::new()
+            },
+            seen_subjects_seen_poses: train_ids
                 .iter()
-                .map(|s| SubjectFrames::new(s.clone(), FrameRange::all_from(train_frames)))
-                .collect(),
-            seen_subjects_seen_poses: train_subjects
-                .iter()
-                .map(|s| SubjectFrames::new(s.clone(), FrameRange::new(0, train_frames, 1)))
+                .map(|s| SubjectFrames::new(name(s), FrameRange::new(0, train_frames, 1)))
                 .collect(),
         }
     }
@@ -413,7 +425,10 @@ impl Protocol {
             .chain(&self.seen_subjects_seen_poses);
         for s in ranges {
             if s.frames.interval == 0 {
-                return Err(bad(&format!("{}.frames.interval", s.subject), "must be >= 1"));
+                return Err(bad(
+                    &format!("{}.frames.interval", s.subject),
+                    "must be >= 1",
+                ));
             }
             if s.frames.count == Some(0) {
                 return Err(bad(&format!("{}.frames.count", s.subject), "must be >= 1"));
@@ -449,13 +464,7 @@ impl Protocol {
         Ok(())
     }
 
-    /// Checks that `subject`'s views exist and its frame ranges start inside the data.
-    pub fn check_subject(
-        &self,
-        subject: &str,
-        num_cameras: usize,
-        num_frames: usize,
-    ) -> Result<(), ProtocolError> {
+    fn check_views(&self, subject: &str, num_cameras: usize) -> Result<(), ProtocolError> {
         let inputs = self.input_views_for(num_cameras);
         let targets = self.target_views_for(subject, num_cameras);
         for (field, views) in [("input_views", &inputs), ("target_views", &targets)] {
@@ -469,7 +478,32 @@ impl Protocol {
                 });
             }
         }
-        if self.train.iter().any(|s| s.subject == subject) && num_cameras < self.train_num_input_views
+        Ok(())
+    }
+
+    fn check_range(&self, entry: &SubjectFrames, num_frames: usize) -> Result<(), ProtocolError> {
+        if entry.frames.begin >= num_frames {
+            return Err(ProtocolError::FramesOutOfRange {
+                protocol: self.name.clone(),
+                subject: entry.subject.clone(),
+                begin: entry.frames.begin,
+                num_frames,
+            });
+        }
+        Ok(())
+    }
+
+    /// Checks that `subject`'s views exist, that it has enough cameras to train on, and that
+    /// every frame range naming it starts inside the data.
+    pub fn check_subject(
+        &self,
+        subject: &str,
+        num_cameras: usize,
+        num_frames: usize,
+    ) -> Result<(), ProtocolError> {
+        self.check_views(subject, num_cameras)?;
+        if self.train.iter().any(|s| s.subject == subject)
+            && num_cameras < self.train_num_input_views
         {
             return Err(ProtocolError::Invalid {
                 protocol: self.name.clone(),
@@ -487,14 +521,7 @@ impl Protocol {
             .chain(&self.seen_subjects_unseen_poses)
             .chain(&self.seen_subjects_seen_poses);
         for s in all.filter(|s| s.subject == subject) {
-            if s.frames.begin >= num_frames {
-                return Err(ProtocolError::FramesOutOfRange {
-                    protocol: self.name.clone(),
-                    subject: subject.into(),
-                    begin: s.frames.begin,
-                    num_frames,
-                });
-            }
+            self.check_range(s, num_frames)?;
         }
         Ok(())
     }
@@ -510,7 +537,8 @@ impl Protocol {
         let mut items = Vec::new();
         for s in self.split(split) {
             let (num_cameras, num_frames) = size_of(&s.subject);
-            self.check_subject(&s.subject, num_cameras, num_frames)?;
+            self.check_views(&s.subject, num_cameras)?;
+            self.check_range(s, num_frames)?;
             let inputs = self.input_views_for(num_cameras);
             let targets = self.target_views_for(&s.subject, num_cameras);
             for frame in s
@@ -542,9 +570,18 @@ mod tests {
         let p = Protocol::nhp();
         p.validate().unwrap();
         assert_eq!(p.input_views_for(23), vec![0, 7, 15]);
-        assert_eq!(ViewSet::Evenly { count: 3 }.resolve(23, &[]), vec![0, 7, 15]);
-        assert_eq!(p.target_views_for("CoreView_387", 23), vec![3, 5, 10, 12, 18, 20]);
-        assert_eq!(p.target_views_for("CoreView_313", 23), vec![3, 5, 10, 12, 18, 21]);
+        assert_eq!(
+            ViewSet::Evenly { count: 3 }.resolve(23, &[]),
+            vec![0, 7, 15]
+        );
+        assert_eq!(
+            p.target_views_for("CoreView_387", 23),
+            vec![3, 5, 10, 12, 18, 20]
+        );
+        assert_eq!(
+            p.target_views_for("CoreView_313", 23),
+            vec![3, 5, 10, 12, 18, 21]
+        );
         assert_eq!(p.train_frames("CoreView_377", 10_000).len(), 10);
         let items = p
             .eval_items(EvalSplit::UnseenSubjects, |_| (23, 654))
@@ -553,7 +590,10 @@ mod tests {
         assert_eq!(items.len(), 3 * 22 * 6);
         assert_eq!(items[6].frame, 30);
         let err = p.eval_items(EvalSplit::UnseenSubjects, |_| (4, 654));
-        assert!(matches!(err, Err(ProtocolError::ViewOutOfRange { view: 7, .. })));
+        assert!(matches!(
+            err,
+            Err(ProtocolError::ViewOutOfRange { view: 7, .. })
+        ));
     }
 
     #[test]
@@ -566,8 +606,19 @@ mod tests {
         v["input_views"] = serde_json::json!({"kind": "explicit", "views": [1, 2]});
         let o: Protocol = serde_json::from_value(v).unwrap();
         assert_eq!(o.input_views_for(23), vec![1, 2]);
-        let s = Protocol::synthetic(&["a".into()], &["b".into()], 4, 2);
+        let spec = SynthSpec {
+            subjects: 4,
+            frames: 6,
+            cameras: 6,
+            ..SynthSpec::default()
+        };
+        let s = Protocol::synthetic(&spec, 2);
         s.validate().unwrap();
-        assert_eq!(s.target_views_for("b", 6), vec![1, 3, 5]);
+        assert_eq!(s.train.len(), 3);
+        assert_eq!(s.unseen_subjects[0].subject, "CoreView_4");
+        assert_eq!(s.input_views_for(6), spec.input_views());
+        assert_eq!(s.train_frames("CoreView_1", 6), vec![0, 1, 2, 3]);
+        let items = s.eval_items(EvalSplit::UnseenSubjects, |_| (6, 6)).unwrap();
+        assert_eq!(items.len(), 3 * 3, "frames 0, 2, 4 x 3 targets");
     }
 }

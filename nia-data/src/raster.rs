@@ -1,6 +1,8 @@
 //! A z-buffer triangle rasteriser for the ideal pinhole (undistorted) camera.
 //!
-//! Coverage is tested at pixel centres `(x + 0.5, y + 0.5)` with edge functions and the
+//! Pixel convention: [`PIXEL_CENTRE_OFFSET`] (OpenCV / ZJU-MoCap), i.e. pixel `(x, y)` has its
+//! centre at image coordinate `(x, y)`, the same point [`crate::rays::image_rays`] casts its
+//! ray through. Coverage is tested at these pixel centres with edge functions and the
 //! top-left fill rule, so two triangles sharing an edge never both cover (and never both miss)
 //! a pixel centre lying exactly on it. The edge functions are evaluated in f64 as
 //! `A px + B py + C` with `(A, B, C)` computed from the two endpoints; reversing an edge
@@ -22,7 +24,7 @@
 // `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::camera::Camera;
+use crate::camera::{Camera, PIXEL_CENTRE_OFFSET};
 use glam::{Vec2, Vec3};
 use image::RgbImage;
 use rayon::prelude::*;
@@ -205,7 +207,8 @@ impl Fragments {
 #[derive(Debug, Clone, Copy)]
 struct TriSetup {
     /// Edge `i` is opposite vertex `i`: `E_i(p) = A px + B py + C` (pixel coordinates relative
-    /// to the image centre), positive inside.
+    /// to `(W / 2, H / 2)`, near the image centre, to keep the coefficients small), positive
+    /// inside.
     edges: [[f64; 3]; 3],
     /// Whether a pixel centre exactly on edge `i` belongs to this triangle (top-left rule).
     top_left: [bool; 3],
@@ -258,7 +261,8 @@ pub fn rasterize_into(
     }
 
     // Camera-space vertices and their screen positions (shared by every face using them, so a
-    // shared edge has bit-identical endpoints in both faces).
+    // shared edge has bit-identical endpoints in both faces). Screen coordinates are taken
+    // relative to (W / 2, H / 2) (exact in f64) so the edge coefficients stay small.
     let ox = w as f64 * 0.5;
     let oy = h as f64 * 0.5;
     let cam: Vec<Vec3> = vertices
@@ -358,7 +362,7 @@ fn setup_face(
     }
 }
 
-/// Screen position relative to the image centre (f64), NaN when at or behind the camera
+/// Screen position relative to `(ox, oy)` (f64), NaN when at or behind the camera
 /// plane (such vertices only occur in clipped faces, which do not use this value).
 #[inline]
 fn project(camera: &Camera, p: Vec3, ox: f64, oy: f64) -> [f64; 2] {
@@ -417,11 +421,12 @@ fn setup(
     let max_x = s[0][0].max(s[1][0]).max(s[2][0]) + ox;
     let min_y = s[0][1].min(s[1][1]).min(s[2][1]) + oy;
     let max_y = s[0][1].max(s[1][1]).max(s[2][1]) + oy;
-    // Pixel x is covered only if its centre x + 0.5 lies in [min_x, max_x].
-    let x0 = (min_x - 0.5).ceil().max(0.0);
-    let x1 = (max_x - 0.5).floor().min(w as f64 - 1.0);
-    let y0 = (min_y - 0.5).ceil().max(0.0);
-    let y1 = (max_y - 0.5).floor().min(h as f64 - 1.0);
+    // Pixel x is covered only if its centre x + PIXEL_CENTRE_OFFSET lies in [min_x, max_x].
+    let off = PIXEL_CENTRE_OFFSET as f64;
+    let x0 = (min_x - off).ceil().max(0.0);
+    let x1 = (max_x - off).floor().min(w as f64 - 1.0);
+    let y0 = (min_y - off).ceil().max(0.0);
+    let y1 = (max_y - off).floor().min(h as f64 - 1.0);
     if !(x0 <= x1 && y0 <= y1) {
         return None;
     }
@@ -505,14 +510,19 @@ fn draw_rows(
 ) {
     let [e0, e1, e2] = &t.edges;
     let (x0, x1) = (t.bbox[0] as usize, t.bbox[1] as usize);
+    // Pixel centres relative to the image centre (exact in f64 for any image size).
+    let (cx, cy) = (
+        PIXEL_CENTRE_OFFSET as f64 - ox,
+        PIXEL_CENTRE_OFFSET as f64 - oy,
+    );
     for y in rows {
-        let py = y as f64 + 0.5 - oy;
+        let py = y as f64 + cy;
         let r0 = e0[1] * py + e0[2];
         let r1 = e1[1] * py + e1[2];
         let r2 = e2[1] * py + e2[2];
         let row = (y - y_begin) * w;
         for x in x0..=x1 {
-            let px = x as f64 + 0.5 - ox;
+            let px = x as f64 + cx;
             let a0 = e0[0] * px + r0;
             let a1 = e1[0] * px + r1;
             let a2 = e2[0] * px + r2;
@@ -546,7 +556,8 @@ fn draw_rows(
 }
 
 /// Renders a textured mesh: per pixel, the perspective-correct texture coordinate of the
-/// visible face, bilinearly sampled (texel centres at `+0.5`, clamped at the border), black
+/// visible face, bilinearly sampled (texel `i` centred at `u = (i + 0.5) / width`: OpenGL's
+/// texture convention, independent of [`PIXEL_CENTRE_OFFSET`]; clamped at the border), black
 /// where no face is. `uvs`: [V] per-vertex texture coordinates in `[0, 1]`, OBJ/OpenGL
 /// convention (`u` right, `v` up: `v = 1` is the texture's top row). Returns the image and the
 /// [H * W] coverage mask.

@@ -2,13 +2,16 @@
 //! `mask_at_box`).
 //!
 //! A ray leaves the camera centre through a pixel position of the ideal pinhole (undistorted)
-//! image; pixel `(i, j)` has its centre at `(i + 0.5, j + 0.5)`. Directions are unit vectors,
-//! so ray parameters `t` are distances in metres along the ray (not camera depths).
+//! image. Pixel convention: [`PIXEL_CENTRE_OFFSET`] (OpenCV / ZJU-MoCap, as NHP casts its
+//! rays), i.e. pixel `(i, j)` has its centre at image coordinate `(i, j)`; [`image_rays`] and
+//! [`mask_at_box`] cast one ray through each such centre, the same points the rasteriser tests
+//! coverage at. Directions are unit vectors, so ray parameters `t` are distances in metres
+//! along the ray (not camera depths).
 
 // `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::camera::Camera;
+use crate::camera::{Camera, PIXEL_CENTRE_OFFSET};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
@@ -16,6 +19,12 @@ use rayon::prelude::*;
 /// division `(plane - origin) / dir` would give infinities (and `0 / 0 = NaN` for an origin on
 /// the plane), so the slab is tested by containment instead.
 pub const PARALLEL_EPS: f32 = 1e-12;
+
+/// Margin (pixels) around the bounding rectangle of a box's projected corners within which
+/// [`mask_at_box`] still tests pixels: the projection and the per-pixel ray test round
+/// differently (f32, ~1e-4 pixels at 512 pixels), so a pixel centre a hair outside the
+/// rectangle may still hit; one pixel is far more than that round-off.
+pub const BOX_RECT_MARGIN_PX: f32 = 1.0;
 
 /// A ray `origin + t * dir`, `dir` a unit vector, `t` in metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -34,10 +43,18 @@ impl Ray {
 }
 
 /// The ray through a (continuous) pixel position of the ideal pinhole image: pass
-/// `(i + 0.5, j + 0.5)` for the centre of pixel `(i, j)`.
+/// [`pixel_centre`]`(i, j)` (that is `(i, j)`, see [`PIXEL_CENTRE_OFFSET`]) for the centre of
+/// pixel `(i, j)`.
 pub fn pixel_ray(camera: &Camera, pixel: Vec2) -> Ray {
     let rt = camera.r.transpose();
     ray_with(camera, rt, camera.centre(), pixel)
+}
+
+/// Image coordinate of the centre of pixel `(x, y)` (column, row):
+/// `(x, y) + PIXEL_CENTRE_OFFSET`, i.e. `(x, y)`.
+#[inline]
+pub fn pixel_centre(x: usize, y: usize) -> Vec2 {
+    Vec2::new(x as f32, y as f32) + Vec2::splat(PIXEL_CENTRE_OFFSET)
 }
 
 #[inline]
@@ -57,7 +74,7 @@ pub fn pixel_rays(camera: &Camera, pixels: &[Vec2]) -> Vec<Ray> {
         .collect()
 }
 
-/// [H * W] rays through every pixel centre, row-major (`y * width + x`).
+/// [H * W] rays through every pixel centre ([`pixel_centre`]), row-major (`y * width + x`).
 pub fn image_rays(camera: &Camera) -> Vec<Ray> {
     let rt = camera.r.transpose();
     let origin = camera.centre();
@@ -74,12 +91,7 @@ pub fn image_rays(camera: &Camera) -> Vec<Ray> {
     }
     rays.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, ray) in row.iter_mut().enumerate() {
-            *ray = ray_with(
-                camera,
-                rt,
-                origin,
-                Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
-            );
+            *ray = ray_with(camera, rt, origin, pixel_centre(x, y));
         }
     });
     rays
@@ -202,11 +214,12 @@ pub fn near_far(ray: &Ray, aabb: &Aabb) -> Option<(f32, f32)> {
     }
 }
 
-/// NHP's `mask_at_box`: [H * W] row-major, true for pixels whose centre ray hits the box (in
-/// front of the camera). This is the projection of the 3D box, i.e. the convex hull of its 8
-/// projected corners when the box is in front of the camera, computed exactly by a ray/box test
-/// per pixel. When every corner is in front of the camera only the pixels of the corners'
-/// bounding rectangle (plus a one-pixel margin) are tested: no ray outside the hull can hit.
+/// NHP's `mask_at_box`: [H * W] row-major, true for pixels whose centre ray (through
+/// [`pixel_centre`]) hits the box (in front of the camera). This is the projection of the 3D
+/// box, i.e. the convex hull of its 8 projected corners when the box is in front of the
+/// camera, computed exactly by a ray/box test per pixel. When every corner is in front of the
+/// camera only the pixels whose centres lie in the corners' bounding rectangle (plus
+/// [`BOX_RECT_MARGIN_PX`]) are tested: no ray outside the hull can hit.
 pub fn mask_at_box(camera: &Camera, aabb: &Aabb) -> Vec<bool> {
     let rt = camera.r.transpose();
     let origin = camera.centre();
@@ -224,12 +237,18 @@ pub fn mask_at_box(camera: &Camera, aabb: &Aabb) -> Vec<bool> {
     if let Some(uv) = projected.filter(|uv| uv.iter().all(|p| p.is_finite())) {
         let lo = uv.iter().fold(Vec2::INFINITY, |m, p| m.min(*p));
         let hi = uv.iter().fold(Vec2::NEG_INFINITY, |m, p| m.max(*p));
-        // Pixel i is tested when its centre i + 0.5 may lie in [lo, hi] (one pixel of margin).
+        // Pixel i is tested when its centre i + PIXEL_CENTRE_OFFSET lies in
+        // [lo - margin, hi + margin]: i from floor(lo - offset - margin) to
+        // floor(hi - offset + margin), the end exclusive after + 1.
+        let (lo, hi) = (
+            lo - (PIXEL_CENTRE_OFFSET + BOX_RECT_MARGIN_PX),
+            hi - (PIXEL_CENTRE_OFFSET - BOX_RECT_MARGIN_PX),
+        );
         let clamp = |v: f32, n: usize| v.clamp(0.0, n as f32) as usize;
-        x0 = clamp((lo.x - 1.5).floor(), w);
-        x1 = clamp((hi.x + 1.5).ceil(), w);
-        y0 = clamp((lo.y - 1.5).floor(), h);
-        y1 = clamp((hi.y + 1.5).ceil(), h);
+        x0 = clamp(lo.x.floor(), w);
+        x1 = clamp(hi.x.floor() + 1.0, w);
+        y0 = clamp(lo.y.floor(), h);
+        y1 = clamp(hi.y.floor() + 1.0, h);
     }
     if x0 >= x1 || y0 >= y1 {
         return mask;
@@ -240,12 +259,7 @@ pub fn mask_at_box(camera: &Camera, aabb: &Aabb) -> Vec<bool> {
         .for_each(|(dy, row)| {
             let y = y0 + dy;
             for (x, m) in row.iter_mut().enumerate().take(x1).skip(x0) {
-                let ray = ray_with(
-                    camera,
-                    rt,
-                    origin,
-                    Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
-                );
+                let ray = ray_with(camera, rt, origin, pixel_centre(x, y));
                 *m = near_far(&ray, aabb).is_some();
             }
         });

@@ -1,9 +1,10 @@
 //! Per-vertex visibility of a mesh in a camera (NIA's per-view SMPL vertex visibility, 0/1).
 //!
-//! A vertex is visible when it projects inside the image and either the pixel it falls in is
-//! empty (the vertex sits on the silhouette, just outside its faces' coverage), or at some
-//! covered pixel of the `(2 r + 1) x (2 r + 1)` neighbourhood (r = [`NEIGHBOURHOOD_RADIUS`])
-//! of that pixel
+//! A vertex is visible when it projects inside the image and either the pixel it falls in
+//! (the pixel with the nearest centre: with [`PIXEL_CENTRE_OFFSET`] = 0 pixel `i` covers
+//! `[i - 0.5, i + 0.5)`) is empty (the vertex sits on the silhouette, just outside its faces'
+//! coverage), or at some covered pixel of the `(2 r + 1) x (2 r + 1)` neighbourhood
+//! (r = [`NEIGHBOURHOOD_RADIUS`]) of that pixel
 //! - its camera depth is within `depth_tol_m` of the z-buffer (`z_v <= z_buf + tol`), or
 //! - the face drawn there is one of the vertex's own faces.
 //!
@@ -19,9 +20,9 @@
 // `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use crate::camera::Camera;
+use crate::camera::{Camera, PIXEL_CENTRE_OFFSET};
 use crate::raster::{rasterize, validate_faces, Fragments, MeshError, EMPTY_FACE};
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 /// Pixels around the vertex's own pixel that are consulted (1: a 3x3 window).
@@ -93,10 +94,13 @@ pub fn vertex_visibility(
             let Some((uv, z)) = camera.project(*v) else {
                 return 0;
             };
-            if !camera.contains_pixel(uv) {
+            // The pixel whose cell [i + offset - 0.5, i + offset + 0.5) holds uv; outside
+            // the image (or NaN, which fails the range test) means unseen.
+            let cell = (uv - Vec2::splat(PIXEL_CENTRE_OFFSET - 0.5)).floor();
+            if !(cell.x >= 0.0 && cell.y >= 0.0 && cell.x < w as f32 && cell.y < h as f32) {
                 return 0;
             }
-            let (px, py) = (uv.x.floor() as i64, uv.y.floor() as i64);
+            let (px, py) = (cell.x as i64, cell.y as i64);
             // The vertex's own pixel: empty means the vertex lies on the silhouette, just
             // outside the coverage of its faces.
             if fragments.face[(py * w + px) as usize] == EMPTY_FACE {

@@ -1,12 +1,39 @@
 //! nia-infer: render, animate, evaluate, export, inspect.
+//!
+//! A thin binary: each subcommand parses its arguments and calls the libraries; all data
+//! and model logic lives in `nia-data` and `nia-model`.
+
+mod commands;
+
+use std::process::ExitCode;
+
 use clap::Parser;
 
 /// Inference tools for nia-rs.
 #[derive(Parser)]
 #[command(version, about)]
-enum Cli {}
+enum Cli {
+    /// Summarise a subject folder (ZJU-MoCap `CoreView_XXX`, MonoCap, or synthetic) as one JSON
+    /// object: cameras, frames, image size, camera 0, body bounds, mask coverage and, with
+    /// `--smpl`, how well the model's LBS reproduces the stored vertices.
+    Inspect(commands::inspect::InspectArgs),
+    /// PSNR and SSIM of a predicted image against the ground truth, as NHP/NIA report them,
+    /// printed as `{"psnr": .., "ssim": ..}`.
+    Metrics(commands::metrics::MetricsArgs),
+}
 
-fn main() -> anyhow::Result<()> {
-    let _cli = Cli::parse();
-    Ok(())
+/// Runs the subcommand; on failure prints the error and its causes on one line to stderr
+/// (no backtrace, whatever `RUST_BACKTRACE` says) and exits with status 1.
+fn main() -> ExitCode {
+    let result = match Cli::parse() {
+        Cli::Inspect(args) => commands::inspect::run(&args),
+        Cli::Metrics(args) => commands::metrics::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }

@@ -306,6 +306,13 @@ impl Blender {
         if n == 0 {
             return Err(ShapeError::empty("blend views N"));
         }
+        if variant != Variant::NoIbr {
+            ShapeError::check(
+                "blend `source_colours` [N, M, 3]",
+                &inputs.source_colours.dims(),
+                &[Some(n), Some(m), Some(3)],
+            )?;
+        }
         let device = inputs.c0.device();
         // [M, N + 1] weights (0, w_1..w_N) from per-view weights [N, M].
         let views_only =
@@ -329,12 +336,12 @@ impl Blender {
                 blend_weights: views_only(Tensor::full([n, m], 1.0 / n as f32, &device)),
             }),
             Variant::CosineWeighted => {
-                let cosine = inputs.view_dir_features.clone().slice(s![.., .., 3..4]);
                 ShapeError::check(
                     "blend `view_dir_features` [N, M, 4]",
-                    &cosine.dims(),
-                    &[Some(n), Some(m), Some(1)],
+                    &inputs.view_dir_features.dims(),
+                    &[Some(n), Some(m), Some(VIEW_DIR_FEATURE_DIM)],
                 )?;
+                let cosine = inputs.view_dir_features.clone().slice(s![.., .., 3..4]);
                 let weights =
                     stable_softmax(cosine.reshape([n, m]).div_scalar(cosine_temperature), 0);
                 Ok(PointColour {

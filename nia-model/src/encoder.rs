@@ -10,8 +10,6 @@ use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use burn::tensor::module::interpolate;
-use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 
 /// ImageNet normalisation torchvision's weights expect (applied inside the encoder).
 const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
@@ -152,14 +150,44 @@ impl ImageEncoder {
         }
         let f4 = x; // [N, 256, H/16, W/16]
 
-        let up = |f: Tensor<4>| {
-            interpolate(
-                f,
-                InterpolateOptions::new(InterpolateMode::Bilinear)
-                    .with_align_corners(false)
-                    .with_output_size([h2, w2]),
-            )
-        };
+        let up = |f: Tensor<4>| upsample_bilinear(f, [h2, w2]);
         Tensor::cat(vec![f1, up(f2), up(f3), up(f4)], 1)
     }
+}
+
+/// The [out, in] matrix of 1-D bilinear resampling with `align_corners = false` (PyTorch's
+/// `F.interpolate(..., mode="bilinear")`): output i reads source `max((i + 0.5) in/out - 0.5, 0)`.
+pub fn bilinear_matrix(input: usize, output: usize) -> Vec<f32> {
+    let mut m = vec![0.0f32; output * input];
+    let scale = input as f32 / output as f32;
+    for i in 0..output {
+        let src = ((i as f32 + 0.5) * scale - 0.5).max(0.0);
+        let i0 = (src.floor() as usize).min(input - 1);
+        let i1 = (i0 + 1).min(input - 1);
+        let lambda = src - i0 as f32;
+        m[i * input + i0] += 1.0 - lambda;
+        m[i * input + i1] += lambda;
+    }
+    m
+}
+
+/// Bilinear upsampling as two matrix products (`A_h f A_w^T`), so it is differentiable on every
+/// backend (burn-ndarray has no backward for `interpolate`).
+///
+/// # Shapes
+/// - f: [N, C, h, w] -> [N, C, H, W] with `[H, W] = size`
+pub fn upsample_bilinear(f: Tensor<4>, size: [usize; 2]) -> Tensor<4> {
+    let [n, c, h, w] = f.dims();
+    let [oh, ow] = size;
+    if (h, w) == (oh, ow) {
+        return f;
+    }
+    let device = f.device();
+    let a_w = Tensor::<2>::from_data(TensorData::new(bilinear_matrix(w, ow), [ow, w]), &device);
+    let a_h = Tensor::<2>::from_data(TensorData::new(bilinear_matrix(h, oh), [oh, h]), &device);
+    // Along W: [N*C*h, w] x [w, W].
+    let x = f.reshape([n * c * h, w]).matmul(a_w.transpose()).reshape([n * c, h, ow]);
+    // Along H: [N*C, H, h] x [N*C, h, W].
+    let a_h = a_h.unsqueeze_dim::<3>(0).expand([n * c, oh, h]);
+    a_h.matmul(x).reshape([n, c, oh, ow])
 }

@@ -28,7 +28,7 @@ pub struct PositionalEncodingConfig {
 }
 
 /// The NeRF positional encoding gamma of 3-vectors. No parameters.
-#[derive(Module, Debug, Clone)]
+#[derive(Module, Debug)]
 pub struct PositionalEncoding {
     /// Number of frequencies L.
     pub num_frequencies: usize,

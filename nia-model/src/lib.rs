@@ -12,4 +12,14 @@ pub mod heads;
 pub mod ibr;
 pub mod loss;
 pub mod renderer;
+pub mod reposing;
 pub mod variant;
+pub mod config;
+pub mod model;
+pub mod query;
+pub mod scene;
+
+pub use config::ModelConfig;
+pub use model::{NiaModel, PointOutput, RayBatch, SceneEncoding};
+pub use variant::Variant;
+pub mod timing;

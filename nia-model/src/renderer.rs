@@ -165,8 +165,8 @@ pub fn sample_weights(
         Tensor::cat(vec![inner, last_delta], 1)
     } else {
         last_delta
-    }
-    .clamp_min(0.0);
+    };
+    let delta = delta.clamp_min(0.0);
     let tau = (sigma * delta).clamp(0.0, OPTICAL_DEPTH_MAX);
     let device = tau.device();
     let exclusive = if s > 1 {

@@ -55,11 +55,17 @@ pub fn render_view(
     let fine_camera = if ss == 1 {
         *camera
     } else {
-        camera.scaled(ss as f32).map_err(|_| MeshError::Invalid {
+        // Fine pixel centres must sit at x + (2k + 1 - ss) / (2 ss) around each coarse centre:
+        // with integer centres the principal point maps c -> (c + 0.5) ss - 0.5.
+        let mut fine = camera.scaled(ss as f32).map_err(|_| MeshError::Invalid {
             what: "render_view",
             field: "supersample",
             expected: "a supersampling factor the camera can be scaled by",
-        })?
+        })?;
+        let shift = (ss as f32 - 1.0) * 0.5;
+        fine.k.z_axis.x += shift;
+        fine.k.z_axis.y += shift;
+        fine
     };
     for (field, len) in [
         ("normals", normals.len()),

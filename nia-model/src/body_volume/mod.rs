@@ -25,7 +25,7 @@ pub use network::{
 };
 pub use rulebook::{Rulebook, RulebookKind, SiteIndex, KERNEL_VOLUME};
 pub use site_norm::{SiteNorm, SiteNormConfig};
-pub use sparse_conv::{RulebookTensors, SparseConv3d, SparseConv3dConfig};
+pub use sparse_conv::{ConvMethod, RulebookTensors, SparseConv3d, SparseConv3dConfig};
 pub use trilinear::{TrilinearCorners, TrilinearTensors};
 pub use voxelize::{voxelize, ScaleGeometry, VoxelBox, Voxelization};
 

@@ -20,7 +20,11 @@ pub const KERNEL_VOLUME: usize = 27;
 
 /// The integer offset `(a - 1, b - 1, c - 1)` of kernel offset `k` (0..27).
 pub fn kernel_offset(k: usize) -> [i32; 3] {
-    [(k / 9) as i32 - 1, ((k / 3) % 3) as i32 - 1, (k % 3) as i32 - 1]
+    [
+        (k / 9) as i32 - 1,
+        ((k / 3) % 3) as i32 - 1,
+        (k % 3) as i32 - 1,
+    ]
 }
 
 /// A fast hasher for packed voxel keys (a 64-bit finaliser; the keys are not adversarial).

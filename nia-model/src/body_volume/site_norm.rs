@@ -9,6 +9,7 @@
 //! per-channel scale and shift. It works for any N >= 1, keeps views independent, has no
 //! running state, and training and evaluation compute the same thing.
 
+use burn::module::Param;
 use burn::prelude::*;
 
 use super::BodyVolumeError;

@@ -6,10 +6,12 @@
 //! - `Im2col`: one gather of the 27 neighbours of every output (a missing neighbour reads an
 //!   appended zero row) into `[N, P_out, 27 C_in]` and one matmul with `W` as `[27 C_in, C_out]`.
 //!   No scatter; its cost grows with `27 P_out` whatever the number of active neighbours.
-//! - `Pairs`: one gather of the inputs of all pairs `[N, T, C_in]`, one matmul per kernel offset
-//!   on its slice, one scatter-add (`select_assign(.., Add)`) into `[N, P_out, C_out]`. Its cost
-//!   grows with the number of pairs T; best when few neighbours are active.
+//! - `Pairs`: one matmul of every input with all 27 offsets' weights (`[N P_in, 27 C_out]`),
+//!   one gather of the T pairs' products and one scatter-add (`select_assign(.., Add)`) into
+//!   `[N, P_out, C_out]`. The matmul costs as much as `Im2col`'s, but only T rows move through
+//!   the gather / scatter; best when few neighbours are active.
 
+use burn::module::Param;
 use burn::nn::Initializer;
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
@@ -41,16 +43,14 @@ pub enum ConvMethod {
 #[derive(Debug, Clone)]
 enum RulebookIndices {
     Im2col {
-        /// [P_out * 27] input site per (output, offset), `n_in` = missing.
+        /// [P_out * 27] input site per (output, offset), `n_in` = missing (zero row).
         neighbours: Tensor<1, Int>,
     },
     Pairs {
-        /// [T] input site of every pair, grouped by offset.
-        in_index: Tensor<1, Int>,
+        /// [T] row `in * 27 + k` of the per-offset products `[P_in * 27, C_out]` of every pair.
+        product_row: Tensor<1, Int>,
         /// [T] output site of every pair.
         out_index: Tensor<1, Int>,
-        /// [28] group starts.
-        group_start: [usize; KERNEL_VOLUME + 1],
     },
 }
 
@@ -83,11 +83,22 @@ impl RulebookTensors {
             ConvMethod::Im2col => RulebookIndices::Im2col {
                 neighbours: int_tensor(&rulebook.neighbour_map(), device),
             },
-            _ => RulebookIndices::Pairs {
-                in_index: int_tensor(&rulebook.in_index, device),
-                out_index: int_tensor(&rulebook.out_index, device),
-                group_start: rulebook.group_start,
-            },
+            _ => {
+                let mut product_row = Vec::with_capacity(rulebook.num_pairs());
+                for k in 0..KERNEL_VOLUME {
+                    product_row.extend(
+                        rulebook
+                            .pairs(k)
+                            .map(|(i, _)| i as u64 * KERNEL_VOLUME as u64 + k as u64),
+                    );
+                }
+                let product_row: Vec<i64> = product_row.into_iter().map(|v| v as i64).collect();
+                let t = product_row.len();
+                RulebookIndices::Pairs {
+                    product_row: Tensor::from_data(TensorData::new(product_row, [t]), device),
+                    out_index: int_tensor(&rulebook.out_index, device),
+                }
+            }
         };
         RulebookTensors {
             kind: rulebook.kind,
@@ -111,6 +122,26 @@ pub(crate) fn int_tensor(values: &[u32], device: &Device) -> Tensor<1, Int> {
     let data: Vec<i64> = values.iter().map(|&v| v as i64).collect();
     let n = data.len();
     Tensor::from_data(TensorData::new(data, [n]), device)
+}
+
+/// Row indices into `[N * rows, ..]` (N views stacked) of the per-view rows `index` [L]:
+/// `[N * L]`, view-major, `n * rows + index[l]`.
+pub(crate) fn per_view_rows(index: &Tensor<1, Int>, views: usize, rows: usize) -> Tensor<1, Int> {
+    if views == 1 {
+        return index.clone();
+    }
+    let [len] = index.dims();
+    let offsets = Tensor::<1, Int>::arange(0..views as i64, &index.device())
+        .mul_scalar(rows as i64)
+        .reshape([views, 1]);
+    (offsets + index.clone().reshape([1, len])).reshape([views * len])
+}
+
+/// `[N, P, C]` -> `[N * (P + 1), C]`: every view's rows followed by one zero row (index P).
+pub(crate) fn rows_with_zero_row(features: Tensor<3>) -> Tensor<2> {
+    let [n, p, c] = features.dims();
+    let device = features.device();
+    Tensor::cat(vec![features, Tensor::zeros([n, 1, c], &device)], 1).reshape([n * (p + 1), c])
 }
 
 /// Configuration of [`SparseConv3d`] (kernel 3x3x3; stride and padding come with the rulebook).
@@ -174,49 +205,54 @@ impl SparseConv3d {
         if dims[1] != rulebook.n_in || dims[2] != c_in {
             return Err(BodyVolumeError::shape(
                 "SparseConv3d features",
-                format!("[N, {}, {c_in}] (P_in of the rulebook, C_in)", rulebook.n_in),
+                format!(
+                    "[N, {}, {c_in}] (P_in of the rulebook, C_in)",
+                    rulebook.n_in
+                ),
                 &dims,
             ));
         }
         let n = dims[0];
-        let device = features.device();
+        let p_out = rulebook.n_out;
+        // All gathers and scatters are row operations on 2D [rows, C] tensors (the fast path
+        // of the CPU backends), the N views stacked along the rows.
         let out = match &rulebook.indices {
             RulebookIndices::Im2col { neighbours } => {
-                // Append the zero row read by missing neighbours.
-                let padded = Tensor::cat(vec![features, Tensor::zeros([n, 1, c_in], &device)], 1);
-                let columns = padded
-                    .select(1, neighbours.clone())
-                    .reshape([n * rulebook.n_out, KERNEL_VOLUME * c_in]);
-                columns
+                let rows = per_view_rows(neighbours, n, rulebook.n_in + 1);
+                rows_with_zero_row(features)
+                    .select(0, rows) // [N * P_out * 27, C_in]
+                    .reshape([n * p_out, KERNEL_VOLUME * c_in])
                     .matmul(weight.reshape([KERNEL_VOLUME * c_in, c_out]))
-                    .reshape([n, rulebook.n_out, c_out])
+                    .reshape([n, p_out, c_out])
             }
             RulebookIndices::Pairs {
-                in_index,
+                product_row,
                 out_index,
-                group_start,
             } => {
-                let out = Tensor::zeros([n, rulebook.n_out, c_out], &device);
-                if group_start[KERNEL_VOLUME] == 0 {
-                    out
+                let device = features.device();
+                let out = Tensor::zeros([n * p_out, c_out], &device);
+                if rulebook.n_in == 0 || product_row.dims()[0] == 0 {
+                    out.reshape([n, p_out, c_out])
                 } else {
-                    let gathered = features.select(1, in_index.clone());
-                    let mut parts = Vec::with_capacity(KERNEL_VOLUME);
-                    for k in 0..KERNEL_VOLUME {
-                        let len = group_start[k + 1] - group_start[k];
-                        if len == 0 {
-                            continue;
-                        }
-                        let inputs = gathered.clone().narrow(1, group_start[k], len);
-                        let w_k = weight.clone().narrow(0, k, 1);
-                        parts.push(inputs.matmul(w_k));
-                    }
+                    // Every input times every offset's weight: [N * P_in * 27, C_out].
+                    let w_all = weight
+                        .swap_dims(0, 1)
+                        .reshape([c_in, KERNEL_VOLUME * c_out]);
+                    let products = features
+                        .reshape([n * rulebook.n_in, c_in])
+                        .matmul(w_all)
+                        .reshape([n * rulebook.n_in * KERNEL_VOLUME, c_out]);
+                    let gathered = products.select(
+                        0,
+                        per_view_rows(product_row, n, rulebook.n_in * KERNEL_VOLUME),
+                    );
                     out.select_assign(
-                        1,
-                        out_index.clone(),
-                        Tensor::cat(parts, 1),
+                        0,
+                        per_view_rows(out_index, n, p_out),
+                        gathered,
                         IndexingUpdateOp::Add,
                     )
+                    .reshape([n, p_out, c_out])
                 }
             }
         };
@@ -225,4 +261,9 @@ impl SparseConv3d {
             None => out,
         })
     }
+}
+
+#[doc(hidden)]
+pub fn int_tensor_pub(values: &[u32], device: &Device) -> Tensor<1, Int> {
+    int_tensor(values, device)
 }

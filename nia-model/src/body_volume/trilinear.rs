@@ -10,11 +10,12 @@
 //!
 //! CPU side ([`TrilinearCorners::compute`]): `index` [M * 8] site per corner (P_s = the zero
 //! row appended at sampling time) and `weight` [M * 8], corner `j = (dx * 2 + dy) * 2 + dz`.
-//! Tensor side ([`sample`]): `[N, P_s, C] -> [N, M, C]`, differentiable in the features.
+//! Tensor side ([`sample`]): `[N, P_s, C] -> [N, M, C]`, differentiable in the features: one
+//! row gather per corner from `[N (P_s + 1), C]` and a weighted sum.
 
 use burn::prelude::*;
 
-use super::sparse_conv::int_tensor;
+use super::sparse_conv::{int_tensor, per_view_rows, rows_with_zero_row};
 use super::voxelize::ScaleGeometry;
 use super::BodyVolumeError;
 
@@ -77,25 +78,34 @@ impl TrilinearCorners {
         self.index.len() / CORNERS
     }
 
-    /// Uploads the corners to `device`.
+    /// Uploads the corners to `device` (corner-major, see [`TrilinearTensors`]).
     pub fn to_tensors(&self, device: &Device) -> TrilinearTensors {
-        let n = self.weight.len();
+        let m = self.num_points();
+        let mut index = Vec::with_capacity(m * CORNERS);
+        let mut weight = Vec::with_capacity(m * CORNERS);
+        for j in 0..CORNERS {
+            index.extend((0..m).map(|i| self.index[i * CORNERS + j]));
+            weight.extend((0..m).map(|i| self.weight[i * CORNERS + j]));
+        }
         TrilinearTensors {
-            index: int_tensor(&self.index, device),
-            weight: Tensor::from_data(TensorData::new(self.weight.clone(), [n]), device),
-            num_points: self.num_points(),
+            index: (0..CORNERS)
+                .map(|j| int_tensor(&index[j * m..(j + 1) * m], device))
+                .collect(),
+            weight: Tensor::from_data(TensorData::new(weight, [CORNERS, m]), device),
+            num_points: m,
             num_sites: self.num_sites,
         }
     }
 }
 
-/// [`TrilinearCorners`] on a device.
+/// [`TrilinearCorners`] on a device, corner-major (one gather per corner keeps the memory at
+/// a few times the output instead of 8 times).
 #[derive(Debug, Clone)]
 pub struct TrilinearTensors {
-    /// [M * 8] Int, site per corner (P_s = zero row).
-    pub index: Tensor<1, Int>,
-    /// [M * 8] weights.
-    pub weight: Tensor<1>,
+    /// [8] x [M] Int, site of corner j of every point (P_s = zero row).
+    pub index: Vec<Tensor<1, Int>>,
+    /// [8, M] weights.
+    pub weight: Tensor<2>,
     /// M.
     pub num_points: usize,
     /// P_s.
@@ -124,11 +134,26 @@ pub fn sample(
         ));
     }
     let m = corners.num_points;
-    let device = features.device();
-    let padded = Tensor::cat(vec![features, Tensor::zeros([n, 1, c], &device)], 1);
-    let values = padded
-        .select(1, corners.index.clone())
-        .reshape([n, m, CORNERS, c]);
-    let weight = corners.weight.clone().reshape([1, m, CORNERS, 1]);
-    Ok((values * weight).sum_dim(2).reshape([n, m, c]))
+    let rows = rows_with_zero_row(features); // [N * (P_s + 1), C]
+    let mut out: Option<Tensor<3>> = None;
+    for (j, index) in corners.index.iter().enumerate() {
+        let values = rows
+            .clone()
+            .select(0, per_view_rows(index, n, p_s + 1)) // [N * M, C]
+            .reshape([n, m, c]);
+        let weight = corners.weight.clone().narrow(0, j, 1).reshape([1, m, 1]);
+        let term = values * weight;
+        out = Some(match out {
+            Some(acc) => acc + term,
+            None => term,
+        });
+    }
+    match out {
+        Some(out) => Ok(out),
+        None => Err(BodyVolumeError::invalid(
+            "trilinear::sample corners",
+            "8 corner index tensors",
+            0,
+        )),
+    }
 }

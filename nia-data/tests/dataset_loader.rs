@@ -1,0 +1,434 @@
+//! Training ray sampling, the visibility cache and the prefetching loader, on the numpy-written
+//! ZJU fixture and on `synth` output read through the same reader.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use nia_data::body::BodyModel;
+use nia_data::dataset::vis_cache::{self, VisibilityCache};
+use nia_data::dataset::{DatasetConfig, Subject};
+use nia_data::loader::{
+    eval_requests, load_scene, train_requests, LoaderConfig, SceneLoader, SceneSource, SceneTarget,
+    TargetKind,
+};
+use nia_data::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
+use nia_data::rays::mask_at_box;
+use nia_data::rng::Rng;
+use nia_data::sampling::{border_band, sample_rays, BoxPadding, RaySamplingConfig};
+use nia_data::synth::{generate, SynthSpec};
+use nia_data::visibility::DEFAULT_DEPTH_TOL_M;
+
+/// Stored synthetic vertices are float32 LBS of the written model.
+const SYNTH_LBS_TOL_M: f32 = 1e-5;
+
+fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/zju")
+}
+
+fn scratch(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("nia-dataset-loader-{}-{tag}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn fixture_subject() -> Subject {
+    Subject::open(&fixtures().join("CoreView_377"), &DatasetConfig::zju()).unwrap()
+}
+
+fn fixture_model() -> BodyModel {
+    BodyModel::load(&fixtures().join("smpl_tiny.npz")).unwrap()
+}
+
+#[test]
+fn training_rays_follow_nhp_rules_and_are_deterministic() {
+    let s = fixture_subject();
+    let frame = 1;
+    let view = s.load_view(frame, 0).unwrap();
+    let vertices = s.load_vertices(frame).unwrap();
+    let body_box = BoxPadding::nhp().body_box(&vertices).unwrap();
+    // The tiny image is 32 pixels wide: a 3-pixel band keeps some interior pixels.
+    let config = RaySamplingConfig {
+        rays_per_image: 256,
+        body_fraction: 0.5,
+        border_px: 3,
+    };
+    let rays = sample_rays(
+        &view.camera,
+        &view.image,
+        &view.mask,
+        &body_box,
+        &config,
+        &mut Rng::new(5),
+    )
+    .unwrap();
+    assert_eq!(rays.len(), 256);
+    let (w, h) = (view.width() as usize, view.height() as usize);
+    let in_box = mask_at_box(&view.camera, &body_box);
+    let band = border_band(&view.mask, w, h, config.border_px);
+    assert!(band.iter().any(|b| *b), "the fixture has a mask border");
+    for (k, &p) in rays.pixels.iter().enumerate() {
+        let p = p as usize;
+        assert!(in_box[p], "ray {k} misses the box");
+        assert!(!band[p], "ray {k} in the border band");
+        assert!(rays.near[k] < rays.far[k] && rays.near[k] > 0.0);
+        if k < 128 {
+            assert!(
+                view.mask[p] && rays.on_body[k],
+                "the first half is on the body"
+            );
+        }
+        // Colour and direction belong to the pixel.
+        assert_eq!(
+            rays.rgb[k],
+            [
+                view.image[p * 3],
+                view.image[p * 3 + 1],
+                view.image[p * 3 + 2]
+            ]
+        );
+        let (x, y) = ((p % w) as f32, (p / w) as f32);
+        let (uv, _) = view.camera.project(rays.origins[k] + rays.dirs[k]).unwrap();
+        assert!((uv.x - x).abs() < 1e-3 && (uv.y - y).abs() < 1e-3);
+    }
+    // The second half also reaches the background inside the box.
+    assert!(rays.on_body[128..].iter().any(|b| !b));
+    let again = sample_rays(
+        &view.camera,
+        &view.image,
+        &view.mask,
+        &body_box,
+        &config,
+        &mut Rng::new(5),
+    )
+    .unwrap();
+    assert_eq!(rays, again);
+    let other = sample_rays(
+        &view.camera,
+        &view.image,
+        &view.mask,
+        &body_box,
+        &config,
+        &mut Rng::new(6),
+    )
+    .unwrap();
+    assert_ne!(rays.pixels, other.pixels);
+}
+
+#[test]
+fn visibility_cache_hits_and_invalidates() {
+    let dir = scratch("vis");
+    let cache = VisibilityCache::new(&dir);
+    let s = fixture_subject();
+    let model = fixture_model();
+    let vertices = s.load_vertices(0).unwrap();
+    let camera = s.cameras[1];
+    let direct = vis_cache::compute(
+        &s.name,
+        0,
+        1,
+        &camera,
+        &vertices,
+        &model.faces,
+        DEFAULT_DEPTH_TOL_M,
+    )
+    .unwrap();
+    assert_eq!(direct.len(), 30);
+    let visible = direct.iter().filter(|v| **v == 1).count();
+    assert!(
+        visible > 5 && visible < 30,
+        "a closed body is partly hidden: {visible}"
+    );
+    let get = |v: &[glam::Vec3], tol: f32| {
+        cache
+            .get_or_compute(&s.name, 0, 1, &camera, v, &model.faces, tol)
+            .unwrap()
+    };
+    assert_eq!(get(&vertices, DEFAULT_DEPTH_TOL_M), direct);
+    assert_eq!(cache.stats(), (0, 1));
+    assert_eq!(get(&vertices, DEFAULT_DEPTH_TOL_M), direct);
+    assert_eq!(cache.stats(), (1, 1), "second lookup is a hit");
+    assert!(cache.entry_path(&s.name, 0, 1).is_file());
+    // Changed inputs miss: a moved vertex, another tolerance, another camera size.
+    let mut moved = vertices.clone();
+    moved[3].x += 1e-4;
+    get(&moved, DEFAULT_DEPTH_TOL_M);
+    assert_eq!(cache.stats(), (1, 2));
+    get(&moved, 0.05);
+    assert_eq!(cache.stats(), (1, 3));
+    let bigger = s.raw_cameras[1];
+    cache
+        .get_or_compute(&s.name, 0, 1, &bigger, &moved, &model.faces, 0.05)
+        .unwrap();
+    assert_eq!(cache.stats(), (1, 4));
+    // A corrupt file is recomputed, not trusted.
+    let path = cache.entry_path(&s.name, 0, 1);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let n = bytes.len();
+    bytes[n - 12] ^= 1;
+    std::fs::write(&path, bytes).unwrap();
+    let fresh = cache
+        .get_or_compute(&s.name, 0, 1, &bigger, &moved, &model.faces, 0.05)
+        .unwrap();
+    assert_eq!(cache.stats(), (1, 5));
+    let recomputed =
+        vis_cache::compute(&s.name, 0, 1, &bigger, &moved, &model.faces, 0.05).unwrap();
+    assert_eq!(fresh, recomputed);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn fixture_protocol() -> Protocol {
+    let mut p = Protocol::nhp();
+    p.train = vec![SubjectFrames::new("CoreView_377", FrameRange::new(0, 2, 1))];
+    p.train_num_input_views = 2;
+    p.input_views = ViewSet::explicit(&[0, 2]);
+    p.target_views = ViewSet::OthersThanInputs { stride: 1 };
+    p.target_views_by_subject.clear();
+    p.unseen_subjects = vec![SubjectFrames::new("CoreView_313", FrameRange::all_from(0))];
+    p.seen_subjects_unseen_poses.clear();
+    p.seen_subjects_seen_poses.clear();
+    p.test_frame_stride = 1;
+    p.validate().unwrap();
+    p
+}
+
+fn fixture_source(cache: Option<VisibilityCache>) -> Arc<SceneSource> {
+    let mut cfg313 = DatasetConfig::zju();
+    cfg313.ratio = Some(1.0);
+    let subjects = vec![
+        fixture_subject(),
+        Subject::open(&fixtures().join("CoreView_313"), &cfg313).unwrap(),
+    ];
+    Arc::new(SceneSource {
+        subjects,
+        faces: fixture_model().faces,
+        cache,
+    })
+}
+
+fn small_loader_config(threads: usize) -> LoaderConfig {
+    LoaderConfig {
+        threads,
+        prefetch: 3,
+        sampling: RaySamplingConfig {
+            rays_per_image: 64,
+            border_px: 3,
+            ..RaySamplingConfig::default()
+        },
+        ..LoaderConfig::default()
+    }
+}
+
+#[test]
+fn loader_yields_scenes_in_order_for_any_thread_count() {
+    let source = fixture_source(None);
+    let protocol = fixture_protocol();
+    let mut requests = Vec::new();
+    for epoch in 0..3 {
+        requests.extend(train_requests(&protocol, &source.subjects, epoch, 11).unwrap());
+    }
+    assert_eq!(requests.len(), 6, "2 frames x 3 epochs");
+    assert!(requests
+        .iter()
+        .all(|r| r.input_views.len() == 2 && r.target == TargetKind::Rays));
+    assert_eq!(requests, {
+        let mut again = Vec::new();
+        for epoch in 0..3 {
+            again.extend(train_requests(&protocol, &source.subjects, epoch, 11).unwrap());
+        }
+        again
+    });
+    let items = protocol
+        .eval_items(EvalSplit::UnseenSubjects, |name| {
+            let s = source.subjects.iter().find(|s| s.name == name).unwrap();
+            (s.num_cameras(), s.num_frames())
+        })
+        .unwrap();
+    requests.extend(eval_requests(&items, &source.subjects).unwrap());
+    assert_eq!(requests.len(), 6 + 2 * 2);
+
+    let serial: Vec<_> = requests
+        .iter()
+        .enumerate()
+        .map(|(i, r)| load_scene(&source, r, i, &small_loader_config(1)).unwrap())
+        .collect();
+    for threads in [1, 3] {
+        let loader = SceneLoader::new(
+            source.clone(),
+            requests.clone(),
+            small_loader_config(threads),
+        )
+        .unwrap();
+        assert_eq!(loader.len(), requests.len());
+        let scenes: Vec<_> = loader.map(|s| s.unwrap()).collect();
+        assert_eq!(scenes, serial, "{threads} threads");
+    }
+    for (scene, request) in serial.iter().zip(&requests) {
+        assert_eq!(scene.sources.len(), request.input_views.len());
+        for src in &scene.sources {
+            assert_eq!(src.visibility.len(), scene.vertices.len());
+        }
+        match (&scene.target, request.target) {
+            (SceneTarget::Rays(r), TargetKind::Rays) => assert_eq!(r.len(), 64),
+            (SceneTarget::Image { image, mask_at_box }, TargetKind::Image) => {
+                assert_eq!(mask_at_box.len(), image.mask.len());
+                assert!(mask_at_box.iter().any(|m| *m));
+                assert_eq!(scene.subject, "CoreView_313");
+            }
+            _ => panic!("target kind differs from the request"),
+        }
+    }
+}
+
+#[test]
+fn loader_reports_errors_in_place_and_stops_cleanly() {
+    let source = fixture_source(None);
+    let protocol = fixture_protocol();
+    let mut requests = train_requests(&protocol, &source.subjects, 0, 1).unwrap();
+    requests[1].frame = 99;
+    let mut loader = SceneLoader::new(source, requests, small_loader_config(2)).unwrap();
+    assert!(loader.next().unwrap().is_ok());
+    let err = loader.next().unwrap().unwrap_err();
+    assert!(err.to_string().contains("frame 99 out of range"), "{err}");
+    assert!(loader.next().is_none());
+    // Dropping a loader with scenes still in flight joins its workers.
+    let source = fixture_source(None);
+    let requests = train_requests(&fixture_protocol(), &source.subjects, 0, 2).unwrap();
+    let mut loader = SceneLoader::new(source, requests, small_loader_config(2)).unwrap();
+    loader.next();
+    drop(loader);
+}
+
+#[test]
+fn synthetic_set_reads_through_the_same_reader() {
+    let out = scratch("synth");
+    let spec = SynthSpec {
+        subjects: 2,
+        frames: 3,
+        cameras: 4,
+        size: 48,
+        supersample: 1,
+        test_fraction: 0.5,
+        ..SynthSpec::default()
+    };
+    let summary = generate(&spec, &out, &mut |_| {}).unwrap();
+    let model = BodyModel::load(&summary.body_model).unwrap();
+    let protocol = Protocol::synthetic(&spec, 1);
+    protocol.validate().unwrap();
+    let cfg = DatasetConfig {
+        smpl_model: Some(summary.body_model.clone()),
+        ..DatasetConfig::zju()
+    };
+    let mut subjects = Vec::new();
+    for s in &summary.subjects {
+        let subject = Subject::open(&s.dir, &cfg).unwrap();
+        assert_eq!((subject.num_cameras(), subject.num_frames()), (4, 3));
+        assert_eq!(subject.cameras[0].width, 24);
+        for frame in 0..3 {
+            let err = subject
+                .lbs_max_error(&model, &summary.body_model, frame)
+                .unwrap();
+            assert!(
+                err < SYNTH_LBS_TOL_M,
+                "{}: frame {frame}: {err} m",
+                subject.name
+            );
+        }
+        let view = subject.load_view(0, 1).unwrap();
+        assert!(view.mask_coverage() > 0.02, "{}", view.mask_coverage());
+        protocol
+            .check_subject(&subject.name, subject.num_cameras(), subject.num_frames())
+            .unwrap();
+        subjects.push(subject);
+    }
+    let report = nia_data::dataset::inspect(&summary.subjects[0].dir, &cfg).unwrap();
+    assert!(report.lbs_max_err_m.unwrap() < SYNTH_LBS_TOL_M);
+    let source = Arc::new(SceneSource {
+        subjects,
+        faces: model.faces.clone(),
+        cache: Some(VisibilityCache::new(out.join("cache"))),
+    });
+    let requests = train_requests(&protocol, &source.subjects, 0, 3).unwrap();
+    assert_eq!(requests.len(), 2, "1 train subject x 2 training frames");
+    let loader = SceneLoader::new(source.clone(), requests, small_loader_config(2)).unwrap();
+    for scene in loader {
+        let scene = scene.unwrap();
+        assert_eq!(scene.vertices.len(), model.num_vertices());
+        assert!(scene.sources.iter().all(|s| s.visibility.contains(&1)));
+    }
+    let (hits, misses) = source.cache.as_ref().unwrap().stats();
+    assert_eq!(
+        (hits, misses),
+        (0, 6),
+        "2 scenes x 3 input views computed once"
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Loader throughput on a synthetic set at the paper's 512x512 (1024x1024 images halved).
+/// Run: `cargo test -p nia-data --release --test dataset_loader -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn bench_loader_scenes_per_second() {
+    let out = scratch("bench");
+    let spec = SynthSpec {
+        subjects: 2,
+        frames: 4,
+        cameras: 8,
+        size: 1024,
+        supersample: 1,
+        test_fraction: 0.5,
+        ..SynthSpec::default()
+    };
+    let t = Instant::now();
+    let summary = generate(&spec, &out, &mut |_| {}).unwrap();
+    eprintln!("synth: {:.1} s", t.elapsed().as_secs_f64());
+    let model = BodyModel::load(&summary.body_model).unwrap();
+    let mut protocol = Protocol::synthetic(&spec, 1);
+    protocol.train = summary
+        .subjects
+        .iter()
+        .map(|s| {
+            SubjectFrames::new(
+                s.dir.file_name().unwrap().to_string_lossy(),
+                FrameRange::all_from(0),
+            )
+        })
+        .collect();
+    protocol.unseen_subjects.clear();
+    let subjects: Vec<Subject> = summary
+        .subjects
+        .iter()
+        .map(|s| Subject::open(&s.dir, &DatasetConfig::zju()).unwrap())
+        .collect();
+    let cache = VisibilityCache::new(out.join("cache"));
+    let source = Arc::new(SceneSource {
+        subjects,
+        faces: model.faces.clone(),
+        cache: Some(cache),
+    });
+    let requests = |epoch| train_requests(&protocol, &source.subjects, epoch, 0).unwrap();
+    for threads in [1, 2, 4] {
+        for (label, epochs) in [("cold cache", 0..1u64), ("warm cache", 1..4u64)] {
+            let list: Vec<_> = epochs.clone().flat_map(requests).collect();
+            let n = list.len();
+            let config = LoaderConfig {
+                threads,
+                prefetch: 2 * threads,
+                ..LoaderConfig::default()
+            };
+            let t = Instant::now();
+            for scene in SceneLoader::new(source.clone(), list, config).unwrap() {
+                scene.unwrap();
+            }
+            let dt = t.elapsed().as_secs_f64();
+            eprintln!(
+                "threads {threads}, {label}: {n} scenes in {dt:.2} s = {:.2} scenes/s",
+                n as f64 / dt
+            );
+        }
+        let _ = std::fs::remove_dir_all(out.join("cache"));
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}

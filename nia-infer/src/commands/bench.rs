@@ -1,0 +1,253 @@
+//! `nia-infer bench`: forward and training-step throughput of the network at a given setting
+//! (default: the paper's, 1024 rays x 64 samples x 3 views on 512x512 sources), with the share
+//! of time per stage. Scene: the procedural body seen by a ring of cameras, patterned images.
+
+use std::time::Instant;
+
+use anyhow::Context;
+use burn::optim::{AdamConfig, GradientsParams, Optimizer};
+use burn::prelude::*;
+use clap::Args;
+use glam::{Vec2, Vec3};
+use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
+use nia_data::camera::Camera;
+use nia_data::rays::{near_far, pixel_ray};
+use nia_data::rng::Rng;
+use nia_data::visibility::visibility;
+use nia_model::device::Backend;
+use nia_model::loss::render_loss;
+use nia_model::scene::{SceneBody, SceneGeometry, SceneInput, SourceView};
+use nia_model::timing::{Stage, StageTimes};
+use nia_model::{ModelConfig, RayBatch};
+use serde::Serialize;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Backend: ndarray, flex or wgpu.
+    #[arg(long, default_value = "ndarray")]
+    pub backend: String,
+    /// Rays per batch.
+    #[arg(long, default_value_t = 1024)]
+    pub rays: usize,
+    /// Samples per ray.
+    #[arg(long, default_value_t = 64)]
+    pub samples: usize,
+    /// Source views.
+    #[arg(long, default_value_t = 3)]
+    pub views: usize,
+    /// Source image size (square).
+    #[arg(long, default_value_t = 512)]
+    pub size: u32,
+    /// Timed repetitions (after one warm-up).
+    #[arg(long, default_value_t = 2)]
+    pub reps: usize,
+    /// Use the tiny test network instead of the paper's.
+    #[arg(long)]
+    pub tiny: bool,
+    /// Skip the training step (forward only).
+    #[arg(long)]
+    pub no_train: bool,
+}
+
+#[derive(Serialize)]
+struct Report {
+    backend: String,
+    rays: usize,
+    samples: usize,
+    views: usize,
+    size: u32,
+    forward_s: f64,
+    forward_rays_per_s: f64,
+    train_step_s: Option<f64>,
+    train_rays_per_s: Option<f64>,
+    stages_s: Vec<(String, f64)>,
+}
+
+fn parse_backend(name: &str) -> anyhow::Result<Backend> {
+    Ok(match name {
+        "ndarray" => Backend::Ndarray,
+        "flex" => Backend::Flex,
+        "wgpu" => Backend::Wgpu,
+        other => anyhow::bail!("--backend: expected ndarray, flex or wgpu, got `{other}`"),
+    })
+}
+
+/// The benchmark scene and `rays` rays of a target camera that hit the ray box.
+fn bench_scene(
+    args: &BenchArgs,
+    config: &ModelConfig,
+) -> anyhow::Result<(SceneInput, SceneGeometry, RayBatch)> {
+    let model = ProceduralBody::generate(&ProceduralSpec::default())?;
+    let vertices = model.lbs(&SmplParams::default()).vertices;
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for v in &vertices {
+        lo = lo.min(*v);
+        hi = hi.max(*v);
+    }
+    let centre = (lo + hi) * 0.5;
+    let size = args.size;
+    let f = size as f32 * 1.4;
+    let camera_at = |angle: f32| {
+        let eye = centre + Vec3::new(2.5 * angle.sin(), 0.1, 2.5 * angle.cos());
+        Camera::look_at(eye, centre, Vec3::Y, f, f, size, size)
+    };
+    let mut rng = Rng::new(7);
+    let mut views = Vec::new();
+    for i in 0..args.views {
+        let camera = camera_at(i as f32 * std::f32::consts::TAU / args.views as f32)?;
+        let vis = visibility(&camera, &vertices, &model.faces, 0.02)?;
+        let image = (0..3 * (size * size) as usize)
+            .map(|_| rng.uniform())
+            .collect();
+        views.push(SourceView {
+            camera,
+            image,
+            vertex_visibility: vis.iter().map(|&b| b as f32).collect(),
+        });
+    }
+    let input = SceneInput {
+        views,
+        body: SceneBody {
+            vertices,
+            faces: model.faces.clone(),
+            rh: Vec3::ZERO,
+            th: Vec3::ZERO,
+        },
+    };
+    let geometry = SceneGeometry::new(&input, config)?;
+    let target = camera_at(0.9)?;
+    let mut rays = RayBatch::default();
+    let mut tries = 0;
+    while rays.len() < args.rays {
+        tries += 1;
+        anyhow::ensure!(
+            tries < 1_000_000,
+            "could not find {} rays hitting the body box",
+            args.rays
+        );
+        let px = Vec2::new(rng.range(0.0, size as f32), rng.range(0.0, size as f32));
+        let ray = pixel_ray(&target, px);
+        if let Some((near, far)) = near_far(&ray, &geometry.ray_box) {
+            rays.origins.push(ray.origin);
+            rays.dirs.push(ray.dir);
+            rays.near.push(near);
+            rays.far.push(far);
+        }
+    }
+    Ok((input, geometry, rays))
+}
+
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    let backend = parse_backend(&args.backend)?;
+    let device = backend.device()?;
+    let config = if args.tiny {
+        ModelConfig::tiny()
+    } else {
+        ModelConfig::new()
+    };
+    let (input, geometry, rays) =
+        bench_scene(&args, &config).context("building the benchmark scene")?;
+    device.seed(0);
+    let model = config.init(&device);
+
+    // Forward (inference device), per stage.
+    let mut stages = StageTimes::default();
+    let mut forward_s = 0.0;
+    for rep in 0..=args.reps {
+        let mut times = StageTimes::default();
+        let start = Instant::now();
+        let scene = model.encode_scene_timed(&input, &geometry, None, &device, Some(&mut times))?;
+        let out = model.render_timed(
+            &scene,
+            &geometry,
+            &rays,
+            args.samples,
+            None,
+            &device,
+            Some(&mut times),
+        )?;
+        let rgb = out
+            .rgb
+            .into_data()
+            .try_to_vec::<f32>()
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        anyhow::ensure!(
+            rgb.iter().all(|x| x.is_finite()),
+            "non-finite colours in the benchmark forward"
+        );
+        if rep > 0 {
+            forward_s += start.elapsed().as_secs_f64();
+            stages.merge(&times);
+        }
+        eprintln!("forward rep {rep}: {:.2} s", start.elapsed().as_secs_f64());
+    }
+    let reps = args.reps.max(1) as f64;
+    forward_s /= reps;
+
+    // Training step (autodiff device): forward, loss, backward, Adam.
+    let (train_step_s, train_rays_per_s) = if args.no_train {
+        (None, None)
+    } else {
+        let ad = device.clone().autodiff();
+        ad.seed(0);
+        let mut model = config.init(&ad);
+        let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
+        let gt = Tensor::<2>::ones([rays.len(), 3], &ad).mul_scalar(0.5);
+        let mut total = 0.0;
+        let mut rng = Rng::new(3);
+        for rep in 0..=args.reps {
+            let jitter: Vec<f32> = (0..rays.len() * args.samples)
+                .map(|_| rng.uniform())
+                .collect();
+            let start = Instant::now();
+            let scene = model.encode_scene(&input, &geometry, None, &ad)?;
+            let out = model.render(&scene, &geometry, &rays, args.samples, Some(&jitter), &ad)?;
+            let loss = render_loss(out.rgb, out.rgb0, gt.clone())?;
+            let grads = GradientsParams::from_grads(loss.total.backward(), &model);
+            model = optim.step(5e-4, model, grads);
+            ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            let dt = start.elapsed().as_secs_f64();
+            eprintln!("train rep {rep}: {dt:.2} s");
+            if rep > 0 {
+                total += dt;
+            }
+        }
+        let step = total / reps;
+        (Some(step), Some(rays.len() as f64 / step))
+    };
+
+    let report = Report {
+        backend: args.backend.clone(),
+        rays: rays.len(),
+        samples: args.samples,
+        views: args.views,
+        size: args.size,
+        forward_s,
+        forward_rays_per_s: rays.len() as f64 / forward_s,
+        train_step_s,
+        train_rays_per_s,
+        stages_s: Stage::ALL
+            .iter()
+            .map(|s| (s.name().to_string(), stages.get(*s).as_secs_f64() / reps))
+            .collect(),
+    };
+    println!("| stage | seconds | share |\n|---|---|---|");
+    let staged: f64 = report.stages_s.iter().map(|(_, t)| t).sum();
+    for (name, t) in &report.stages_s {
+        println!(
+            "| {name} | {t:.3} | {:.1}% |",
+            100.0 * t / staged.max(1e-12)
+        );
+    }
+    println!(
+        "\nforward: {:.3} s per batch, {:.0} rays/s; training step: {}",
+        report.forward_s,
+        report.forward_rays_per_s,
+        match (report.train_step_s, report.train_rays_per_s) {
+            (Some(s), Some(r)) => format!("{s:.3} s, {r:.0} rays/s"),
+            _ => "skipped".into(),
+        }
+    );
+    println!("{}", serde_json::to_string(&report)?);
+    Ok(())
+}

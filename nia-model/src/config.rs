@@ -1,0 +1,110 @@
+//! `ModelConfig`: every size and switch of the NIA network, with the paper's defaults.
+
+use burn::prelude::*;
+
+use crate::attention::ViewCrossAttentionConfig;
+use crate::blender::BlenderConfig;
+use crate::body_volume::BodyVolumeNetConfig;
+use crate::encoder::ImageEncoderConfig;
+use crate::encoding::PositionalEncodingConfig;
+use crate::heads::{ColourHeadConfig, DensityHeadConfig};
+use crate::ibr::{PixelFeatureConfig, DEFAULT_COSINE_TEMPERATURE};
+use crate::variant::Variant;
+
+/// The whole network. `ModelConfig::new()` is the paper setting.
+#[derive(Config, Debug)]
+pub struct ModelConfig {
+    /// Ablation variant (paper Table 3.i): `no_body`, `no_ibr`, `simple_average`,
+    /// `cosine_weighted`, `full`.
+    #[config(default = "Variant::Full")]
+    pub variant: Variant,
+    /// ResNet-18 width (64 in the paper; smaller for quick CPU runs). The pixel-aligned feature
+    /// map has `8 * encoder_width` channels.
+    #[config(default = 64)]
+    pub encoder_width: usize,
+    /// Reduced feature width d of S, L, Z and p_n.
+    #[config(default = 128)]
+    pub d_model: usize,
+    /// Hidden width of F_sigma and F_c0 (and of h).
+    #[config(default = 256)]
+    pub d_hidden: usize,
+    /// Hidden width of the blender F_B.
+    #[config(default = 128)]
+    pub d_blend: usize,
+    /// Frequencies L of the view-direction encoding gamma(d).
+    #[config(default = 4)]
+    pub dir_frequencies: usize,
+    /// The sparse-convolution body volume.
+    #[config(default = "BodyVolumeNetConfig::new()")]
+    pub body_volume: BodyVolumeNetConfig,
+    /// Voxel edge of the body volume, metres (5 mm in the paper).
+    #[config(default = 0.005)]
+    pub voxel_size_m: f32,
+    /// The voxel box is the SMPL bounds grown by this fraction (2.5 % in the paper).
+    #[config(default = 0.025)]
+    pub box_enlarge: f32,
+    /// Temperature tau of variant (d), the cosine-weighted average.
+    #[config(default = "DEFAULT_COSINE_TEMPERATURE")]
+    pub cosine_temperature: f32,
+}
+
+impl ModelConfig {
+    /// Channels of the encoder's feature map.
+    pub fn image_channels(&self) -> usize {
+        ImageEncoderConfig::new().with_base_width(self.encoder_width).out_channels()
+    }
+
+    pub(crate) fn encoder(&self) -> ImageEncoderConfig {
+        ImageEncoderConfig::new().with_base_width(self.encoder_width)
+    }
+
+    pub(crate) fn pixel_feature(&self) -> PixelFeatureConfig {
+        PixelFeatureConfig::new().with_d_image(self.image_channels()).with_d_model(self.d_model)
+    }
+
+    pub(crate) fn attention(&self) -> ViewCrossAttentionConfig {
+        ViewCrossAttentionConfig::new().with_d_model(self.d_model)
+    }
+
+    pub(crate) fn direction_encoding(&self) -> PositionalEncodingConfig {
+        PositionalEncodingConfig::new().with_num_frequencies(self.dir_frequencies)
+    }
+
+    pub(crate) fn density(&self) -> DensityHeadConfig {
+        DensityHeadConfig::new().with_d_input(self.d_model).with_d_hidden(self.d_hidden)
+    }
+
+    pub(crate) fn colour(&self) -> ColourHeadConfig {
+        let pe = self.direction_encoding();
+        let d_direction = 3 * (pe.include_input as usize + 2 * pe.num_frequencies);
+        ColourHeadConfig::new()
+            .with_d_input(self.d_model)
+            .with_d_direction(d_direction)
+            .with_d_hidden(self.d_hidden)
+    }
+
+    pub(crate) fn blender(&self) -> BlenderConfig {
+        BlenderConfig::new()
+            .with_d_pixel(self.d_model)
+            .with_d_h(self.d_hidden)
+            .with_d_hidden(self.d_blend)
+    }
+
+    /// A small network for tests and quick CPU runs (same structure, narrow layers).
+    pub fn tiny() -> Self {
+        ModelConfig::new()
+            .with_encoder_width(8)
+            .with_d_model(16)
+            .with_d_hidden(32)
+            .with_d_blend(16)
+            .with_body_volume(
+                BodyVolumeNetConfig::new()
+                    .with_vertex_channels(8)
+                    .with_full_channels(8)
+                    .with_full_convs(1)
+                    .with_scale_channels([8, 8, 16, 16])
+                    .with_scale_convs([1, 1, 1, 1]),
+            )
+            .with_voxel_size_m(0.02)
+    }
+}

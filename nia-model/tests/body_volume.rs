@@ -1,0 +1,949 @@
+//! The body volume: rulebooks against brute force, sparse convolution against burn's dense
+//! `conv3d`, gradients against finite differences, trilinear sampling against a dense
+//! `grid_sample(align_corners=True)` reference, and the network end to end.
+
+use std::collections::BTreeSet;
+
+use burn::module::Param;
+use burn::prelude::*;
+use burn::tensor::module::conv3d;
+use burn::tensor::ops::{ConvOptions, GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
+use nia_data::rng::Rng;
+use nia_model::body_volume::rulebook::kernel_offset;
+use nia_model::body_volume::trilinear::{sample, CORNERS};
+use nia_model::body_volume::voxelize::strided_dim;
+use nia_model::body_volume::{
+    voxelize, BodyVolumeGeometry, BodyVolumeNetConfig, ConvMethod, Rulebook, RulebookTensors,
+    ScaleGeometry, SiteIndex, SparseConv3d, SparseConv3dConfig, TrilinearCorners, VoxelBox,
+    KERNEL_VOLUME, NUM_SCALES,
+};
+
+/// Sparse vs dense convolution: both sum at most 27 * C_in products of O(1) f32 values in a
+/// different order; 1e-4 absolute leaves ~50x room over the observed rounding.
+const CONV_TOL: f32 = 1e-4;
+/// Trilinear vs the dense reference: 8 products of O(1) values, weights from the same f32
+/// coordinates computed along two formulas (normalise/unnormalise vs direct).
+const TRILINEAR_TOL: f32 = 1e-4;
+/// Finite-difference step on weights and features.
+const FD_STEP: f64 = 1e-2;
+/// The loss is quadratic in each entry, so a central difference is exact up to rounding: the
+/// f32 outputs (~1e-7 relative) summed into an O(10) loss, divided by 2 * FD_STEP, give
+/// ~1e-4; allow 2e-3 relative to max(1, |grad|).
+const FD_TOL: f64 = 2e-3;
+
+/// burn-ndarray, the reference CPU backend of the tests (deprecated upstream, still kept).
+#[allow(deprecated)]
+fn device() -> Device {
+    Device::ndarray()
+}
+
+fn normals(rng: &mut Rng, n: usize) -> Vec<f32> {
+    (0..n).map(|_| rng.normal()).collect()
+}
+
+fn tensor3(values: Vec<f32>, dims: [usize; 3], device: &Device) -> Tensor<3> {
+    Tensor::from_data(TensorData::new(values, dims), device)
+}
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .unwrap()
+}
+
+fn random_sites(rng: &mut Rng, dims: [usize; 3], fraction: f32) -> SiteIndex {
+    let mut sites = Vec::new();
+    for x in 0..dims[0] {
+        for y in 0..dims[1] {
+            for z in 0..dims[2] {
+                if rng.uniform() < fraction {
+                    sites.push([x as i32, y as i32, z as i32]);
+                }
+            }
+        }
+    }
+    // Shuffled order: the rulebooks must not rely on sorted inputs.
+    rng.shuffle(&mut sites);
+    SiteIndex::new(dims, sites).unwrap()
+}
+
+fn pair_set(rules: &Rulebook) -> BTreeSet<(usize, u32, u32)> {
+    (0..KERNEL_VOLUME)
+        .flat_map(|k| rules.pairs(k).map(move |(i, o)| (k, i, o)))
+        .collect()
+}
+
+fn find(sites: &[[i32; 3]], c: [i32; 3]) -> Option<u32> {
+    sites.iter().position(|s| *s == c).map(|i| i as u32)
+}
+
+#[test]
+fn rulebooks_match_brute_force() {
+    let mut rng = Rng::new(7);
+    for dims in [[7, 6, 9], [8, 5, 4], [3, 3, 3]] {
+        let sites = random_sites(&mut rng, dims, 0.3);
+        let list = sites.sites().to_vec();
+
+        let sub = Rulebook::submanifold(&sites);
+        let mut expected = BTreeSet::new();
+        for (o, c) in list.iter().enumerate() {
+            for k in 0..KERNEL_VOLUME {
+                let d = kernel_offset(k);
+                if let Some(i) = find(&list, [c[0] + d[0], c[1] + d[1], c[2] + d[2]]) {
+                    expected.insert((k, i, o as u32));
+                }
+            }
+        }
+        assert_eq!(pair_set(&sub), expected, "submanifold pairs, dims {dims:?}");
+        assert_eq!((sub.n_in, sub.n_out), (list.len(), list.len()));
+
+        let (coarse, strided) = Rulebook::strided(&sites).unwrap();
+        let dims_out = dims.map(strided_dim);
+        assert_eq!(coarse.dims(), dims_out);
+        // Every coarse voxel, in linear order; an output exists iff some input reaches it.
+        let mut expected_sites = Vec::new();
+        let mut expected_pairs = Vec::new();
+        for x in 0..dims_out[0] as i32 {
+            for y in 0..dims_out[1] as i32 {
+                for z in 0..dims_out[2] as i32 {
+                    let mut reached = Vec::new();
+                    for k in 0..KERNEL_VOLUME {
+                        let d = kernel_offset(k);
+                        let input = [2 * x + d[0], 2 * y + d[1], 2 * z + d[2]];
+                        if let Some(i) = find(&list, input) {
+                            reached.push((k, i));
+                        }
+                    }
+                    if !reached.is_empty() {
+                        let o = expected_sites.len() as u32;
+                        expected_sites.push([x, y, z]);
+                        expected_pairs.extend(reached.into_iter().map(|(k, i)| (k, i, o)));
+                    }
+                }
+            }
+        }
+        assert_eq!(coarse.sites(), expected_sites.as_slice(), "dims {dims:?}");
+        assert_eq!(
+            pair_set(&strided),
+            expected_pairs.into_iter().collect::<BTreeSet<_>>(),
+            "strided pairs, dims {dims:?}"
+        );
+        // The neighbour map holds the same pairs.
+        let map = strided.neighbour_map();
+        for (k, i, o) in pair_set(&strided) {
+            assert_eq!(map[o as usize * KERNEL_VOLUME + k], i);
+        }
+        let filled = map.iter().filter(|&&i| i as usize != strided.n_in).count();
+        assert_eq!(filled, strided.num_pairs());
+    }
+}
+
+#[test]
+fn site_index_rejects_bad_sites() {
+    assert!(SiteIndex::new([2, 2, 2], vec![[0, 0, 0], [0, 0, 0]]).is_err());
+    assert!(SiteIndex::new([2, 2, 2], vec![[0, 2, 0]]).is_err());
+    assert!(SiteIndex::new([2, 2, 2], vec![[-1, 0, 0]]).is_err());
+    let index = SiteIndex::new([2, 2, 2], vec![[1, 0, 1], [0, 1, 0]]).unwrap();
+    assert_eq!(index.get([0, 1, 0]), Some(1));
+    assert_eq!(index.get([1, 1, 1]), None);
+    assert_eq!(index.get([-1, 1, 1]), None);
+    assert_eq!(index.get([1, 1, 5]), None);
+}
+
+/// A dense `[N, C, X, Y, Z]` grid holding `features` `[N, P, C]` at the sites, zero elsewhere.
+fn densify(features: &[f32], n: usize, c: usize, sites: &SiteIndex) -> Vec<f32> {
+    let [dx, dy, dz] = sites.dims();
+    let mut grid = vec![0.0; n * c * dx * dy * dz];
+    let p = sites.len();
+    for v in 0..n {
+        for (s, site) in sites.sites().iter().enumerate() {
+            for ch in 0..c {
+                let [x, y, z] = site.map(|a| a as usize);
+                grid[(((v * c + ch) * dx + x) * dy + y) * dz + z] = features[(v * p + s) * c + ch];
+            }
+        }
+    }
+    grid
+}
+
+/// The dense `Conv3d` weight `[C_out, C_in, 3, 3, 3]` equal to a sparse `[27, C_in, C_out]`.
+fn dense_weight(sparse: &[f32], c_in: usize, c_out: usize) -> Vec<f32> {
+    let mut w = vec![0.0; c_out * c_in * KERNEL_VOLUME];
+    for k in 0..KERNEL_VOLUME {
+        for i in 0..c_in {
+            for o in 0..c_out {
+                w[(o * c_in + i) * KERNEL_VOLUME + k] = sparse[(k * c_in + i) * c_out + o];
+            }
+        }
+    }
+    w
+}
+
+/// Checks a sparse convolution against burn's dense `conv3d` at every output voxel: equal at
+/// the output sites, bias-only (here: zero bias) everywhere else.
+fn check_against_dense(sites: &SiteIndex, strided: bool, method: ConvMethod, seed: u64) {
+    let dev = device();
+    let mut rng = Rng::new(seed);
+    let (n, c_in, c_out) = (2, 3, 4);
+    let (out_sites, rules) = if strided {
+        Rulebook::strided(sites).unwrap()
+    } else {
+        (sites.clone(), Rulebook::submanifold(sites))
+    };
+    let tensors = RulebookTensors::with_method(&rules, method, &dev);
+    assert_eq!(tensors.method(), method);
+    let conv = SparseConv3dConfig::new(c_in, c_out).init(&dev);
+    let bias = values(conv.bias.as_ref().unwrap().val());
+    let features = normals(&mut rng, n * sites.len() * c_in);
+    let sparse_out = values(
+        conv.forward(
+            tensor3(features.clone(), [n, sites.len(), c_in], &dev),
+            &tensors,
+        )
+        .unwrap(),
+    );
+    assert_eq!(sparse_out.len(), n * out_sites.len() * c_out);
+    assert!(sparse_out.iter().all(|v| v.is_finite()));
+
+    let [dx, dy, dz] = sites.dims();
+    let grid: Tensor<5> = Tensor::from_data(
+        TensorData::new(densify(&features, n, c_in, sites), [n, c_in, dx, dy, dz]),
+        &dev,
+    );
+    let w_dense: Tensor<5> = Tensor::from_data(
+        TensorData::new(
+            dense_weight(&values(conv.weight.val()), c_in, c_out),
+            [c_out, c_in, 3, 3, 3],
+        ),
+        &dev,
+    );
+    let stride = if strided { 2 } else { 1 };
+    let dense = conv3d(
+        grid,
+        w_dense,
+        None,
+        ConvOptions::new([stride; 3], [1; 3], [1; 3], 1),
+    );
+    let [_, _, ox, oy, oz] = dense.dims();
+    assert_eq!([ox, oy, oz], out_sites.dims());
+    let dense = values(dense);
+    let p_out = out_sites.len();
+    for v in 0..n {
+        for x in 0..ox {
+            for y in 0..oy {
+                for z in 0..oz {
+                    let site = out_sites.get([x as i32, y as i32, z as i32]);
+                    for o in 0..c_out {
+                        let d = dense[(((v * c_out + o) * ox + x) * oy + y) * oz + z];
+                        match site {
+                            Some(s) => {
+                                let s = sparse_out[(v * p_out + s as usize) * c_out + o];
+                                assert!(
+                                    (s - bias[o] - d).abs() <= CONV_TOL,
+                                    "{method:?} strided={strided} view {v} voxel {:?} ch {o}: \
+                                     sparse {s} - bias {} vs dense {d}",
+                                    [x, y, z],
+                                    bias[o]
+                                );
+                            }
+                            None if strided => assert!(
+                                d.abs() <= CONV_TOL,
+                                "strided: dense output {d} at inactive voxel {:?}",
+                                [x, y, z]
+                            ),
+                            // Submanifold outputs exist only at the input sites.
+                            None => {}
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn submanifold_conv_matches_dense_conv3d() {
+    let mut rng = Rng::new(11);
+    for (dims, fraction) in [([5, 4, 6], 0.35), ([4, 4, 4], 0.9), ([6, 3, 5], 0.08)] {
+        let sites = random_sites(&mut rng, dims, fraction);
+        for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
+            check_against_dense(&sites, false, method, 3);
+        }
+    }
+}
+
+#[test]
+fn strided_conv_matches_dense_conv3d() {
+    let mut rng = Rng::new(12);
+    // Even and odd extents: with an even extent the last input row reaches past the coarse
+    // grid (dropped, like spconv and the dense conv).
+    for (dims, fraction) in [([6, 5, 7], 0.3), ([4, 8, 3], 0.6), ([7, 7, 7], 0.05)] {
+        let sites = random_sites(&mut rng, dims, fraction);
+        for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
+            check_against_dense(&sites, true, method, 4);
+        }
+    }
+}
+
+/// `sum(out^2 * r)` in f64 from the output values.
+fn quadratic_loss(out: &[f32], r: &[f32]) -> f64 {
+    out.iter()
+        .zip(r)
+        .map(|(&o, &r)| (o as f64) * (o as f64) * r as f64)
+        .sum()
+}
+
+fn conv_with(weight: Vec<f32>, dims: [usize; 3], device: &Device) -> SparseConv3d {
+    SparseConv3d {
+        weight: Param::from_tensor(tensor3(weight, dims, device)),
+        bias: None,
+    }
+}
+
+#[test]
+fn sparse_conv_gradients_match_finite_differences() {
+    let mut rng = Rng::new(21);
+    let plain = device();
+    let ad = device().autodiff();
+    let sites = random_sites(&mut rng, [4, 4, 3], 0.35);
+    let (n, c_in, c_out, p) = (2, 2, 3, sites.len());
+    for strided in [false, true] {
+        let rules = if strided {
+            Rulebook::strided(&sites).unwrap().1
+        } else {
+            Rulebook::submanifold(&sites)
+        };
+        for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
+            let weight = normals(&mut rng, KERNEL_VOLUME * c_in * c_out);
+            let features = normals(&mut rng, n * p * c_in);
+            let r = normals(&mut rng, n * rules.n_out * c_out);
+            let w_dims = [KERNEL_VOLUME, c_in, c_out];
+            let f_dims = [n, p, c_in];
+
+            // Analytic gradients on the autodiff device.
+            let rules_ad = RulebookTensors::with_method(&rules, method, &ad);
+            let conv = conv_with(weight.clone(), w_dims, &ad);
+            let x = tensor3(features.clone(), f_dims, &ad).require_grad();
+            let out = conv.forward(x.clone(), &rules_ad).unwrap();
+            let r_t = tensor3(r.clone(), [n, rules.n_out, c_out], &ad);
+            let grads = (out.clone() * out * r_t).sum().backward();
+            let grad_w = values(conv.weight.grad(&grads).unwrap());
+            let grad_x = values(x.grad(&grads).unwrap());
+
+            // Central differences on the plain device.
+            let rules_plain = RulebookTensors::with_method(&rules, method, &plain);
+            let loss = |w: &[f32], f: &[f32]| {
+                let conv = conv_with(w.to_vec(), w_dims, &plain);
+                let out = conv
+                    .forward(tensor3(f.to_vec(), f_dims, &plain), &rules_plain)
+                    .unwrap();
+                quadratic_loss(&values(out), &r)
+            };
+            let check = |name: &str, analytic: f32, plus: f64, minus: f64, i: usize| {
+                let fd = (plus - minus) / (2.0 * FD_STEP);
+                let err = (fd - analytic as f64).abs();
+                assert!(
+                    err <= FD_TOL * fd.abs().max(1.0),
+                    "{method:?} strided={strided} d loss / d {name}[{i}]: autodiff {analytic}, \
+                     finite difference {fd}"
+                );
+            };
+            for i in 0..weight.len() {
+                let mut w = weight.clone();
+                w[i] += FD_STEP as f32;
+                let plus = loss(&w, &features);
+                w[i] -= 2.0 * FD_STEP as f32;
+                check("weight", grad_w[i], plus, loss(&w, &features), i);
+            }
+            for i in 0..features.len() {
+                let mut f = features.clone();
+                f[i] += FD_STEP as f32;
+                let plus = loss(&weight, &f);
+                f[i] -= 2.0 * FD_STEP as f32;
+                check("features", grad_x[i], plus, loss(&weight, &f), i);
+            }
+        }
+    }
+}
+
+/// A small grid placement in metres for the trilinear tests.
+fn test_box() -> VoxelBox {
+    VoxelBox::new([-0.1, 0.2, 0.05], 0.05, [7, 6, 8]).unwrap()
+}
+
+/// PyTorch's `grid_sample(align_corners=True, padding_mode="zeros")` of a dense
+/// `[C, X, Y, Z]` grid whose corner samples are the voxel centres of `scale`, at `p`; zero
+/// outside the level-0 box. Written from the normalise / unnormalise formulas, independent of
+/// the site lookup.
+fn dense_grid_sample(grid: &[f32], c: usize, scale: &ScaleGeometry, p: [f32; 3]) -> Vec<f32> {
+    let dims = scale.sites.dims();
+    let mut out = vec![0.0; c];
+    let inside = (0..3).all(|a| p[a] >= scale.bounds_min_m[a] && p[a] <= scale.bounds_max_m[a]);
+    if !inside {
+        return out;
+    }
+    // Normalised coordinate: -1 at the first voxel centre, +1 at the last.
+    let first = scale.centre_of([0, 0, 0]);
+    let last = scale.centre_of(dims.map(|d| d as i32 - 1));
+    let idx: [f32; 3] = std::array::from_fn(|a| {
+        let g = -1.0 + 2.0 * (p[a] - first[a]) / (last[a] - first[a]);
+        (g + 1.0) / 2.0 * (dims[a] as f32 - 1.0)
+    });
+    let lo = idx.map(|v| v.floor() as i64);
+    for dx in 0..2 {
+        for dy in 0..2 {
+            for dz in 0..2 {
+                let corner = [lo[0] + dx, lo[1] + dy, lo[2] + dz];
+                let w: f32 = (0..3)
+                    .map(|a| {
+                        let t = idx[a] - lo[a] as f32;
+                        if corner[a] == lo[a] {
+                            1.0 - t
+                        } else {
+                            t
+                        }
+                    })
+                    .product();
+                if (0..3).any(|a| corner[a] < 0 || corner[a] >= dims[a] as i64) {
+                    continue;
+                }
+                let [x, y, z] = corner.map(|v| v as usize);
+                for ch in 0..c {
+                    out[ch] += w * grid[((ch * dims[0] + x) * dims[1] + y) * dims[2] + z];
+                }
+            }
+        }
+    }
+    out
+}
+
+fn random_points(rng: &mut Rng, vb: &VoxelBox, m: usize, margin: f32) -> Vec<[f32; 3]> {
+    let max = vb.max_m();
+    (0..m)
+        .map(|_| std::array::from_fn(|a| rng.range(vb.min_m[a] - margin, max[a] + margin)))
+        .collect()
+}
+
+#[test]
+fn trilinear_matches_dense_grid_sample() {
+    let dev = device();
+    let mut rng = Rng::new(31);
+    let vb = test_box();
+    for level in [0u32, 1] {
+        let (_, _, dims) = vb.level_placement(level);
+        let sites = random_sites(&mut rng, dims, 0.6);
+        let scale = ScaleGeometry::new(&vb, level, sites).unwrap();
+        let (n, c, p) = (2, 3, scale.num_sites());
+        let features = normals(&mut rng, n * p * c);
+        let mut points = random_points(&mut rng, &vb, 300, 0.08);
+        // Exactly on voxel centres and on the box faces.
+        points.push(scale.centre_of([1, 2, 3]));
+        points.push(vb.min_m);
+        points.push(vb.max_m());
+        points.push([f32::NAN, 0.3, 0.1]);
+        let corners = TrilinearCorners::compute(&points, &scale);
+        assert_eq!(corners.index.len(), points.len() * CORNERS);
+        let got = values(
+            sample(
+                tensor3(features.clone(), [n, p, c], &dev),
+                &corners.to_tensors(&dev),
+            )
+            .unwrap(),
+        );
+        let sites = &scale.sites;
+        let grid = densify(&features, n, c, sites);
+        let per_view = c * dims.iter().product::<usize>();
+        let mut outside = 0;
+        for (m, point) in points.iter().enumerate() {
+            let w = &corners.weight[m * CORNERS..(m + 1) * CORNERS];
+            let sum: f32 = w.iter().sum();
+            if scale.in_bounds(*point) {
+                assert!((sum - 1.0).abs() <= TRILINEAR_TOL, "weights sum {sum}");
+            } else {
+                outside += 1;
+                assert_eq!(sum, 0.0);
+            }
+            for v in 0..n {
+                let expected =
+                    dense_grid_sample(&grid[v * per_view..(v + 1) * per_view], c, &scale, *point);
+                for ch in 0..c {
+                    let g = got[(v * points.len() + m) * c + ch];
+                    assert!(
+                        (g - expected[ch]).abs() <= TRILINEAR_TOL,
+                        "level {level} point {point:?} view {v} ch {ch}: {g} vs {}",
+                        expected[ch]
+                    );
+                }
+            }
+        }
+        assert!(outside > 10, "the test should cover points outside the box");
+    }
+}
+
+#[test]
+fn trilinear_on_a_centre_plane_matches_burn_grid_sample_2d() {
+    // With z on a plane of voxel centres, trilinear = bilinear on that slice: compare with
+    // burn's grid_sample_2d(align_corners = true, zeros) on the slice [C, H = Y, W = X].
+    let dev = device();
+    let mut rng = Rng::new(41);
+    let vb = test_box();
+    let dims = vb.dims;
+    let sites = random_sites(&mut rng, dims, 0.7);
+    let scale = ScaleGeometry::new(&vb, 0, sites).unwrap();
+    let (c, p) = (2, scale.num_sites());
+    let features = normals(&mut rng, p * c);
+    let z0 = 3;
+    let z = scale.centre_of([0, 0, z0])[2];
+    let first = scale.centre_of([0, 0, 0]);
+    let last = scale.centre_of([dims[0] as i32 - 1, dims[1] as i32 - 1, 0]);
+    // Points between the first and last voxel centres (grid coords in [-1, 1]).
+    let points: Vec<[f32; 3]> = (0..64)
+        .map(|_| {
+            [
+                rng.range(first[0], last[0]),
+                rng.range(first[1], last[1]),
+                z,
+            ]
+        })
+        .collect();
+    let corners = TrilinearCorners::compute(&points, &scale);
+    let got = values(
+        sample(
+            tensor3(features.clone(), [1, p, c], &dev),
+            &corners.to_tensors(&dev),
+        )
+        .unwrap(),
+    );
+    let mut slice = vec![0.0f32; c * dims[1] * dims[0]];
+    for (s, site) in scale.sites.sites().iter().enumerate() {
+        if site[2] == z0 {
+            for ch in 0..c {
+                slice[(ch * dims[1] + site[1] as usize) * dims[0] + site[0] as usize] =
+                    features[s * c + ch];
+            }
+        }
+    }
+    let image: Tensor<4> =
+        Tensor::from_data(TensorData::new(slice, [1, c, dims[1], dims[0]]), &dev);
+    let grid: Vec<f32> = points
+        .iter()
+        .flat_map(|q| {
+            [
+                -1.0 + 2.0 * (q[0] - first[0]) / (last[0] - first[0]),
+                -1.0 + 2.0 * (q[1] - first[1]) / (last[1] - first[1]),
+            ]
+        })
+        .collect();
+    let grid: Tensor<4> = Tensor::from_data(TensorData::new(grid, [1, 1, points.len(), 2]), &dev);
+    let options = GridSampleOptions::new(InterpolateMode::Bilinear)
+        .with_padding_mode(GridSamplePaddingMode::Zeros)
+        .with_align_corners(true);
+    let expected = values(image.grid_sample_2d(grid, options)); // [1, C, 1, M]
+    for m in 0..points.len() {
+        for ch in 0..c {
+            let (g, e) = (got[m * c + ch], expected[ch * points.len() + m]);
+            assert!(
+                (g - e).abs() <= TRILINEAR_TOL,
+                "point {m} ch {ch}: {g} vs {e}"
+            );
+        }
+    }
+}
+
+#[test]
+fn trilinear_gradients_reach_features_and_outside_points_are_zero() {
+    let ad = device().autodiff();
+    let mut rng = Rng::new(51);
+    let vb = test_box();
+    let scale = ScaleGeometry::new(&vb, 0, random_sites(&mut rng, vb.dims, 0.5)).unwrap();
+    let (n, c, p) = (2, 3, scale.num_sites());
+    let far = [vb.max_m()[0] + 1.0, 0.0, 0.0];
+    let points = vec![scale.centre_of([2, 2, 2]), far, [0.0, 0.3, 0.2]];
+    let corners = TrilinearCorners::compute(&points, &scale);
+    let features = tensor3(normals(&mut rng, n * p * c), [n, p, c], &ad).require_grad();
+    let out = sample(features.clone(), &corners.to_tensors(&ad)).unwrap();
+    let r = normals(&mut rng, n * points.len() * c);
+    let loss = (out.clone() * tensor3(r.clone(), [n, points.len(), c], &ad)).sum();
+    let grads = loss.backward();
+    let out = values(out);
+    for v in 0..n {
+        for ch in 0..c {
+            assert_eq!(out[(v * points.len() + 1) * c + ch], 0.0, "far point");
+        }
+    }
+    // d loss / d features[n, s, ch] = sum_m r[n, m, ch] * weight of site s for point m.
+    let grad = values(features.grad(&grads).unwrap());
+    assert!(grad.iter().all(|g| g.is_finite()));
+    let mut expected = vec![0.0f32; n * p * c];
+    for m in 0..points.len() {
+        for j in 0..CORNERS {
+            let s = corners.index[m * CORNERS + j] as usize;
+            if s == p {
+                continue;
+            }
+            for v in 0..n {
+                for ch in 0..c {
+                    expected[(v * p + s) * c + ch] +=
+                        corners.weight[m * CORNERS + j] * r[(v * points.len() + m) * c + ch];
+                }
+            }
+        }
+    }
+    for (g, e) in grad.iter().zip(&expected) {
+        assert!((g - e).abs() <= TRILINEAR_TOL, "{g} vs {e}");
+    }
+}
+
+/// Vertices on a few capsules shaped like a standing person (~1.7 m), SMPL-like density.
+fn body_like_vertices(rng: &mut Rng, count: usize) -> Vec<[f32; 3]> {
+    // (start, end, radius) metres: torso, head, arms, legs.
+    let parts: [([f32; 3], [f32; 3], f32); 6] = [
+        ([0.0, -0.05, 0.0], [0.0, 0.5, 0.0], 0.15),
+        ([0.0, 0.6, 0.0], [0.0, 0.75, 0.0], 0.1),
+        ([-0.2, 0.45, 0.0], [-0.75, 0.45, 0.05], 0.05),
+        ([0.2, 0.45, 0.0], [0.75, 0.45, 0.05], 0.05),
+        ([-0.1, -0.1, 0.0], [-0.12, -0.95, 0.02], 0.07),
+        ([0.1, -0.1, 0.0], [0.12, -0.95, 0.02], 0.07),
+    ];
+    (0..count)
+        .map(|i| {
+            let (a, b, r) = parts[i % parts.len()];
+            let t = rng.uniform();
+            let theta = rng.range(0.0, std::f32::consts::TAU);
+            let axis: [f32; 3] = std::array::from_fn(|k| b[k] - a[k]);
+            let len = axis.iter().map(|v| v * v).sum::<f32>().sqrt();
+            let u = axis.map(|v| v / len);
+            // Any two unit vectors orthogonal to the axis.
+            let helper = if u[2].abs() < 0.9 {
+                [0.0, 0.0, 1.0]
+            } else {
+                [1.0, 0.0, 0.0]
+            };
+            let e1 = normalise(cross(u, helper));
+            let e2 = cross(u, e1);
+            std::array::from_fn(|k| {
+                a[k] + t * axis[k] + r * (theta.cos() * e1[k] + theta.sin() * e2[k])
+            })
+        })
+        .collect()
+}
+
+fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn normalise(v: [f32; 3]) -> [f32; 3] {
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    v.map(|x| x / n)
+}
+
+#[test]
+fn voxelize_sorts_sites_and_maps_every_vertex() {
+    let mut rng = Rng::new(61);
+    let vertices = body_like_vertices(&mut rng, 600);
+    let vb = VoxelBox::enclosing(&vertices, 0.025, 0.02).unwrap();
+    // Each extent grows by 2.5% about the centre; the grid covers it.
+    let lo: [f32; 3] =
+        std::array::from_fn(|a| vertices.iter().map(|v| v[a]).fold(f32::MAX, f32::min));
+    let hi: [f32; 3] =
+        std::array::from_fn(|a| vertices.iter().map(|v| v[a]).fold(f32::MIN, f32::max));
+    for a in 0..3 {
+        let margin = 0.0125 * (hi[a] - lo[a]);
+        assert!((lo[a] - margin - vb.min_m[a]).abs() < 1e-5);
+        assert!(vb.max_m()[a] >= hi[a] + margin - 1e-5);
+        assert!(vb.max_m()[a] < hi[a] + margin + vb.voxel_size_m);
+    }
+    let vox = voxelize(&vertices, &vb).unwrap();
+    let sites = vox.sites.sites();
+    let linear =
+        |c: &[i32; 3]| (c[0] as usize * vb.dims[1] + c[1] as usize) * vb.dims[2] + c[2] as usize;
+    assert!(sites.windows(2).all(|w| linear(&w[0]) < linear(&w[1])));
+    for (i, v) in vertices.iter().enumerate() {
+        let c = vox.vertex_voxel[i];
+        for a in 0..3 {
+            let lo = vb.min_m[a] + c[a] as f32 * vb.voxel_size_m;
+            assert!(v[a] >= lo - 1e-5 && v[a] <= lo + vb.voxel_size_m + 1e-5);
+        }
+        assert_eq!(sites[vox.vertex_site[i] as usize], c);
+    }
+    assert_eq!(
+        vox.site_vertex_count.iter().sum::<u32>() as usize,
+        vertices.len()
+    );
+    assert!(vox.site_vertex_count.iter().all(|&c| c >= 1));
+
+    assert!(voxelize(&[], &vb).is_err());
+    assert!(voxelize(&[[f32::NAN, 0.0, 0.0]], &vb).is_err());
+    assert!(voxelize(&[[vb.max_m()[0] + 0.1, 0.0, 0.0]], &vb).is_err());
+    assert!(VoxelBox::enclosing(&vertices, 0.025, 0.0).is_err());
+    assert!(VoxelBox::enclosing(&vertices, -1.0, 0.01).is_err());
+}
+
+fn small_config() -> BodyVolumeNetConfig {
+    BodyVolumeNetConfig::new()
+        .with_vertex_channels(4)
+        .with_full_channels(4)
+        .with_full_convs(1)
+        .with_scale_channels([4, 6, 8, 8])
+        .with_scale_convs([1, 1, 1, 1])
+}
+
+#[test]
+fn network_forward_and_backward_are_finite() {
+    let ad = device().autodiff();
+    let mut rng = Rng::new(71);
+    let vertices = body_like_vertices(&mut rng, 400);
+    let vb = VoxelBox::enclosing(&vertices, 0.025, 0.03).unwrap();
+    let geometry = BodyVolumeGeometry::build(&vertices, &vb, &ad).unwrap();
+    assert_eq!(geometry.levels.len(), NUM_SCALES + 1);
+    for l in 1..=NUM_SCALES {
+        let dims = geometry.levels[l].sites.dims();
+        assert_eq!(dims, geometry.levels[l - 1].sites.dims().map(strided_dim));
+        assert!(geometry.levels[l].num_sites() > 0);
+    }
+    let config = small_config();
+    let net = config.init(&ad);
+    let (n, c_v) = (2, config.vertex_channels);
+    let vertex_features = tensor3(
+        normals(&mut rng, n * vertices.len() * c_v),
+        [n, vertices.len(), c_v],
+        &ad,
+    )
+    .require_grad();
+
+    // Scatter-mean: every site holds the mean of its vertices.
+    let site_features = values(
+        geometry
+            .site_features(vertex_features.clone().detach())
+            .unwrap(),
+    );
+    let vf = values(vertex_features.clone().detach());
+    let p0 = geometry.levels[0].num_sites();
+    let mut sums = vec![0.0f32; n * p0 * c_v];
+    for v in 0..n {
+        for (i, &s) in geometry.voxels.vertex_site.iter().enumerate() {
+            for ch in 0..c_v {
+                sums[(v * p0 + s as usize) * c_v + ch] += vf[(v * vertices.len() + i) * c_v + ch];
+            }
+        }
+    }
+    for v in 0..n {
+        for s in 0..p0 {
+            let count = geometry.voxels.site_vertex_count[s] as f32;
+            for ch in 0..c_v {
+                let i = (v * p0 + s) * c_v + ch;
+                assert!((site_features[i] - sums[i] / count).abs() <= TRILINEAR_TOL);
+            }
+        }
+    }
+
+    let volume = net.forward(&geometry, vertex_features.clone()).unwrap();
+    assert_eq!(volume.scales.len(), NUM_SCALES);
+    for (s, scale) in volume.scales.iter().enumerate() {
+        let p_s = geometry.scale(s).unwrap().num_sites();
+        assert_eq!(
+            scale.features.dims(),
+            [n, p_s, config.scale_channels[s]],
+            "scale {s}"
+        );
+        assert!(values(scale.features.clone()).iter().all(|v| v.is_finite()));
+    }
+
+    let mut points = random_points(&mut rng, &vb, 200, 0.0);
+    let far = [vb.max_m()[0] + 0.5, vb.min_m[1] - 0.5, 0.0];
+    points.push(far);
+    let corners: Vec<_> = geometry
+        .corners(&points)
+        .iter()
+        .map(|c| c.to_tensors(&ad))
+        .collect();
+    let sampled = volume.sample(&corners).unwrap();
+    let m = points.len();
+    assert_eq!(sampled.dims(), [n, m, config.output_channels()]);
+    let sampled_values = values(sampled.clone());
+    assert!(sampled_values.iter().all(|v| v.is_finite()));
+    let c_total = config.output_channels();
+    for v in 0..n {
+        let row = &sampled_values[(v * m + m - 1) * c_total..(v * m + m) * c_total];
+        assert!(row.iter().all(|&x| x == 0.0), "point outside the box");
+    }
+    assert!(sampled_values.iter().any(|&x| x != 0.0));
+
+    let grads = sampled.sum().backward();
+    let g = values(vertex_features.grad(&grads).unwrap());
+    assert!(g.iter().all(|x| x.is_finite()));
+    assert!(g.iter().any(|&x| x != 0.0));
+    let gw = values(net.scales[0].down.conv.weight.grad(&grads).unwrap());
+    assert!(gw.iter().all(|x| x.is_finite()) && gw.iter().any(|&x| x != 0.0));
+    let gw = values(net.full[0].conv.weight.grad(&grads).unwrap());
+    assert!(gw.iter().all(|x| x.is_finite()) && gw.iter().any(|&x| x != 0.0));
+
+    // Shape errors are typed errors, not panics.
+    let wrong = tensor3(vec![0.0; n * 3 * c_v], [n, 3, c_v], &ad);
+    assert!(net.forward(&geometry, wrong).is_err());
+    assert!(volume.sample(&corners[..2]).is_err());
+}
+
+/// Speed check, run by hand:
+/// `CARGO_TARGET_DIR=$HOME/.cache/nia-rs/target cargo test --workspace --all-features --test
+/// body_volume timing -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn timing_paper_size() {
+    use std::time::Instant;
+    let mut rng = Rng::new(81);
+    let vertices = body_like_vertices(&mut rng, 6890);
+    let vb = VoxelBox::enclosing(&vertices, 0.025, 0.005).unwrap();
+    let config = BodyVolumeNetConfig::new();
+    let n = 3;
+    let points = random_points(&mut rng, &vb, 65536, 0.0);
+    let ms = |t: Instant| t.elapsed().as_secs_f64() * 1e3;
+    for (name, dev) in [("flex", Device::flex()), ("ndarray", device())] {
+        let t = Instant::now();
+        let geometry = BodyVolumeGeometry::build(&vertices, &vb, &dev).unwrap();
+        let build = ms(t);
+        let sites: Vec<usize> = geometry.levels.iter().map(|l| l.num_sites()).collect();
+        println!(
+            "{name}: V {} N {n} box {:?} sites per level {sites:?}, geometry build {build:.1} ms",
+            vertices.len(),
+            vb.dims,
+        );
+        // Per rulebook: one convolution with that stage's channels, both methods.
+        let channels = [config.full_channels, 32, 64, 128, 128];
+        let rules = geometry
+            .submanifold_rules
+            .iter()
+            .enumerate()
+            .map(|(l, r)| (format!("subm level {l}"), r, channels[l], channels[l]))
+            .chain(geometry.strided_rules.iter().enumerate().map(|(l, r)| {
+                (
+                    format!("strided {l}->{}", l + 1),
+                    r,
+                    channels[l],
+                    channels[l + 1],
+                )
+            }));
+        for (label, rulebook, c_in, c_out) in rules {
+            let x = tensor3(
+                normals(&mut rng, n * rulebook.n_in * c_in),
+                [n, rulebook.n_in, c_in],
+                &dev,
+            );
+            let conv = SparseConv3dConfig::new(c_in, c_out).init(&dev);
+            let mut line = format!(
+                "  {label} ({} -> {}, fill {:.2}):",
+                rulebook.n_in,
+                rulebook.n_out,
+                rulebook.fill_ratio()
+            );
+            for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
+                let tensors = RulebookTensors::with_method(rulebook, method, &dev);
+                let _ = values(conv.forward(x.clone(), &tensors).unwrap().sum());
+                let t = Instant::now();
+                let _ = values(conv.forward(x.clone(), &tensors).unwrap().sum());
+                line += &format!(" {method:?} {:.1} ms", ms(t));
+            }
+            println!("{line}");
+        }
+        let net = config.init(&dev);
+        let features = tensor3(
+            normals(&mut rng, n * vertices.len() * config.vertex_channels),
+            [n, vertices.len(), config.vertex_channels],
+            &dev,
+        );
+        let mut forward = Vec::new();
+        let mut volume = None;
+        for _ in 0..3 {
+            let t = Instant::now();
+            let v = net.forward(&geometry, features.clone()).unwrap();
+            let _ = values(v.scales[3].features.clone().sum());
+            forward.push(format!("{:.0}", ms(t)));
+            volume = Some(v);
+        }
+        let volume = volume.unwrap();
+        let t = Instant::now();
+        let corners = geometry.corners(&points);
+        let corner_time = ms(t);
+        let tensors: Vec<_> = corners.iter().map(|c| c.to_tensors(&dev)).collect();
+        let t = Instant::now();
+        let _ = values(volume.sample(&tensors).unwrap().sum());
+        let sample_time = ms(t);
+        println!(
+            "  network forward {forward:?} ms, corners of {} points (4 scales) {corner_time:.1} ms, \
+             sample {sample_time:.1} ms",
+            points.len(),
+        );
+
+        // One training step's worth: forward + sample + backward on the autodiff device.
+        let ad = dev.clone().autodiff();
+        let geometry = BodyVolumeGeometry::build(&vertices, &vb, &ad).unwrap();
+        let net = config.init(&ad);
+        let features = tensor3(
+            normals(&mut rng, n * vertices.len() * config.vertex_channels),
+            [n, vertices.len(), config.vertex_channels],
+            &ad,
+        )
+        .require_grad();
+        let tensors: Vec<_> = corners.iter().map(|c| c.to_tensors(&ad)).collect();
+        let t = Instant::now();
+        let volume = net.forward(&geometry, features.clone()).unwrap();
+        let sampled = volume.sample(&tensors).unwrap();
+        let loss = sampled.sum();
+        let forward_ad = ms(t);
+        let t = Instant::now();
+        let grads = loss.backward();
+        let _ = values(features.grad(&grads).unwrap().sum());
+        println!(
+            "  autodiff: forward + sample {forward_ad:.0} ms, backward {:.0} ms",
+            ms(t)
+        );
+    }
+}
+
+#[test]
+#[ignore]
+fn scratch_ops() {
+    use std::time::Instant;
+    let mut rng = Rng::new(1);
+    for (name, dev) in [("ndarray", device()), ("flex", Device::flex())] {
+        let (n, p, c, m) = (3usize, 14000usize, 32usize, 14000 * 27);
+        let x = tensor3(normals(&mut rng, n * p * c), [n, p, c], &dev);
+        let idx: Vec<u32> = (0..m).map(|_| rng.below(p) as u32).collect();
+        let idx_t = nia_model::body_volume::sparse_conv::int_tensor_pub(&idx, &dev);
+        let xt = x.clone().swap_dims(0, 1).reshape([p, n * c]);
+        let _ = values(xt.clone().sum());
+        let t = Instant::now();
+        let g = x.clone().select(1, idx_t.clone());
+        let _ = values(g.sum());
+        let d1 = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let g = xt.clone().select(0, idx_t.clone());
+        let _ = values(g.sum());
+        let d0 = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let a = tensor3(
+            normals(&mut rng, n * 14000 * 864),
+            [1, n * 14000, 864],
+            &dev,
+        );
+        let w = tensor3(normals(&mut rng, 864 * 32), [1, 864, 32], &dev);
+        let _ = values(a.clone().sum());
+        let t2 = Instant::now();
+        let _ = values(a.matmul(w).sum());
+        let mm = t2.elapsed().as_secs_f64();
+        let _ = t;
+        let z = Tensor::<3>::zeros([n, p, c], &dev);
+        let vals = tensor3(normals(&mut rng, n * m * c), [n, m, c], &dev);
+        let _ = values(vals.clone().sum());
+        let t = Instant::now();
+        let s = z.select_assign(1, idx_t.clone(), vals, burn::tensor::IndexingUpdateOp::Add);
+        let _ = values(s.sum());
+        let sc = t.elapsed().as_secs_f64();
+        println!("{name}: select dim1 [3,{p},{c}] x {m}: {d1:.3}s, select dim0 [{p}, {}]: {d0:.3}s, matmul [{},864]x[864,32] {mm:.3}s, scatter dim1 {sc:.3}s", n*c, n*14000);
+    }
+}

@@ -1,0 +1,44 @@
+#![allow(deprecated)] // Device::ndarray(): burn deprecates it, the user asked for it; it is the reference CPU backend.
+
+//! The ResNet-18 pyramid encoder: output shape, and the matrix-product bilinear upsampling
+//! against burn's own `interpolate` (align_corners = false).
+
+use burn::prelude::*;
+use burn::tensor::module::interpolate;
+use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
+use nia_model::encoder::{upsample_bilinear, ImageEncoderConfig};
+
+/// Both compute the same 4-tap weighted sums in f32, in different orders.
+const UPSAMPLE_TOLERANCE: f32 = 1e-5;
+
+#[test]
+fn upsampling_matches_burn_interpolate() {
+    let device = Device::ndarray();
+    device.seed(0);
+    for (h, w, oh, ow) in [(4, 6, 16, 24), (3, 5, 7, 11), (8, 8, 8, 8), (2, 2, 32, 32)] {
+        let f = Tensor::<4>::random([2, 3, h, w], burn::tensor::Distribution::Uniform(-1.0, 1.0), &device);
+        let ours = upsample_bilinear(f.clone(), [oh, ow]);
+        let reference = interpolate(
+            f,
+            InterpolateOptions::new(InterpolateMode::Bilinear)
+                .with_align_corners(false)
+                .with_output_size([oh, ow]),
+        );
+        let diff = (ours - reference).abs().max().into_scalar::<f32>();
+        assert!(diff <= UPSAMPLE_TOLERANCE, "{h}x{w} -> {oh}x{ow}: max diff {diff}");
+    }
+}
+
+#[test]
+fn encoder_gives_the_four_scale_pyramid_at_half_resolution() {
+    let device = Device::ndarray();
+    let config = ImageEncoderConfig::new().with_base_width(8);
+    let encoder = config.init(&device);
+    let images = Tensor::<4>::ones([2, 3, 64, 48], &device).mul_scalar(0.5);
+    let out = encoder.forward(images);
+    assert_eq!(out.dims(), [2, config.out_channels(), 32, 24]);
+    assert_eq!(config.out_channels(), 64, "8 + 8 + 16 + 32 channels at base width 8");
+    let values = out.into_data().try_to_vec::<f32>().unwrap();
+    assert!(values.iter().all(|x| x.is_finite()));
+    assert!(values.iter().any(|&x| x > 0.0), "ReLU features are not all zero");
+}

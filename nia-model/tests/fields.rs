@@ -1,0 +1,846 @@
+//! Per-point fields: positional encoding, view-wise cross-attention, F_sigma / F_c0, IBR
+//! sampling and colour rules, the blender F_B and the variants' colour rules.
+
+use burn::module::Param;
+use burn::nn::Linear;
+use burn::prelude::*;
+use nia_data::rng::Rng;
+use nia_model::attention::ViewCrossAttentionConfig;
+use nia_model::blender::{blend, stable_softmax, BlendInputs, Blender, BlenderConfig, ShapeError};
+use nia_model::encoding::PositionalEncodingConfig;
+use nia_model::heads::{view_mean, ColourHeadConfig, DensityHead, DensityHeadConfig};
+use nia_model::ibr::{
+    cosine_weighted_colour, fetch_source_colours, sample_views, simple_average_colour,
+    view_direction_feature, view_direction_features, PixelFeatureConfig,
+};
+use nia_model::renderer::render_rays;
+use nia_model::variant::Variant;
+
+/// f32 forward values computed along two different paths (reordered sums, sin/cos of the
+/// same angles): a few ulps of O(1) values.
+const VALUE_TOL: f32 = 1e-5;
+/// Values through a small MLP (a few hundred f32 multiply-adds per output).
+const MLP_TOL: f32 = 1e-4;
+/// Central finite-difference step for f32 inputs of O(1).
+const FD_STEP: f32 = 1e-3;
+/// Finite differences vs autodiff: O(FD_STEP^2) truncation plus f32 rounding of O(1) losses
+/// divided by the step (~1e-7 / 1e-3), with margin: absolute plus relative to the gradient.
+const FD_ABS_TOL: f32 = 2e-3;
+const FD_REL_TOL: f32 = 2e-2;
+
+/// The reference CPU backend (deprecated upstream in favour of flex; the project keeps it).
+#[allow(deprecated)]
+fn device() -> Device {
+    Device::ndarray()
+}
+
+fn tensor<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Tensor<D> {
+    Tensor::from_data(TensorData::new(values, shape), device)
+}
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().expect("f32 tensor")
+}
+
+fn random(rng: &mut Rng, n: usize, lo: f32, hi: f32) -> Vec<f32> {
+    (0..n).map(|_| rng.range(lo, hi)).collect()
+}
+
+fn assert_close(got: &[f32], expected: &[f32], tol: f32, what: &str) {
+    assert_eq!(got.len(), expected.len(), "{what}: length");
+    for (i, (g, e)) in got.iter().zip(expected).enumerate() {
+        assert!(
+            (g - e).abs() <= tol * (1.0 + e.abs()),
+            "{what}[{i}]: got {g}, expected {e} (tol {tol})"
+        );
+    }
+}
+
+fn assert_finite(v: &[f32], what: &str) {
+    assert!(!v.is_empty(), "{what}: empty");
+    assert!(v.iter().all(|x| x.is_finite()), "{what}: not finite: {v:?}");
+}
+
+fn assert_fd_close(autodiff: f32, fd: f32, what: &str) {
+    assert!(
+        (autodiff - fd).abs() <= FD_ABS_TOL + FD_REL_TOL * fd.abs(),
+        "{what}: autodiff {autodiff} vs finite difference {fd}"
+    );
+}
+
+/// A linear layer with given weights `[d_in, d_out]` (row-major) and bias.
+fn linear(weight: Vec<f32>, bias: Vec<f32>, d_in: usize, d_out: usize, dev: &Device) -> Linear {
+    Linear {
+        weight: Param::from_tensor(tensor(weight, [d_in, d_out], dev)),
+        bias: Some(Param::from_tensor(tensor(bias, [d_out], dev))),
+    }
+}
+
+fn identity(d: usize) -> Vec<f32> {
+    (0..d * d)
+        .map(|i| if i / d == i % d { 1.0 } else { 0.0 })
+        .collect()
+}
+
+// ----------------------------------------------------------------------------------------------
+// Positional encoding
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn positional_encoding_matches_hand_values() {
+    let dev = device();
+    let pe = PositionalEncodingConfig::new()
+        .with_num_frequencies(2)
+        .init(&dev);
+    assert_eq!(pe.output_dim(), 3 + 2 * 3 * 2);
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    // p = (0.25, -0.5, 1): angles pi p = (pi/4, -pi/2, pi), 2 pi p = (pi/2, -pi, 2 pi).
+    let expected = [
+        0.25, -0.5, 1.0, // p
+        h, -1.0, 0.0, // sin(pi p)
+        h, 0.0, -1.0, // cos(pi p)
+        1.0, 0.0, 0.0, // sin(2 pi p)
+        0.0, -1.0, 1.0, // cos(2 pi p)
+    ];
+    let mut cpu = Vec::new();
+    pe.encode_into([0.25, -0.5, 1.0], &mut cpu);
+    assert_close(&cpu, &expected, VALUE_TOL, "gamma (CPU)");
+    let gpu = pe
+        .forward(tensor(vec![0.25, -0.5, 1.0], [1, 3], &dev))
+        .unwrap();
+    assert_eq!(gpu.dims(), [1, 15]);
+    assert_close(&values(gpu), &expected, VALUE_TOL, "gamma (tensor)");
+}
+
+#[test]
+fn positional_encoding_tensor_and_cpu_agree_for_directions() {
+    let dev = device();
+    let pe = PositionalEncodingConfig::new().init(&dev);
+    assert_eq!(pe.output_dim(), 27, "paper: L = 4 for directions");
+    let mut rng = Rng::new(7);
+    let points = random(&mut rng, 5 * 3, -1.0, 1.0);
+    let mut cpu = Vec::new();
+    for p in points.chunks(3) {
+        pe.encode_into([p[0], p[1], p[2]], &mut cpu);
+    }
+    let gpu = pe.forward(tensor(points, [5, 3], &dev)).unwrap();
+    assert_eq!(gpu.dims(), [5, 27]);
+    // Angles up to 8 pi: sin/cos of f32 arguments of ~25 differ by a few ulps of the angle.
+    assert_close(&values(gpu), &cpu, 1e-5 * 32.0, "gamma tensor vs CPU");
+    assert!(matches!(
+        pe.forward(Tensor::zeros([2, 4], &dev)),
+        Err(ShapeError::Mismatch { .. })
+    ));
+}
+
+// ----------------------------------------------------------------------------------------------
+// View-wise cross-attention
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn attention_with_one_view_is_value_plus_residual() {
+    let dev = device();
+    let d = 8;
+    let attention = ViewCrossAttentionConfig::new().with_d_model(d).init(&dev);
+    let mut rng = Rng::new(1);
+    let s = tensor(random(&mut rng, 4 * d, -1.0, 1.0), [4, 1, d], &dev);
+    let l = tensor(random(&mut rng, 4 * d, -1.0, 1.0), [4, 1, d], &dev);
+    let z = attention.forward(s.clone(), l.clone()).unwrap();
+    assert_eq!(z.dims(), [4, 1, d]);
+    let expected = attention.phi_v.forward(l) + s;
+    assert_close(&values(z), &values(expected), VALUE_TOL, "Z = phi_v(L) + S");
+}
+
+#[test]
+fn attention_matches_plain_reference_and_is_view_equivariant() {
+    let dev = device();
+    let (m, n, d) = (3, 3, 4);
+    let attention = ViewCrossAttentionConfig::new().with_d_model(d).init(&dev);
+    let mut rng = Rng::new(2);
+    let s_vals = random(&mut rng, m * n * d, -2.0, 2.0);
+    let l_vals = random(&mut rng, m * n * d, -2.0, 2.0);
+    let s = tensor(s_vals.clone(), [m, n, d], &dev);
+    let l = tensor(l_vals, [m, n, d], &dev);
+    let z = values(attention.forward(s.clone(), l.clone()).unwrap());
+
+    // Plain reference from the projections.
+    let q = values(attention.phi_k.forward(s.clone()));
+    let k = values(attention.phi_k.forward(l.clone()));
+    let v = values(attention.phi_v.forward(l.clone()));
+    let idx = |p: usize, view: usize, c: usize| (p * n + view) * d + c;
+    let mut expected = vec![0.0f32; m * n * d];
+    for p in 0..m {
+        for i in 0..n {
+            let scores: Vec<f32> = (0..n)
+                .map(|j| {
+                    (0..d)
+                        .map(|c| q[idx(p, i, c)] * k[idx(p, j, c)])
+                        .sum::<f32>()
+                        / (d as f32).sqrt()
+                })
+                .collect();
+            let max = scores.iter().cloned().fold(f32::MIN, f32::max);
+            let e: Vec<f32> = scores.iter().map(|x| (x - max).exp()).collect();
+            let sum: f32 = e.iter().sum();
+            for c in 0..d {
+                let attended: f32 = (0..n).map(|j| e[j] / sum * v[idx(p, j, c)]).sum();
+                expected[idx(p, i, c)] = attended + s_vals[idx(p, i, c)];
+            }
+        }
+    }
+    assert_close(&z, &expected, VALUE_TOL, "attention vs reference");
+
+    // Swapping views 0 and 2 swaps the outputs.
+    let perm = Tensor::<1, Int>::from_data(TensorData::new(vec![2i64, 1, 0], [3]), &dev);
+    let z_perm = attention
+        .forward(s.select(1, perm.clone()), l.select(1, perm.clone()))
+        .unwrap();
+    let z_back = values(z_perm.select(1, perm));
+    assert_close(&z_back, &z, VALUE_TOL, "view permutation equivariance");
+
+    assert!(matches!(
+        attention.forward(
+            Tensor::zeros([3, 3, d], &dev),
+            Tensor::zeros([3, 2, d], &dev)
+        ),
+        Err(ShapeError::Mismatch { .. })
+    ));
+}
+
+// ----------------------------------------------------------------------------------------------
+// Heads
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn density_head_hand_weights_give_shifted_softplus() {
+    let dev = device();
+    // d = 2, hidden 2: three identity layers, the last sums the two channels.
+    let head = DensityHead {
+        layers: vec![
+            linear(identity(2), vec![0.0; 2], 2, 2, &dev),
+            linear(identity(2), vec![0.0; 2], 2, 2, &dev),
+            linear(identity(2), vec![0.0; 2], 2, 2, &dev),
+            linear(vec![1.0, 1.0], vec![0.5], 2, 1, &dev),
+        ],
+        density_shift: -1.0,
+    };
+    // Point 0: relu keeps (1, 2): raw = 3.5. Point 1: relu zeroes (-1, -3): raw = 0.5.
+    let sigma = head
+        .forward(tensor(vec![1.0, 2.0, -1.0, -3.0], [2, 2], &dev))
+        .unwrap();
+    assert_eq!(sigma.dims(), [2]);
+    let softplus = |x: f32| (1.0 + x.exp()).ln();
+    assert_close(
+        &values(sigma),
+        &[softplus(3.5 - 1.0), softplus(0.5 - 1.0)],
+        VALUE_TOL,
+        "sigma = softplus(raw - 1)",
+    );
+}
+
+#[test]
+fn heads_shapes_and_ranges() {
+    let dev = device();
+    let (m, n, d, d_h) = (5, 3, 16, 12);
+    let density = DensityHeadConfig::new()
+        .with_d_input(d)
+        .with_d_hidden(d_h)
+        .init(&dev);
+    let colour = ColourHeadConfig::new()
+        .with_d_input(d)
+        .with_d_hidden(d_h)
+        .init(&dev);
+    let mut rng = Rng::new(3);
+    let z = tensor(random(&mut rng, m * n * d, -3.0, 3.0), [m, n, d], &dev);
+    let mean = view_mean(z.clone());
+    assert_close(
+        &values(mean.clone()),
+        &values(z.mean_dim(1).reshape([m, d])),
+        VALUE_TOL,
+        "view mean",
+    );
+    let sigma = values(density.forward(mean.clone()).unwrap());
+    assert_eq!(sigma.len(), m);
+    assert!(
+        sigma.iter().all(|s| s.is_finite() && *s >= 0.0),
+        "{sigma:?}"
+    );
+
+    let gamma = tensor(random(&mut rng, m * 27, -1.0, 1.0), [m, 27], &dev);
+    let out = colour.forward(mean, gamma).unwrap();
+    assert_eq!(out.c0.dims(), [m, 3]);
+    assert_eq!(out.confidence.dims(), [m, 1]);
+    assert_eq!(out.h.dims(), [m, d_h]);
+    let in_unit = |v: Vec<f32>| v.iter().all(|x| (0.0..=1.0).contains(x));
+    assert!(in_unit(values(out.c0.clone())) && in_unit(values(out.confidence.clone())));
+    assert!(
+        values(out.h.clone()).iter().all(|x| *x >= 0.0),
+        "h is a ReLU output"
+    );
+    // c0 and psi are the sigmoid of the last layer applied to h.
+    let logits = colour.layers[3].forward(out.h);
+    let sig = |v: Vec<f32>| {
+        v.into_iter()
+            .map(|x| 1.0 / (1.0 + (-x).exp()))
+            .collect::<Vec<_>>()
+    };
+    let expected = sig(values(logits));
+    let got: Vec<f32> = values(out.c0)
+        .chunks(3)
+        .zip(values(out.confidence))
+        .flat_map(|(c, p)| [c[0], c[1], c[2], p])
+        .collect();
+    assert_close(&got, &expected, VALUE_TOL, "(c0, psi) = sigmoid(layer4(h))");
+    assert!(colour
+        .forward(Tensor::zeros([m, d], &dev), Tensor::zeros([m, 26], &dev))
+        .is_err());
+}
+
+// ----------------------------------------------------------------------------------------------
+// IBR
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn sample_views_reads_pixel_centres_and_zero_outside() {
+    let dev = device();
+    // Two views of a 2 x 2 single-channel map; view 1 = view 0 + 10.
+    let maps = tensor(
+        vec![1.0, 2.0, 3.0, 4.0, 11.0, 12.0, 13.0, 14.0],
+        [2, 1, 2, 2],
+        &dev,
+    );
+    // Pixel (x, y) centre at u = x + 0.5 -> u_norm = u - 1 for W = 2.
+    let grid = tensor(
+        vec![
+            -0.5, -0.5, // pixel (0, 0)
+            0.5, -0.5, // pixel (1, 0)
+            -0.5, 0.5, // pixel (0, 1)
+            0.0, 0.0, // centre of the image: mean of the 4 pixels
+            5.0, 5.0, // outside: zero
+        ],
+        [1, 5, 2],
+        &dev,
+    )
+    .repeat_dim(0, 2);
+    let sampled = sample_views(maps, grid).unwrap();
+    assert_eq!(sampled.dims(), [2, 5, 1]);
+    assert_close(
+        &values(sampled),
+        &[1.0, 2.0, 3.0, 2.5, 0.0, 11.0, 12.0, 13.0, 12.5, 0.0],
+        VALUE_TOL,
+        "grid_sample at pixel centres",
+    );
+}
+
+#[test]
+fn source_colours_and_pixel_features_layout() {
+    let dev = device();
+    // One view, 1 x 1 image of colour (0.1, 0.2, 0.3): its centre is (0, 0).
+    let images = tensor(vec![0.1, 0.2, 0.3], [1, 3, 1, 1], &dev);
+    let grid = tensor(vec![0.0, 0.0, 3.0, 0.0], [1, 2, 2], &dev);
+    let c = fetch_source_colours(images, grid.clone()).unwrap();
+    assert_eq!(c.dims(), [1, 2, 3]);
+    assert_close(
+        &values(c),
+        &[0.1, 0.2, 0.3, 0.0, 0.0, 0.0],
+        VALUE_TOL,
+        "c_n",
+    );
+    assert!(fetch_source_colours(Tensor::zeros([1, 4, 2, 2], &dev), grid.clone()).is_err());
+
+    let pixel = PixelFeatureConfig::new()
+        .with_d_image(6)
+        .with_d_model(4)
+        .init(&dev);
+    let maps = tensor(
+        (0..6 * 4).map(|i| i as f32 / 10.0).collect(),
+        [1, 6, 2, 2],
+        &dev,
+    );
+    let p = pixel.forward(maps.clone(), grid.clone()).unwrap();
+    assert_eq!(p.dims(), [1, 2, 4]);
+    let expected = pixel.reduce.forward(sample_views(maps, grid).unwrap());
+    assert_close(
+        &values(p),
+        &values(expected),
+        VALUE_TOL,
+        "l_n = Linear(sample)",
+    );
+}
+
+#[test]
+fn view_direction_features_values() {
+    let dev = device();
+    assert_eq!(
+        view_direction_feature([0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
+        [0.0, -1.0, 1.0, 0.0]
+    );
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    let cpu = view_direction_feature([0.0, 0.0, 1.0], [0.0, h, h]);
+    assert_close(&cpu, &[0.0, -h, 1.0 - h, h], VALUE_TOL, "d_hat CPU");
+    let target = tensor(vec![0.0, 0.0, 1.0], [1, 3], &dev);
+    let source = tensor(vec![0.0, 1.0, 0.0, 0.0, h, h], [2, 1, 3], &dev);
+    let d_hat = view_direction_features(target, source).unwrap();
+    assert_eq!(d_hat.dims(), [2, 1, 4]);
+    assert_close(
+        &values(d_hat),
+        &[0.0, -1.0, 1.0, 0.0, 0.0, -h, 1.0 - h, h],
+        VALUE_TOL,
+        "d_hat tensor",
+    );
+}
+
+#[test]
+fn fixed_colour_rules() {
+    let dev = device();
+    // N = 2 views, M = 1 point.
+    let colours = tensor(vec![1.0, 0.0, 0.0, 0.0, 0.0, 1.0], [2, 1, 3], &dev);
+    let mean = simple_average_colour(colours.clone()).unwrap();
+    assert_close(&values(mean), &[0.5, 0.0, 0.5], VALUE_TOL, "simple average");
+    // cos = (1, 0), tau = 0.1: weights (e^10, 1) / (e^10 + 1).
+    let d_hat = tensor(
+        vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+        [2, 1, 4],
+        &dev,
+    );
+    let w0 = 10f32.exp() / (10f32.exp() + 1.0);
+    let weighted = cosine_weighted_colour(colours.clone(), d_hat.clone(), 0.1).unwrap();
+    assert_close(
+        &values(weighted),
+        &[w0, 0.0, 1.0 - w0],
+        VALUE_TOL,
+        "cosine weighted",
+    );
+    assert!(matches!(
+        cosine_weighted_colour(colours, d_hat, 0.0),
+        Err(ShapeError::InvalidArgument { .. })
+    ));
+}
+
+// ----------------------------------------------------------------------------------------------
+// Blender
+// ----------------------------------------------------------------------------------------------
+
+const D_PIXEL: usize = 6;
+const D_H: usize = 5;
+
+fn small_blender(dev: &Device) -> Blender {
+    BlenderConfig::new()
+        .with_d_pixel(D_PIXEL)
+        .with_d_h(D_H)
+        .with_d_hidden(16)
+        .init(dev)
+}
+
+/// Random blender inputs for M points and N views.
+fn blend_inputs(rng: &mut Rng, m: usize, n: usize, dev: &Device) -> BlendInputs {
+    BlendInputs {
+        c0: tensor(random(rng, m * 3, 0.0, 1.0), [m, 3], dev),
+        confidence: tensor(random(rng, m, 0.0, 1.0), [m, 1], dev),
+        h: tensor(random(rng, m * D_H, 0.0, 2.0), [m, D_H], dev),
+        source_colours: tensor(random(rng, n * m * 3, 0.0, 1.0), [n, m, 3], dev),
+        pixel_feature: tensor(
+            random(rng, n * m * D_PIXEL, -1.0, 1.0),
+            [n, m, D_PIXEL],
+            dev,
+        ),
+        view_dir_features: tensor(random(rng, n * m * 4, -1.0, 1.0), [n, m, 4], dev),
+        visibility: tensor(random(rng, n * m, 0.0, 1.0), [n, m], dev),
+    }
+}
+
+fn logits_of(blender: &Blender, x: &BlendInputs) -> Tensor<2> {
+    blender
+        .forward(
+            x.pixel_feature.clone(),
+            x.view_dir_features.clone(),
+            x.visibility.clone(),
+            x.h.clone(),
+            x.confidence.clone(),
+        )
+        .unwrap()
+}
+
+#[test]
+fn blender_any_view_count_and_token_layout() {
+    let dev = device();
+    let blender = small_blender(&dev);
+    let mut rng = Rng::new(4);
+    for n in 1..=4 {
+        let x = blend_inputs(&mut rng, 3, n, &dev);
+        assert_eq!(logits_of(&blender, &x).dims(), [3, n + 1], "N = {n}");
+    }
+
+    // Reference: one linear layer on the full concatenated token, then the rest of the MLP.
+    let (m, n) = (2, 3);
+    let x = blend_inputs(&mut rng, m, n, &dev);
+    let logits = values(logits_of(&blender, &x));
+    let weight = Tensor::cat(
+        vec![
+            blender.token_input.weight.val(),
+            blender.point_input.weight.val(),
+        ],
+        0,
+    );
+    let bias = blender.token_input.bias.as_ref().unwrap().val();
+    let point = Tensor::cat(vec![x.h.clone(), x.confidence.clone()], 1).unsqueeze_dim::<3>(0);
+    let views = Tensor::cat(
+        vec![
+            x.pixel_feature.clone(),
+            x.view_dir_features.clone(),
+            x.visibility.clone().reshape([n, m, 1]),
+            Tensor::zeros([n, m, 1], &dev),
+            point.clone().repeat_dim(0, n),
+        ],
+        2,
+    );
+    let nerf = Tensor::cat(
+        vec![
+            x.pixel_feature.clone().mean_dim(0),
+            tensor(vec![0.0, 0.0, 0.0, 1.0], [1, 1, 4], &dev).repeat_dim(1, m),
+            x.visibility.clone().reshape([n, m, 1]).mean_dim(0),
+            Tensor::ones([1, m, 1], &dev),
+            point,
+        ],
+        2,
+    );
+    let tokens = Tensor::cat(vec![nerf, views], 0);
+    let mut y = burn::tensor::activation::relu(
+        tokens.matmul(weight.unsqueeze_dim::<3>(0)) + bias.reshape([1, 1, 16]),
+    );
+    for (i, layer) in blender.layers.iter().enumerate() {
+        y = layer.forward(y);
+        if i + 1 < blender.layers.len() {
+            y = burn::tensor::activation::relu(y);
+        }
+    }
+    let expected = values(y.reshape([n + 1, m]).transpose());
+    assert_close(
+        &logits,
+        &expected,
+        MLP_TOL,
+        "F_B vs concatenated-token reference",
+    );
+
+    // Permuting the views permutes logits 1..N and keeps logit 0.
+    let perm = Tensor::<1, Int>::from_data(TensorData::new(vec![1i64, 2, 0], [3]), &dev);
+    let permuted = BlendInputs {
+        pixel_feature: x.pixel_feature.clone().select(0, perm.clone()),
+        view_dir_features: x.view_dir_features.clone().select(0, perm.clone()),
+        visibility: x.visibility.clone().select(0, perm),
+        ..x.clone()
+    };
+    let lp = values(logits_of(&blender, &permuted));
+    for p in 0..m {
+        let row = &logits[p * 4..p * 4 + 4];
+        let prow = &lp[p * 4..p * 4 + 4];
+        assert_close(
+            &[prow[0], prow[1], prow[2], prow[3]],
+            &[row[0], row[2], row[3], row[1]],
+            MLP_TOL,
+            "permuted logits",
+        );
+    }
+}
+
+#[test]
+fn blend_hand_values_and_extreme_logits() {
+    let dev = device();
+    // N = 1: logits (0, ln 3) -> weights (1/4, 3/4).
+    let out = blend(
+        tensor(vec![0.0, 3f32.ln()], [1, 2], &dev),
+        tensor(vec![1.0, 0.0, 0.0], [1, 3], &dev),
+        tensor(vec![0.0, 0.0, 1.0], [1, 1, 3], &dev),
+    )
+    .unwrap();
+    assert_close(
+        &values(out.blend_weights),
+        &[0.25, 0.75],
+        VALUE_TOL,
+        "weights",
+    );
+    assert_close(&values(out.colour), &[0.25, 0.0, 0.75], VALUE_TOL, "colour");
+
+    // Logits of +-1e4 (a naive exp overflows to inf and gives NaN): exact one-hot weights,
+    // finite gradients (zero where the softmax saturates).
+    let ad = dev.autodiff();
+    let logits = tensor(vec![1e4, -1e4, 0.0, -1e4, 0.0, 1e4], [2, 3], &ad).require_grad();
+    let c0 = tensor(vec![0.2, 0.4, 0.6, 0.1, 0.1, 0.1], [2, 3], &ad).require_grad();
+    let colours = tensor((0..12).map(|i| i as f32 / 12.0).collect(), [2, 2, 3], &ad).require_grad();
+    let out = blend(logits.clone(), c0.clone(), colours.clone()).unwrap();
+    let w = values(out.blend_weights.clone());
+    assert_close(
+        &w,
+        &[1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        0.0,
+        "saturated weights",
+    );
+    // Point 0 takes c0, point 1 takes view 2's colour c_2[point 1] = colours[1, 1].
+    assert_close(
+        &values(out.colour.clone()),
+        &[0.2, 0.4, 0.6, 9.0 / 12.0, 10.0 / 12.0, 11.0 / 12.0],
+        VALUE_TOL,
+        "saturated colour",
+    );
+    let grads = out.colour.sum().backward();
+    let g_logits = values(logits.grad(&grads).unwrap());
+    assert_finite(&g_logits, "d/dlogits at +-1e4");
+    assert_close(&g_logits, &[0.0; 6], 0.0, "d/dlogits at +-1e4");
+    let g_c0 = values(c0.grad(&grads).unwrap());
+    assert_close(&g_c0, &[1.0, 1.0, 1.0, 0.0, 0.0, 0.0], 0.0, "d/dc0");
+    assert_finite(&values(colours.grad(&grads).unwrap()), "d/dc_n");
+}
+
+#[test]
+fn blend_gradient_matches_finite_differences() {
+    let dev = device().autodiff();
+    let mut rng = Rng::new(5);
+    let (m, n) = (2, 3);
+    let logit_vals = random(&mut rng, m * (n + 1), -2.0, 2.0);
+    let c0_vals = random(&mut rng, m * 3, 0.0, 1.0);
+    let colours = tensor(random(&mut rng, n * m * 3, 0.0, 1.0), [n, m, 3], &dev);
+    let probe = tensor(random(&mut rng, m * 3, -1.0, 1.0), [m, 3], &dev);
+    let loss = |logits: Vec<f32>, c0: Vec<f32>| {
+        let out = blend(
+            tensor(logits, [m, n + 1], &dev),
+            tensor(c0, [m, 3], &dev),
+            colours.clone(),
+        )
+        .unwrap();
+        (out.colour * probe.clone()).sum()
+    };
+    let logits = tensor(logit_vals.clone(), [m, n + 1], &dev).require_grad();
+    let c0 = tensor(c0_vals.clone(), [m, 3], &dev).require_grad();
+    let out = blend(logits.clone(), c0.clone(), colours.clone()).unwrap();
+    let grads = (out.colour * probe.clone()).sum().backward();
+    let g_logits = values(logits.grad(&grads).unwrap());
+    let g_c0 = values(c0.grad(&grads).unwrap());
+    let scalar = |t: Tensor<1>| values(t)[0];
+    for i in 0..logit_vals.len() {
+        let (mut up, mut down) = (logit_vals.clone(), logit_vals.clone());
+        up[i] += FD_STEP;
+        down[i] -= FD_STEP;
+        let fd = (scalar(loss(up, c0_vals.clone())) - scalar(loss(down, c0_vals.clone())))
+            / (2.0 * FD_STEP);
+        assert_fd_close(g_logits[i], fd, &format!("d/dlogit[{i}]"));
+    }
+    for i in 0..c0_vals.len() {
+        let (mut up, mut down) = (c0_vals.clone(), c0_vals.clone());
+        up[i] += FD_STEP;
+        down[i] -= FD_STEP;
+        let fd = (scalar(loss(logit_vals.clone(), up)) - scalar(loss(logit_vals.clone(), down)))
+            / (2.0 * FD_STEP);
+        assert_fd_close(g_c0[i], fd, &format!("d/dc0[{i}]"));
+    }
+}
+
+#[test]
+fn blender_gradient_wrt_inputs_matches_finite_differences() {
+    let dev = device().autodiff();
+    let blender = small_blender(&dev);
+    let mut rng = Rng::new(6);
+    let (m, n) = (2, 2);
+    let x = blend_inputs(&mut rng, m, n, &dev);
+    let vis_vals = values(x.visibility.clone());
+    let psi_vals = values(x.confidence.clone());
+    let probe = tensor(random(&mut rng, m * 3, -1.0, 1.0), [m, 3], &dev);
+    let loss = |vis: Tensor<2>, psi: Tensor<2>| {
+        let inputs = BlendInputs {
+            visibility: vis,
+            confidence: psi,
+            ..x.clone()
+        };
+        let out = blender.colour(Variant::Full, inputs, 0.1).unwrap();
+        (out.colour * probe.clone()).sum()
+    };
+    let vis = tensor(vis_vals.clone(), [n, m], &dev).require_grad();
+    let psi = tensor(psi_vals.clone(), [m, 1], &dev).require_grad();
+    let grads = loss(vis.clone(), psi.clone()).backward();
+    let g_vis = values(vis.grad(&grads).unwrap());
+    let g_psi = values(psi.grad(&grads).unwrap());
+    let scalar = |t: Tensor<1>| values(t)[0];
+    for i in 0..vis_vals.len() {
+        let (mut up, mut down) = (vis_vals.clone(), vis_vals.clone());
+        up[i] += FD_STEP;
+        down[i] -= FD_STEP;
+        let psi_t = || tensor(psi_vals.clone(), [m, 1], &dev);
+        let fd = (scalar(loss(tensor(up, [n, m], &dev), psi_t()))
+            - scalar(loss(tensor(down, [n, m], &dev), psi_t())))
+            / (2.0 * FD_STEP);
+        assert_fd_close(g_vis[i], fd, &format!("d/do[{i}]"));
+    }
+    for i in 0..psi_vals.len() {
+        let (mut up, mut down) = (psi_vals.clone(), psi_vals.clone());
+        up[i] += FD_STEP;
+        down[i] -= FD_STEP;
+        let vis_t = || tensor(vis_vals.clone(), [n, m], &dev);
+        let fd = (scalar(loss(vis_t(), tensor(up, [m, 1], &dev)))
+            - scalar(loss(vis_t(), tensor(down, [m, 1], &dev))))
+            / (2.0 * FD_STEP);
+        assert_fd_close(g_psi[i], fd, &format!("d/dpsi[{i}]"));
+    }
+}
+
+#[test]
+fn invisible_views_stay_finite() {
+    let dev = device().autodiff();
+    let blender = small_blender(&dev);
+    let mut rng = Rng::new(8);
+    let (m, n) = (3, 3);
+    let x = blend_inputs(&mut rng, m, n, &dev);
+    // Case 1: view 1 has o_n = 0 everywhere. Case 2: every view is invisible.
+    let mut one_view = values(x.visibility.clone());
+    one_view[m..2 * m].iter_mut().for_each(|o| *o = 0.0);
+    for (case, vis) in [
+        ("one view invisible", one_view),
+        ("all invisible", vec![0.0; n * m]),
+    ] {
+        let vis = tensor(vis, [n, m], &dev).require_grad();
+        let h = x.h.clone().require_grad();
+        let inputs = BlendInputs {
+            visibility: vis.clone(),
+            h: h.clone(),
+            ..x.clone()
+        };
+        let out = blender.colour(Variant::Full, inputs, 0.1).unwrap();
+        let w = values(out.blend_weights.clone());
+        assert_finite(&w, case);
+        for row in w.chunks(n + 1) {
+            assert!(
+                (row.iter().sum::<f32>() - 1.0).abs() < VALUE_TOL,
+                "{case}: rows sum to 1"
+            );
+        }
+        let colour = values(out.colour.clone());
+        assert_finite(&colour, case);
+        assert!(
+            colour.iter().all(|c| (0.0..=1.0 + VALUE_TOL).contains(c)),
+            "{case}: convex mix"
+        );
+        let grads = out.colour.sum().backward();
+        assert_finite(&values(vis.grad(&grads).unwrap()), case);
+        assert_finite(&values(h.grad(&grads).unwrap()), case);
+        let g_w = blender.token_input.weight.val().grad(&grads).unwrap();
+        assert_finite(&values(g_w), case);
+    }
+}
+
+#[test]
+fn stable_softmax_matches_definition() {
+    let dev = device();
+    let x = tensor(vec![1.0, 2.0, 3.0, -1e4, 1e4, 0.0], [2, 3], &dev);
+    let y = values(stable_softmax(x, 1));
+    let e = [1f32.exp(), 2f32.exp(), 3f32.exp()];
+    let s: f32 = e.iter().sum();
+    assert_close(
+        &y,
+        &[e[0] / s, e[1] / s, e[2] / s, 0.0, 1.0, 0.0],
+        VALUE_TOL,
+        "softmax",
+    );
+}
+
+// ----------------------------------------------------------------------------------------------
+// Variants
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn variant_colour_rules() {
+    let dev = device();
+    let blender = small_blender(&dev);
+    let mut rng = Rng::new(9);
+    let (m, n) = (4, 3);
+    let x = blend_inputs(&mut rng, m, n, &dev);
+
+    // (b) NoIbr: c = c0, weights one-hot on token 0.
+    let no_ibr = blender.colour(Variant::NoIbr, x.clone(), 0.1).unwrap();
+    assert_close(
+        &values(no_ibr.colour.clone()),
+        &values(x.c0.clone()),
+        0.0,
+        "NoIbr c = c0",
+    );
+    let one_hot: Vec<f32> = (0..m).flat_map(|_| [1.0, 0.0, 0.0, 0.0]).collect();
+    assert_close(
+        &values(no_ibr.blend_weights.clone()),
+        &one_hot,
+        0.0,
+        "NoIbr weights",
+    );
+
+    // (c) SimpleAverage: the mean of the source colours.
+    let avg = blender
+        .colour(Variant::SimpleAverage, x.clone(), 0.1)
+        .unwrap();
+    let c = values(x.source_colours.clone());
+    let mean: Vec<f32> = (0..m * 3)
+        .map(|i| (0..n).map(|v| c[v * m * 3 + i]).sum::<f32>() / n as f32)
+        .collect();
+    assert_close(&values(avg.colour), &mean, VALUE_TOL, "SimpleAverage");
+    let thirds: Vec<f32> = (0..m)
+        .flat_map(|_| [0.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0])
+        .collect();
+    assert_close(
+        &values(avg.blend_weights),
+        &thirds,
+        VALUE_TOL,
+        "SimpleAverage weights",
+    );
+
+    // (d) CosineWeighted: softmax of cos / tau over the views.
+    let cos = values(x.view_dir_features.clone().slice(s![.., .., 3..4]));
+    let weighted = blender
+        .colour(Variant::CosineWeighted, x.clone(), 0.5)
+        .unwrap();
+    let mut expected = vec![0.0f32; m * 3];
+    for p in 0..m {
+        let e: Vec<f32> = (0..n).map(|v| (cos[v * m + p] / 0.5).exp()).collect();
+        let s: f32 = e.iter().sum();
+        for ch in 0..3 {
+            expected[p * 3 + ch] = (0..n).map(|v| e[v] / s * c[(v * m + p) * 3 + ch]).sum();
+        }
+    }
+    assert_close(
+        &values(weighted.colour),
+        &expected,
+        VALUE_TOL,
+        "CosineWeighted",
+    );
+
+    // (a) NoBody and (e) Full: softmax(F_B) . [c0, c_n].
+    let logits = logits_of(&blender, &x);
+    let expected = blend(logits, x.c0.clone(), x.source_colours.clone()).unwrap();
+    for variant in [Variant::NoBody, Variant::Full] {
+        let got = blender.colour(variant, x.clone(), 0.1).unwrap();
+        assert_close(
+            &values(got.colour),
+            &values(expected.colour.clone()),
+            0.0,
+            "blend",
+        );
+    }
+
+    // NoIbr renders exactly the c0 composite: rgb == rgb0.
+    let (r, s_per_ray) = (2, 2);
+    let sigma = tensor(vec![0.5, 2.0, 1.0, 3.0], [r, s_per_ray], &dev);
+    let t = tensor(vec![0.0, 0.5, 0.1, 0.4], [r, s_per_ray], &dev);
+    let far = tensor(vec![1.0, 1.0], [r], &dev);
+    let c_rays = no_ibr.colour.reshape([r, s_per_ray, 3]);
+    let c0_rays = x.c0.reshape([r, s_per_ray, 3]);
+    let out = render_rays(sigma, c_rays, c0_rays, t, far, None).unwrap();
+    assert_close(&values(out.rgb), &values(out.rgb0), 0.0, "NoIbr rgb = rgb0");
+
+    assert_eq!(
+        Variant::ALL.map(Variant::name),
+        [
+            "no_body",
+            "no_ibr",
+            "simple_average",
+            "cosine_weighted",
+            "full"
+        ]
+    );
+    assert_eq!(Variant::default(), Variant::Full);
+    assert!(!Variant::NoBody.uses_body() && Variant::Full.uses_body());
+    assert!(Variant::NoBody.uses_blender() && !Variant::SimpleAverage.uses_blender());
+}

@@ -1,0 +1,150 @@
+#![allow(deprecated)] // Device::ndarray(): burn deprecates it, the user asked for it; it is the reference CPU backend.
+
+//! The assembled network: shapes, finiteness, the variants' paths, any number of views,
+//! gradients, and (with `--features wgpu`) the same numbers on wgpu as on ndarray.
+
+mod common;
+
+use burn::prelude::*;
+use nia_model::loss::render_loss;
+use nia_model::scene::SceneGeometry;
+use nia_model::{ModelConfig, Variant};
+
+const SAMPLES: usize = 8;
+
+fn finite(t: &Tensor<2>) -> bool {
+    t.clone().into_data().try_to_vec::<f32>().unwrap().iter().all(|x| x.is_finite())
+}
+
+#[test]
+fn forward_renders_finite_colours_of_the_right_shape() {
+    let device = Device::ndarray();
+    device.seed(1);
+    let input = common::scene(3, 32);
+    let config = ModelConfig::tiny();
+    let model = config.init(&device);
+    let geometry = SceneGeometry::new(&input, &config).unwrap();
+    let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
+    assert_eq!(scene.feature_maps.dims(), [3, config.image_channels(), 16, 16]);
+    let rays = common::target_rays(&input, &geometry, 4);
+    assert!(rays.len() >= 8, "most test rays hit the body box");
+    let out = model.render(&scene, &geometry, &rays, SAMPLES, None, &device).unwrap();
+    let r = rays.len();
+    assert_eq!(out.rgb.dims(), [r, 3]);
+    assert_eq!(out.rgb0.dims(), [r, 3]);
+    assert_eq!(out.acc.dims(), [r]);
+    let bw = out.blend_weights.clone().unwrap();
+    assert_eq!(bw.dims(), [r, 4]);
+    assert!(finite(&out.rgb) && finite(&out.rgb0) && finite(&bw));
+    let rgb = out.rgb.into_data().try_to_vec::<f32>().unwrap();
+    assert!(rgb.iter().all(|&c| (0.0..=1.0 + 1e-5).contains(&c)), "colours in [0, 1]");
+    // Accumulated blend weights equal the accumulated opacity (softmax rows sum to 1).
+    let acc = out.acc.into_data().try_to_vec::<f32>().unwrap();
+    let bw_sum = bw.sum_dim(1).into_data().try_to_vec::<f32>().unwrap();
+    for (a, b) in acc.iter().zip(&bw_sum) {
+        assert!((a - b).abs() < 1e-4, "acc {a} vs blend weight sum {b}");
+    }
+}
+
+#[test]
+fn variant_b_colour_is_the_nerf_colour_and_variant_a_has_no_body_volume() {
+    let device = Device::ndarray();
+    let input = common::scene(3, 32);
+    for variant in [Variant::NoIbr, Variant::NoBody] {
+        device.seed(2);
+        let config = ModelConfig::tiny().with_variant(variant);
+        let model = config.init(&device);
+        let geometry = SceneGeometry::new(&input, &config).unwrap();
+        let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
+        assert_eq!(scene.volume.is_some(), variant.uses_body());
+        let rays = common::target_rays(&input, &geometry, 3);
+        let out = model.render(&scene, &geometry, &rays, SAMPLES, None, &device).unwrap();
+        if variant == Variant::NoIbr {
+            let diff = (out.rgb - out.rgb0).abs().max().into_scalar::<f32>();
+            assert!(diff < 1e-6, "variant (b): rgb must equal the c0 composite, max diff {diff}");
+        } else {
+            assert!(finite(&out.rgb));
+        }
+    }
+}
+
+#[test]
+fn any_number_of_source_views_runs_with_the_same_weights() {
+    let device = Device::ndarray();
+    device.seed(3);
+    let config = ModelConfig::tiny();
+    let model = config.init(&device);
+    for n in [1, 2, 4] {
+        let input = common::scene(n, 32);
+        let geometry = SceneGeometry::new(&input, &config).unwrap();
+        let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
+        let rays = common::target_rays(&input, &geometry, 2);
+        let out = model.render(&scene, &geometry, &rays, SAMPLES, None, &device).unwrap();
+        assert_eq!(out.blend_weights.unwrap().dims(), [rays.len(), n + 1]);
+        assert!(finite(&out.rgb));
+    }
+}
+
+#[test]
+fn a_training_step_has_finite_gradients_everywhere_it_should() {
+    let device = Device::ndarray().autodiff();
+    device.seed(4);
+    let config = ModelConfig::tiny();
+    let model = config.init(&device);
+    let input = common::scene(3, 32);
+    let geometry = SceneGeometry::new(&input, &config).unwrap();
+    let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
+    let rays = common::target_rays(&input, &geometry, 3);
+    let jitter: Vec<f32> = (0..rays.len() * SAMPLES).map(|i| ((i * 37) % 100) as f32 / 100.0).collect();
+    let out = model.render(&scene, &geometry, &rays, SAMPLES, Some(&jitter), &device).unwrap();
+    let gt = Tensor::<2>::ones([rays.len(), 3], &device).mul_scalar(0.5);
+    let loss = render_loss(out.rgb, out.rgb0, gt).unwrap();
+    let grads = loss.total.backward();
+    fn check<const D: usize>(name: &str, w: Tensor<D>, grads: &burn::tensor::Gradients) {
+        let g = w.grad(grads).unwrap_or_else(|| panic!("{name} has no gradient"));
+        let g = g.into_data().try_to_vec::<f32>().unwrap();
+        assert!(g.iter().all(|x| x.is_finite()), "{name}: non-finite gradient");
+        assert!(g.iter().any(|&x| x != 0.0), "{name}: gradient is all zero");
+    }
+    check("encoder.conv1", model.encoder.conv1.weight.val(), &grads);
+    check("vertex_reduce", model.vertex_reduce.weight.val(), &grads);
+    check("body_reduce", model.body_reduce.weight.val(), &grads);
+    check("blender.token_input", model.blender.token_input.weight.val(), &grads);
+    check("density", model.density.layers[0].weight.val(), &grads);
+}
+
+/// ndarray and wgpu agree on the same weights and inputs. Values pass through ~30 layers in
+/// f32 with different reduction orders: 1e-3 absolute on colours in [0, 1].
+#[cfg(feature = "wgpu")]
+const BACKEND_TOLERANCE: f32 = 1e-3;
+
+#[cfg(feature = "wgpu")]
+#[test]
+fn wgpu_matches_ndarray() {
+    let Some(gpu) = common::wgpu_device() else { return };
+    let cpu = Device::ndarray();
+    cpu.seed(5);
+    let config = ModelConfig::tiny();
+    let model = config.init(&cpu);
+    let model_gpu = model.clone().to_device(&gpu);
+    let input = common::scene(3, 32);
+    let geometry = SceneGeometry::new(&input, &config).unwrap();
+    let rays = common::target_rays(&input, &geometry, 3);
+    let run = |m: &nia_model::NiaModel, d: &Device| {
+        let scene = m.encode_scene(&input, &geometry, None, d).unwrap();
+        let out = m.render(&scene, &geometry, &rays, SAMPLES, None, d).unwrap();
+        (
+            out.rgb.into_data().try_to_vec::<f32>().unwrap(),
+            out.acc.into_data().try_to_vec::<f32>().unwrap(),
+        )
+    };
+    let (rgb_cpu, acc_cpu) = run(&model, &cpu);
+    let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu);
+    let max_diff = rgb_cpu
+        .iter()
+        .zip(&rgb_gpu)
+        .chain(acc_cpu.iter().zip(&acc_gpu))
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(max_diff <= BACKEND_TOLERANCE, "ndarray vs wgpu max difference {max_diff}");
+}

@@ -1,0 +1,449 @@
+//! Volume rendering, the stratified sampler and the loss: hand-computed cases, finite-difference
+//! gradients and the numerical hard cases of DESIGN.md section 5.
+
+use burn::prelude::*;
+use nia_data::rng::Rng;
+use nia_model::loss::{psnr_from_mse, render_loss};
+use nia_model::renderer::{render_rays, sample_weights, stratified_t, RenderError};
+
+/// f32 forward values along two different evaluation orders: a few ulps of O(1) values.
+const VALUE_TOL: f32 = 1e-5;
+/// Central finite-difference step (sigma in 1/m and colours of O(1), deltas of O(0.1) m).
+const FD_STEP: f32 = 1e-2;
+/// Finite differences vs autodiff: O(FD_STEP^2) truncation with O(1) third derivatives plus
+/// f32 rounding of the loss over the step (~1e-7 / 1e-2); absolute plus relative part.
+const FD_ABS_TOL: f32 = 1e-3;
+const FD_REL_TOL: f32 = 1e-2;
+
+/// The reference CPU backend (deprecated upstream in favour of flex; the project keeps it).
+#[allow(deprecated)]
+fn device() -> Device {
+    Device::ndarray()
+}
+
+fn tensor<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Tensor<D> {
+    Tensor::from_data(TensorData::new(values, shape), device)
+}
+
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().expect("f32 tensor")
+}
+
+fn assert_close(got: &[f32], expected: &[f32], tol: f32, what: &str) {
+    assert_eq!(got.len(), expected.len(), "{what}: length");
+    for (i, (g, e)) in got.iter().zip(expected).enumerate() {
+        assert!(
+            (g - e).abs() <= tol * (1.0 + e.abs()),
+            "{what}[{i}]: got {g}, expected {e} (tol {tol})"
+        );
+    }
+}
+
+fn assert_finite(v: &[f32], what: &str) {
+    assert!(!v.is_empty(), "{what}: empty");
+    assert!(v.iter().all(|x| x.is_finite()), "{what}: not finite: {v:?}");
+}
+
+/// One ray from per-sample values.
+struct Ray {
+    sigma: Vec<f32>,
+    colour: Vec<f32>,
+    t: Vec<f32>,
+    far: f32,
+}
+
+fn render_one(ray: &Ray, dev: &Device) -> nia_model::renderer::RenderOutput {
+    let s = ray.sigma.len();
+    let colour = tensor(ray.colour.clone(), [1, s, 3], dev);
+    render_rays(
+        tensor(ray.sigma.clone(), [1, s], dev),
+        colour.clone(),
+        colour,
+        tensor(ray.t.clone(), [1, s], dev),
+        tensor(vec![ray.far], [1], dev),
+        None,
+    )
+    .unwrap()
+}
+
+// ----------------------------------------------------------------------------------------------
+// Hand-computed cases
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn single_opaque_sample_gives_its_colour() {
+    let dev = device();
+    let out = render_one(
+        &Ray {
+            sigma: vec![1e4],
+            colour: vec![0.2, 0.5, 0.9],
+            t: vec![0.5],
+            far: 1.5,
+        },
+        &dev,
+    );
+    assert_close(&values(out.rgb), &[0.2, 0.5, 0.9], VALUE_TOL, "rgb");
+    assert_close(&values(out.rgb0), &[0.2, 0.5, 0.9], VALUE_TOL, "rgb0");
+    assert_close(&values(out.acc), &[1.0], VALUE_TOL, "acc");
+    assert_close(&values(out.depth), &[0.5], VALUE_TOL, "depth");
+    assert!(out.blend_weights.is_none());
+}
+
+#[test]
+fn transparent_ray_is_black() {
+    let dev = device();
+    let out = render_one(
+        &Ray {
+            sigma: vec![0.0; 4],
+            colour: vec![1.0; 12],
+            t: vec![0.1, 0.2, 0.3, 0.4],
+            far: 0.5,
+        },
+        &dev,
+    );
+    assert_close(&values(out.rgb), &[0.0; 3], 0.0, "rgb");
+    assert_close(&values(out.acc), &[0.0], 0.0, "acc");
+    assert_close(&values(out.depth), &[0.0], 0.0, "depth");
+}
+
+#[test]
+fn two_samples_analytic_weights_and_blend() {
+    let dev = device();
+    // t = (1, 2), far = 4: deltas (1, 2). w0 = 1 - e^-a, w1 = e^-a (1 - e^-2b).
+    let (a, b) = (0.7f32, 0.3f32);
+    let w0 = 1.0 - (-a).exp();
+    let w1 = (-a).exp() * (1.0 - (-2.0 * b).exp());
+    let colour = vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    let colour0 = vec![0.0, 0.0, 1.0, 0.0, 0.0, 1.0];
+    // N + 1 = 2 per-sample blend weights.
+    let blend = vec![0.25, 0.75, 1.0, 0.0];
+    let out = render_rays(
+        tensor(vec![a, b], [1, 2], &dev),
+        tensor(colour, [1, 2, 3], &dev),
+        tensor(colour0, [1, 2, 3], &dev),
+        tensor(vec![1.0, 2.0], [1, 2], &dev),
+        tensor(vec![4.0], [1], &dev),
+        Some(tensor(blend, [1, 2, 2], &dev)),
+    )
+    .unwrap();
+    assert_close(&values(out.rgb), &[w0, w1, 0.0], VALUE_TOL, "rgb");
+    assert_close(&values(out.rgb0), &[0.0, 0.0, w0 + w1], VALUE_TOL, "rgb0");
+    assert_close(&values(out.acc), &[w0 + w1], VALUE_TOL, "acc");
+    assert_close(&values(out.depth), &[w0 + 2.0 * w1], VALUE_TOL, "depth");
+    assert_close(
+        &values(out.blend_weights.unwrap()),
+        &[0.25 * w0 + w1, 0.75 * w0],
+        VALUE_TOL,
+        "blend weights",
+    );
+}
+
+#[test]
+fn opaque_sample_hides_the_rest_and_weights_match_alpha() {
+    let dev = device();
+    let ray = Ray {
+        sigma: vec![0.0, 1e4, 5.0],
+        colour: vec![1.0, 1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0],
+        t: vec![0.0, 0.2, 0.4],
+        far: 0.6,
+    };
+    let out = render_one(&ray, &dev);
+    assert_close(&values(out.rgb), &[0.0, 1.0, 0.0], VALUE_TOL, "rgb");
+    assert_close(&values(out.depth), &[0.2], VALUE_TOL, "depth");
+    // Last delta: t past far clamps to 0 (no negative alpha).
+    let w = values(
+        sample_weights(
+            tensor(vec![3.0, 3.0], [1, 2], &dev),
+            tensor(vec![0.1, 0.9], [1, 2], &dev),
+            tensor(vec![0.5], [1], &dev),
+        )
+        .unwrap(),
+    );
+    let w0 = 1.0 - (-3.0f32 * 0.8).exp();
+    assert_close(&w, &[w0, 0.0], VALUE_TOL, "t_last > far gives delta 0");
+}
+
+#[test]
+fn shape_errors_are_reported() {
+    let dev = device();
+    let err = render_rays(
+        Tensor::zeros([2, 4], &dev),
+        Tensor::zeros([2, 4, 3], &dev),
+        Tensor::zeros([2, 3, 3], &dev),
+        Tensor::zeros([2, 4], &dev),
+        Tensor::zeros([2], &dev),
+        None,
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("colour0"), "{err}");
+    assert!(render_rays(
+        Tensor::zeros([2, 4], &dev),
+        Tensor::zeros([2, 4, 3], &dev),
+        Tensor::zeros([2, 4, 3], &dev),
+        Tensor::zeros([2, 4], &dev),
+        Tensor::zeros([3], &dev),
+        None,
+    )
+    .is_err());
+}
+
+// ----------------------------------------------------------------------------------------------
+// Gradients
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn gradients_match_finite_differences() {
+    let dev = device().autodiff();
+    let mut rng = Rng::new(11);
+    let (r, s) = (2, 5);
+    let sigma_vals: Vec<f32> = (0..r * s).map(|_| rng.range(0.1, 4.0)).collect();
+    let colour_vals: Vec<f32> = (0..r * s * 3).map(|_| rng.range(0.0, 1.0)).collect();
+    let near = [0.5, 1.0];
+    let far = [1.5, 1.6];
+    let jitter: Vec<f32> = (0..r * s).map(|_| rng.uniform()).collect();
+    let t = tensor(
+        stratified_t(&near, &far, s, Some(&jitter)).unwrap(),
+        [r, s],
+        &dev,
+    );
+    let far_t = tensor(far.to_vec(), [r], &dev);
+    let probe_rgb = tensor(
+        (0..r * 3).map(|_| rng.range(-1.0, 1.0)).collect(),
+        [r, 3],
+        &dev,
+    );
+    let probe_depth = tensor(vec![0.3, -0.7], [r], &dev);
+    let loss = |sigma: Tensor<2>, colour: Tensor<3>| {
+        let out = render_rays(
+            sigma,
+            colour.clone(),
+            colour,
+            t.clone(),
+            far_t.clone(),
+            None,
+        )
+        .unwrap();
+        (out.rgb * probe_rgb.clone()).sum()
+            + (out.depth * probe_depth.clone()).sum()
+            + out.acc.sum()
+    };
+    let sigma = tensor(sigma_vals.clone(), [r, s], &dev).require_grad();
+    let colour = tensor(colour_vals.clone(), [r, s, 3], &dev).require_grad();
+    let grads = loss(sigma.clone(), colour.clone()).backward();
+    let g_sigma = values(sigma.grad(&grads).unwrap());
+    let g_colour = values(colour.grad(&grads).unwrap());
+    let scalar = |t: Tensor<1>| values(t)[0];
+    let check = |autodiff: f32, fd: f32, what: String| {
+        assert!(
+            (autodiff - fd).abs() <= FD_ABS_TOL + FD_REL_TOL * fd.abs(),
+            "{what}: autodiff {autodiff} vs finite difference {fd}"
+        );
+    };
+    let colour_t = |v: &Vec<f32>| tensor(v.clone(), [r, s, 3], &dev);
+    let sigma_t = |v: &Vec<f32>| tensor(v.clone(), [r, s], &dev);
+    for i in 0..sigma_vals.len() {
+        let (mut up, mut down) = (sigma_vals.clone(), sigma_vals.clone());
+        up[i] += FD_STEP;
+        down[i] -= FD_STEP;
+        let fd = (scalar(loss(sigma_t(&up), colour_t(&colour_vals)))
+            - scalar(loss(sigma_t(&down), colour_t(&colour_vals))))
+            / (2.0 * FD_STEP);
+        check(g_sigma[i], fd, format!("d/dsigma[{i}]"));
+    }
+    for i in 0..colour_vals.len() {
+        let (mut up, mut down) = (colour_vals.clone(), colour_vals.clone());
+        up[i] += FD_STEP;
+        down[i] -= FD_STEP;
+        let fd = (scalar(loss(sigma_t(&sigma_vals), colour_t(&up)))
+            - scalar(loss(sigma_t(&sigma_vals), colour_t(&down))))
+            / (2.0 * FD_STEP);
+        check(g_colour[i], fd, format!("d/dcolour[{i}]"));
+    }
+}
+
+// ----------------------------------------------------------------------------------------------
+// Numerical hard cases
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn optical_depth_from_zero_to_1e4_is_finite_with_exact_gradients() {
+    let dev = device().autodiff();
+    // One sample per ray with delta = far - t = 1 m, so tau = sigma.
+    let taus = [0.0f32, 1e-3, 0.5, 1.0, 10.0, 100.0, 1e3, 1e4];
+    let r = taus.len();
+    let sigma = tensor(taus.to_vec(), [r, 1], &dev).require_grad();
+    let colour = tensor(vec![0.5; r * 3], [r, 1, 3], &dev).require_grad();
+    let out = render_rays(
+        sigma.clone(),
+        colour.clone(),
+        colour.clone(),
+        Tensor::zeros([r, 1], &dev),
+        Tensor::ones([r], &dev),
+        None,
+    )
+    .unwrap();
+    let acc = values(out.acc.clone());
+    let expected_acc: Vec<f32> = taus.iter().map(|tau| 1.0 - (-tau).exp()).collect();
+    assert_close(&acc, &expected_acc, VALUE_TOL, "acc = 1 - exp(-tau)");
+    let grads = out.acc.sum().backward();
+    let g_sigma = values(sigma.grad(&grads).unwrap());
+    assert_finite(&g_sigma, "d acc / d sigma");
+    // d acc / d sigma = delta exp(-tau): 1 at tau = 0, exactly 0 at tau = 1e4.
+    let expected: Vec<f32> = taus.iter().map(|tau| (-tau).exp()).collect();
+    assert_close(&g_sigma, &expected, VALUE_TOL, "d acc / d sigma");
+
+    // Several opaque samples in a row: later ones get T = exp(-2e4) = 0, all finite.
+    let sigma = tensor(vec![1e4, 1e4, 1e4, 0.5], [1, 4], &dev).require_grad();
+    let colour = tensor(
+        vec![0.1, 0.2, 0.3, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9, 0.9],
+        [1, 4, 3],
+        &dev,
+    )
+    .require_grad();
+    let out = render_rays(
+        sigma.clone(),
+        colour.clone(),
+        colour.clone(),
+        tensor(vec![0.0, 1.0, 2.0, 3.0], [1, 4], &dev),
+        tensor(vec![4.0], [1], &dev),
+        None,
+    )
+    .unwrap();
+    assert_close(
+        &values(out.rgb.clone()),
+        &[0.1, 0.2, 0.3],
+        VALUE_TOL,
+        "first opaque wins",
+    );
+    let grads = (out.rgb.sum() + out.depth.sum()).backward();
+    let g_sigma = values(sigma.grad(&grads).unwrap());
+    assert_close(&g_sigma, &[0.0; 4], VALUE_TOL, "saturated: zero gradients");
+    let g_colour = values(colour.grad(&grads).unwrap());
+    let mut expected = vec![0.0f32; 12];
+    expected[..3].fill(1.0);
+    assert_close(&g_colour, &expected, VALUE_TOL, "d rgb / d c = w");
+}
+
+#[test]
+fn near_equals_far_rays_give_zeros_and_finite_gradients() {
+    let dev = device().autodiff();
+    let (r, s) = (3, 4);
+    let near = [1.0, 2.0, 0.5];
+    let t_vals = stratified_t(&near, &near, s, None).unwrap();
+    assert!(t_vals
+        .chunks(s)
+        .zip(near)
+        .all(|(row, n)| row.iter().all(|t| *t == n)));
+    let sigma = tensor(vec![5.0; r * s], [r, s], &dev).require_grad();
+    let colour = tensor(vec![0.7; r * s * 3], [r, s, 3], &dev).require_grad();
+    let blend = tensor(vec![0.5; r * s * 2], [r, s, 2], &dev).require_grad();
+    let out = render_rays(
+        sigma.clone(),
+        colour.clone(),
+        colour.clone(),
+        tensor(t_vals, [r, s], &dev),
+        tensor(near.to_vec(), [r], &dev),
+        Some(blend.clone()),
+    )
+    .unwrap();
+    let bw = out.blend_weights.clone().unwrap();
+    assert_close(&values(out.rgb.clone()), &[0.0; 9], 0.0, "rgb");
+    assert_close(&values(out.acc.clone()), &[0.0; 3], 0.0, "acc");
+    assert_close(&values(out.depth.clone()), &[0.0; 3], 0.0, "depth");
+    assert_close(&values(bw.clone()), &[0.0; 6], 0.0, "blend weights");
+    let grads =
+        (out.rgb.sum() + out.rgb0.sum() + out.acc.sum() + out.depth.sum() + bw.sum()).backward();
+    for (what, g) in [
+        ("sigma", values(sigma.grad(&grads).unwrap())),
+        ("colour", values(colour.grad(&grads).unwrap())),
+    ] {
+        assert_finite(&g, what);
+        assert!(
+            g.iter().all(|x| *x == 0.0),
+            "{what}: zero-length rays have zero gradient"
+        );
+    }
+    assert_finite(&values(blend.grad(&grads).unwrap()), "blend");
+}
+
+// ----------------------------------------------------------------------------------------------
+// Sampler
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn stratified_t_bins_and_errors() {
+    let mid = stratified_t(&[0.0, 1.0], &[1.0, 3.0], 4, None).unwrap();
+    assert_close(
+        &mid,
+        &[0.125, 0.375, 0.625, 0.875, 1.25, 1.75, 2.25, 2.75],
+        VALUE_TOL,
+        "bin centres",
+    );
+    let jitter = [0.0, 1.0, 0.5, 0.25];
+    let t = stratified_t(&[2.0], &[4.0], 4, Some(&jitter)).unwrap();
+    assert_close(&t, &[2.0, 3.0, 3.25, 3.625], VALUE_TOL, "jittered");
+    assert!(t.windows(2).all(|w| w[0] <= w[1]), "sorted");
+
+    let mut rng = Rng::new(12);
+    let jitter: Vec<f32> = (0..64).map(|_| rng.uniform()).collect();
+    let t = stratified_t(&[0.3], &[2.9], 64, Some(&jitter)).unwrap();
+    assert!(t.windows(2).all(|w| w[0] <= w[1]));
+    assert!(t.iter().all(|x| (0.3..=2.9).contains(x)));
+
+    assert!(matches!(
+        stratified_t(&[0.0, 1.0], &[1.0], 4, None),
+        Err(RenderError::Length { field: "far", .. })
+    ));
+    assert!(matches!(
+        stratified_t(&[0.0], &[1.0], 2, Some(&[0.5])),
+        Err(RenderError::Length {
+            field: "jitter",
+            ..
+        })
+    ));
+    assert!(matches!(
+        stratified_t(&[0.0], &[1.0], 2, Some(&[0.5, 1.5])),
+        Err(RenderError::Jitter { index: 1, .. })
+    ));
+    assert!(matches!(
+        stratified_t(&[2.0], &[1.0], 2, None),
+        Err(RenderError::Interval { ray: 0, .. })
+    ));
+    assert!(matches!(
+        stratified_t(&[f32::NAN], &[1.0], 2, None),
+        Err(RenderError::Interval { .. })
+    ));
+    assert!(matches!(
+        stratified_t(&[0.0], &[1.0], 0, None),
+        Err(RenderError::NoSamples)
+    ));
+    assert_eq!(stratified_t(&[], &[], 3, None).unwrap(), Vec::<f32>::new());
+}
+
+// ----------------------------------------------------------------------------------------------
+// Loss
+// ----------------------------------------------------------------------------------------------
+
+#[test]
+fn loss_and_psnr_hand_values() {
+    let dev = device();
+    let gt = tensor(vec![0.0, 0.5, 1.0, 1.0, 1.0, 1.0], [2, 3], &dev);
+    let rgb = tensor(vec![0.1, 0.5, 1.0, 1.0, 1.0, 0.7], [2, 3], &dev);
+    let rgb0 = tensor(vec![0.0, 0.5, 0.8, 1.0, 1.0, 1.0], [2, 3], &dev);
+    let loss = render_loss(rgb, rgb0, gt).unwrap();
+    let mse = (0.01 + 0.09) / 6.0;
+    let mse0 = 0.04 / 6.0;
+    assert_close(&values(loss.mse), &[mse], VALUE_TOL, "mse");
+    assert_close(&values(loss.mse0), &[mse0], VALUE_TOL, "mse0");
+    assert_close(&values(loss.total), &[mse + mse0], VALUE_TOL, "total");
+    assert!(render_loss(
+        Tensor::zeros([2, 3], &dev),
+        Tensor::zeros([2, 3], &dev),
+        Tensor::zeros([3, 3], &dev)
+    )
+    .is_err());
+
+    assert!((psnr_from_mse(0.01) - 20.0).abs() < 1e-12);
+    assert!((psnr_from_mse(1.0)).abs() < 1e-12);
+    assert_eq!(psnr_from_mse(0.0), f64::INFINITY);
+}
