@@ -20,6 +20,9 @@ enum Cli {
     /// PSNR and SSIM of a predicted image against the ground truth, as NHP/NIA report them,
     /// printed as `{"psnr": .., "ssim": ..}`.
     Metrics(commands::metrics::MetricsArgs),
+    /// Throughput of the network's forward pass and training step (rays/s) with the share of
+    /// time per stage, on a procedural-body scene (paper setting by default).
+    Bench(commands::bench::BenchArgs),
 }
 
 /// Runs the subcommand; on failure prints the error and its causes on one line to stderr
@@ -28,6 +31,7 @@ fn main() -> ExitCode {
     let result = match Cli::parse() {
         Cli::Inspect(args) => commands::inspect::run(&args),
         Cli::Metrics(args) => commands::metrics::run(&args),
+        Cli::Bench(args) => commands::bench::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

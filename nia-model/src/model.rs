@@ -9,17 +9,20 @@
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 
 use crate::attention::ViewCrossAttention;
 use crate::blender::{BlendInputs, Blender, ShapeError};
-use crate::body_volume::{BodyVolume, BodyVolumeError, BodyVolumeGeometry, BodyVolumeNet};
+use crate::body_volume::{
+    BodyVolume, BodyVolumeError, BodyVolumeGeometry, BodyVolumeNet, VoxelBox,
+};
 use crate::config::ModelConfig;
 use crate::encoder::ImageEncoder;
 use crate::encoding::PositionalEncoding;
 use crate::heads::{view_mean, ColourHead, DensityHead};
 use crate::ibr::{fetch_source_colours, sample_views, PixelFeature};
 use crate::query::{PointInputs, PointTensors};
+use crate::reposing::Reposer;
 use crate::renderer::{render_rays, stratified_t, RenderError, RenderOutput};
 use crate::scene::{SceneError, SceneGeometry, SceneInput};
 use crate::timing::{Stage, StageTimes, Stopwatch};
@@ -67,6 +70,12 @@ pub struct NiaModel {
     pub variant: Variant,
     #[module(skip)]
     pub cosine_temperature: f32,
+    /// Voxel edge of the body volume, metres.
+    #[module(skip)]
+    pub voxel_size_m: f32,
+    /// Growth of the SMPL bounds for the voxel box.
+    #[module(skip)]
+    pub box_enlarge: f32,
 }
 
 impl ModelConfig {
@@ -87,6 +96,8 @@ impl ModelConfig {
             blender: self.blender().init(device),
             variant: self.variant,
             cosine_temperature: self.cosine_temperature,
+            voxel_size_m: self.voxel_size_m,
+            box_enlarge: self.box_enlarge,
         }
     }
 }
@@ -192,7 +203,11 @@ impl NiaModel {
                     at.len()
                 )));
             }
-            let vg = BodyVolumeGeometry::build(at, &geometry.voxel_box, device)?;
+            let voxel_box = match volume_vertices_smpl {
+                Some(at) => VoxelBox::enclosing(at, self.box_enlarge, self.voxel_size_m)?,
+                None => geometry.voxel_box,
+            };
+            let vg = BodyVolumeGeometry::build(at, &voxel_box, device)?;
             let volume = self.body_volume.forward(&vg, vertex_features)?;
             watch.mark(Stage::BodyVolume);
             Some((vg, volume))
@@ -280,6 +295,53 @@ impl NiaModel {
         device: &Device,
         times: Option<&mut StageTimes>,
     ) -> Result<RenderOutput, ModelError> {
+        self.render_posed(scene, geometry, rays, samples, jitter, device, times, QueryPose::Scene)
+    }
+
+    /// Renders `rays` of a target camera with the body in another pose (pose animation,
+    /// DESIGN step 9): `reposer` maps query points and directions from the target pose to the
+    /// scene's (reference) pose; `scene` must have been encoded with its body volume on the
+    /// target-pose vertices (`volume_vertices_smpl` of [`NiaModel::encode_scene`], in the
+    /// target's SMPL frame: `x_smpl = R(Rh_t)^T (x - Th_t)`). When the target pose equals the
+    /// reference pose this is exactly [`NiaModel::render`]: no deformation work at all.
+    #[allow(clippy::too_many_arguments)]
+    pub fn render_reposed(
+        &self,
+        scene: &SceneEncoding,
+        geometry: &SceneGeometry,
+        reposer: &Reposer,
+        target_rh: Vec3,
+        target_th: Vec3,
+        rays: &RayBatch,
+        samples: usize,
+        jitter: Option<&[f32]>,
+        device: &Device,
+        times: Option<&mut StageTimes>,
+    ) -> Result<RenderOutput, ModelError> {
+        let pose = if reposer.is_identity() {
+            QueryPose::Scene
+        } else {
+            QueryPose::Reposed {
+                reposer,
+                target_rotation: nia_data::body::rodrigues(target_rh),
+                target_translation: target_th,
+            }
+        };
+        self.render_posed(scene, geometry, rays, samples, jitter, device, times, pose)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn render_posed(
+        &self,
+        scene: &SceneEncoding,
+        geometry: &SceneGeometry,
+        rays: &RayBatch,
+        samples: usize,
+        jitter: Option<&[f32]>,
+        device: &Device,
+        times: Option<&mut StageTimes>,
+        pose: QueryPose<'_>,
+    ) -> Result<RenderOutput, ModelError> {
         let mut watch = Stopwatch::new(times, device);
         let r = rays.len();
         if r == 0 || rays.dirs.len() != r || rays.near.len() != r || rays.far.len() != r {
@@ -291,21 +353,33 @@ impl NiaModel {
             )));
         }
         let t = stratified_t(&rays.near, &rays.far, samples, jitter)?;
-        let mut points = Vec::with_capacity(r * samples);
-        let mut dirs = Vec::with_capacity(r * samples);
-        for (i, (o, d)) in rays.origins.iter().zip(&rays.dirs).enumerate() {
-            for s in 0..samples {
-                points.push(*o + *d * t[i * samples + s]);
-                dirs.push(*d);
+        let (points, dirs) = sample_points(rays, &t, samples);
+        let inputs = match pose {
+            QueryPose::Scene => {
+                let volume_points: Option<Vec<[f32; 3]>> = scene
+                    .volume
+                    .as_ref()
+                    .map(|_| points.iter().map(|&p| geometry.to_smpl(p)).collect());
+                let volume = match (&scene.volume, &volume_points) {
+                    (Some((vg, _)), Some(vp)) => Some((vg, vp.as_slice())),
+                    _ => None,
+                };
+                PointInputs::compute(geometry, &points, &dirs, volume)
+            }
+            QueryPose::Reposed { reposer, target_rotation, target_translation } => {
+                // The body volume lives in the target pose (SMPL frame of the target); pixel
+                // features, colours and visibility are read at x' in the reference views.
+                let rt = target_rotation.transpose();
+                let volume_points: Vec<[f32; 3]> =
+                    points.iter().map(|&p| (rt * (p - target_translation)).to_array()).collect();
+                let mapped = reposer
+                    .map_points(&points, &dirs)
+                    .map_err(|e| ModelError::Rays(format!("reposing: {e}")))?;
+                let volume = scene.volume.as_ref().map(|(vg, _)| (vg, volume_points.as_slice()));
+                PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume)
             }
         }
-        let volume_points: Option<Vec<[f32; 3]>> =
-            scene.volume.as_ref().map(|_| points.iter().map(|&p| geometry.to_smpl(p)).collect());
-        let volume = match (&scene.volume, &volume_points) {
-            (Some((vg, _)), Some(vp)) => Some((vg, vp.as_slice())),
-            _ => None,
-        };
-        let inputs = PointInputs::compute(geometry, &points, &dirs, volume).to_tensors(device);
+        .to_tensors(device);
         let out = self.query_timed(scene, &inputs, &mut watch)?;
         let n1 = out.blend_weights.dims()[1];
         let t = Tensor::<2>::from_data(TensorData::new(t, [r, samples]), device);
@@ -321,4 +395,28 @@ impl NiaModel {
         watch.mark(Stage::Compositing);
         Ok(rendered)
     }
+}
+
+/// Where the query points are evaluated.
+enum QueryPose<'a> {
+    /// In the scene's own pose (novel view): no reposing work.
+    Scene,
+    /// In a target pose mapped to the scene's pose by `reposer`.
+    Reposed { reposer: &'a Reposer, target_rotation: Mat3, target_translation: Vec3 },
+}
+
+/// Sample points `o + t d` and their directions, ray-major.
+///
+/// # Shapes
+/// - t: [R * S]; outputs [R * S]
+fn sample_points(rays: &RayBatch, t: &[f32], samples: usize) -> (Vec<Vec3>, Vec<Vec3>) {
+    let mut points = Vec::with_capacity(t.len());
+    let mut dirs = Vec::with_capacity(t.len());
+    for (i, (o, d)) in rays.origins.iter().zip(&rays.dirs).enumerate() {
+        for s in 0..samples {
+            points.push(*o + *d * t[i * samples + s]);
+            dirs.push(*d);
+        }
+    }
+    (points, dirs)
 }

@@ -5,7 +5,7 @@
 use std::time::Instant;
 
 use anyhow::Context;
-use burn::optim::{AdamConfig, GradientsParams, Optimizer};
+use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use clap::Args;
 use glam::{Vec2, Vec3};
