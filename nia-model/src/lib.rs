@@ -7,6 +7,7 @@ pub mod blender;
 pub mod body_volume;
 pub mod device;
 pub mod encoder;
+pub mod encoder_import;
 pub mod encoding;
 pub mod heads;
 pub mod ibr;
