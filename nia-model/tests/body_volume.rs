@@ -10,12 +10,12 @@ use burn::tensor::module::conv3d;
 use burn::tensor::ops::{ConvOptions, GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
 use nia_data::rng::Rng;
 use nia_model::body_volume::rulebook::kernel_offset;
-use nia_model::body_volume::trilinear::{sample, CORNERS};
+use nia_model::body_volume::trilinear::{sample, sample_in_chunks, CORNERS};
 use nia_model::body_volume::voxelize::strided_dim;
 use nia_model::body_volume::{
     voxelize, BodyVolumeGeometry, BodyVolumeNetConfig, ConvMethod, Rulebook, RulebookTensors,
-    ScaleGeometry, SiteIndex, SparseConv3d, SparseConv3dConfig, TrilinearCorners, VoxelBox,
-    KERNEL_VOLUME, NUM_SCALES,
+    ScaleGeometry, SiteIndex, SiteNormConfig, SparseConv3d, SparseConv3dConfig, TrilinearCorners,
+    VoxelBox, KERNEL_VOLUME, NUM_SCALES,
 };
 
 /// Sparse vs dense convolution: both sum at most 27 * C_in products of O(1) f32 values in a
@@ -182,8 +182,14 @@ fn dense_weight(sparse: &[f32], c_in: usize, c_out: usize) -> Vec<f32> {
 
 /// Checks a sparse convolution against burn's dense `conv3d` at every output voxel: equal at
 /// the output sites, bias-only (here: zero bias) everywhere else.
-fn check_against_dense(sites: &SiteIndex, strided: bool, method: ConvMethod, seed: u64) {
-    let dev = device();
+fn check_against_dense(
+    dev: &Device,
+    sites: &SiteIndex,
+    strided: bool,
+    method: ConvMethod,
+    seed: u64,
+) {
+    let dev = dev.clone();
     let mut rng = Rng::new(seed);
     let (n, c_in, c_out) = (2, 3, 4);
     let (out_sites, rules) = if strided {
@@ -191,7 +197,8 @@ fn check_against_dense(sites: &SiteIndex, strided: bool, method: ConvMethod, see
     } else {
         (sites.clone(), Rulebook::submanifold(sites))
     };
-    let tensors = RulebookTensors::with_method(&rules, method, &dev);
+    // Blocks of 3 outputs exercise the blocked Im2col path on these small grids.
+    let tensors = RulebookTensors::with_method(&rules, method, &dev).with_outputs_per_chunk(3);
     assert_eq!(tensors.method(), method);
     let conv = SparseConv3dConfig::new(c_in, c_out).init(&dev);
     let bias = values(conv.bias.as_ref().unwrap().val());
@@ -268,7 +275,9 @@ fn submanifold_conv_matches_dense_conv3d() {
     for (dims, fraction) in [([5, 4, 6], 0.35), ([4, 4, 4], 0.9), ([6, 3, 5], 0.08)] {
         let sites = random_sites(&mut rng, dims, fraction);
         for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
-            check_against_dense(&sites, false, method, 3);
+            for dev in [device(), Device::flex()] {
+                check_against_dense(&dev, &sites, false, method, 3);
+            }
         }
     }
 }
@@ -281,9 +290,37 @@ fn strided_conv_matches_dense_conv3d() {
     for (dims, fraction) in [([6, 5, 7], 0.3), ([4, 8, 3], 0.6), ([7, 7, 7], 0.05)] {
         let sites = random_sites(&mut rng, dims, fraction);
         for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
-            check_against_dense(&sites, true, method, 4);
+            for dev in [device(), Device::flex()] {
+                check_against_dense(&dev, &sites, true, method, 4);
+            }
         }
     }
+}
+
+#[test]
+fn site_norm_normalises_each_view_over_its_sites() {
+    let dev = device();
+    let mut rng = Rng::new(15);
+    let (n, p, c) = (3, 50, 4);
+    // Views with very different scales and offsets.
+    let x: Vec<f32> = (0..n * p * c)
+        .map(|i| rng.normal() * (1 + i / (p * c)) as f32 * 10.0 + (i / (p * c)) as f32 * 5.0)
+        .collect();
+    let norm = SiteNormConfig::new(c).init(&dev);
+    let y = values(norm.forward(tensor3(x, [n, p, c], &dev)).unwrap());
+    for v in 0..n {
+        for ch in 0..c {
+            let column: Vec<f64> = (0..p).map(|s| y[(v * p + s) * c + ch] as f64).collect();
+            let mean = column.iter().sum::<f64>() / p as f64;
+            let var = column.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / p as f64;
+            // Mean 0, variance var / (var + eps) ~ 1 for variances of ~100.
+            assert!(mean.abs() < 1e-4, "view {v} ch {ch} mean {mean}");
+            assert!((var - 1.0).abs() < 1e-3, "view {v} ch {ch} var {var}");
+        }
+    }
+    assert!(norm
+        .forward(tensor3(vec![0.0; 6], [1, 2, 3], &dev))
+        .is_err());
 }
 
 /// `sum(out^2 * r)` in f64 from the output values.
@@ -322,7 +359,8 @@ fn sparse_conv_gradients_match_finite_differences() {
             let f_dims = [n, p, c_in];
 
             // Analytic gradients on the autodiff device.
-            let rules_ad = RulebookTensors::with_method(&rules, method, &ad);
+            let rules_ad =
+                RulebookTensors::with_method(&rules, method, &ad).with_outputs_per_chunk(4);
             let conv = conv_with(weight.clone(), w_dims, &ad);
             let x = tensor3(features.clone(), f_dims, &ad).require_grad();
             let out = conv.forward(x.clone(), &rules_ad).unwrap();
@@ -444,13 +482,19 @@ fn trilinear_matches_dense_grid_sample() {
         points.push([f32::NAN, 0.3, 0.1]);
         let corners = TrilinearCorners::compute(&points, &scale);
         assert_eq!(corners.index.len(), points.len() * CORNERS);
-        let got = values(
-            sample(
+        let corner_tensors = corners.to_tensors(&dev);
+        let got =
+            values(sample(tensor3(features.clone(), [n, p, c], &dev), &corner_tensors).unwrap());
+        // Blocks of 7 points give the same values.
+        let blocked = values(
+            sample_in_chunks(
                 tensor3(features.clone(), [n, p, c], &dev),
-                &corners.to_tensors(&dev),
+                &corner_tensors,
+                7,
             )
             .unwrap(),
         );
+        assert_eq!(got, blocked);
         let sites = &scale.sites;
         let grid = densify(&features, n, c, sites);
         let per_view = c * dims.iter().product::<usize>();
@@ -783,7 +827,17 @@ fn network_forward_and_backward_are_finite() {
     let gw = values(net.full[0].conv.weight.grad(&grads).unwrap());
     assert!(gw.iter().all(|x| x.is_finite()) && gw.iter().any(|&x| x != 0.0));
 
+    // No points: an empty sample, not an error.
+    let none: Vec<_> = geometry
+        .corners(&[])
+        .iter()
+        .map(|c| c.to_tensors(&ad))
+        .collect();
+    assert_eq!(volume.sample(&none).unwrap().dims(), [n, 0, c_total]);
+
     // Shape errors are typed errors, not panics.
+    let no_views = tensor3(vec![], [0, vertices.len(), c_v], &ad);
+    assert!(net.forward(&geometry, no_views).is_err());
     let wrong = tensor3(vec![0.0; n * 3 * c_v], [n, 3, c_v], &ad);
     assert!(net.forward(&geometry, wrong).is_err());
     assert!(volume.sample(&corners[..2]).is_err());
@@ -866,6 +920,17 @@ fn timing_paper_size() {
             volume = Some(v);
         }
         let volume = volume.unwrap();
+        let im2col =
+            BodyVolumeGeometry::build_with_method(&vertices, &vb, ConvMethod::Im2col, &dev)
+                .unwrap();
+        let t = Instant::now();
+        let _ = values(
+            net.forward(&im2col, features.clone()).unwrap().scales[3]
+                .features
+                .clone()
+                .sum(),
+        );
+        println!("  network forward, Im2col everywhere: {:.0} ms", ms(t));
         let t = Instant::now();
         let corners = geometry.corners(&points);
         let corner_time = ms(t);
@@ -874,7 +939,7 @@ fn timing_paper_size() {
         let _ = values(volume.sample(&tensors).unwrap().sum());
         let sample_time = ms(t);
         println!(
-            "  network forward {forward:?} ms, corners of {} points (4 scales) {corner_time:.1} ms, \
+            "  network forward (Auto) {forward:?} ms, corners of {} points (4 scales) {corner_time:.1} ms, \
              sample {sample_time:.1} ms",
             points.len(),
         );
@@ -902,48 +967,5 @@ fn timing_paper_size() {
             "  autodiff: forward + sample {forward_ad:.0} ms, backward {:.0} ms",
             ms(t)
         );
-    }
-}
-
-#[test]
-#[ignore]
-fn scratch_ops() {
-    use std::time::Instant;
-    let mut rng = Rng::new(1);
-    for (name, dev) in [("ndarray", device()), ("flex", Device::flex())] {
-        let (n, p, c, m) = (3usize, 14000usize, 32usize, 14000 * 27);
-        let x = tensor3(normals(&mut rng, n * p * c), [n, p, c], &dev);
-        let idx: Vec<u32> = (0..m).map(|_| rng.below(p) as u32).collect();
-        let idx_t = nia_model::body_volume::sparse_conv::int_tensor_pub(&idx, &dev);
-        let xt = x.clone().swap_dims(0, 1).reshape([p, n * c]);
-        let _ = values(xt.clone().sum());
-        let t = Instant::now();
-        let g = x.clone().select(1, idx_t.clone());
-        let _ = values(g.sum());
-        let d1 = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let g = xt.clone().select(0, idx_t.clone());
-        let _ = values(g.sum());
-        let d0 = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let a = tensor3(
-            normals(&mut rng, n * 14000 * 864),
-            [1, n * 14000, 864],
-            &dev,
-        );
-        let w = tensor3(normals(&mut rng, 864 * 32), [1, 864, 32], &dev);
-        let _ = values(a.clone().sum());
-        let t2 = Instant::now();
-        let _ = values(a.matmul(w).sum());
-        let mm = t2.elapsed().as_secs_f64();
-        let _ = t;
-        let z = Tensor::<3>::zeros([n, p, c], &dev);
-        let vals = tensor3(normals(&mut rng, n * m * c), [n, m, c], &dev);
-        let _ = values(vals.clone().sum());
-        let t = Instant::now();
-        let s = z.select_assign(1, idx_t.clone(), vals, burn::tensor::IndexingUpdateOp::Add);
-        let _ = values(s.sum());
-        let sc = t.elapsed().as_secs_f64();
-        println!("{name}: select dim1 [3,{p},{c}] x {m}: {d1:.3}s, select dim0 [{p}, {}]: {d0:.3}s, matmul [{},864]x[864,32] {mm:.3}s, scatter dim1 {sc:.3}s", n*c, n*14000);
     }
 }

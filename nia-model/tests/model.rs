@@ -187,3 +187,16 @@ fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another(
     assert_eq!(out.rgb.dims(), [rays.len(), 3]);
     assert!(finite(&out.rgb) && finite(&out.rgb0));
 }
+
+#[test]
+fn model_config_round_trips_through_json_with_paper_defaults() {
+    let config = ModelConfig::new().with_variant(Variant::CosineWeighted);
+    let json = serde_json::to_string(&config).unwrap();
+    assert!(json.contains("\"cosine_weighted\""), "variants serialise by their config names: {json}");
+    let back: ModelConfig = serde_json::from_str(&json).unwrap();
+    assert_eq!(back.variant, Variant::CosineWeighted);
+    assert_eq!(back.d_model, 128);
+    assert_eq!(back.voxel_size_m, 0.005, "paper voxel size");
+    assert_eq!(back.box_enlarge, 0.025, "paper box growth");
+    assert_eq!(back.image_channels(), 512, "ResNet-18 pyramid: 64 + 64 + 128 + 256");
+}

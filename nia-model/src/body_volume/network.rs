@@ -22,7 +22,9 @@ use burn::tensor::IndexingUpdateOp;
 
 use super::rulebook::Rulebook;
 use super::site_norm::{SiteNorm, SiteNormConfig};
-use super::sparse_conv::{int_tensor, RulebookTensors, SparseConv3d, SparseConv3dConfig};
+use super::sparse_conv::{
+    int_tensor, ConvMethod, RulebookTensors, SparseConv3d, SparseConv3dConfig,
+};
 use super::trilinear::{self, TrilinearCorners, TrilinearTensors};
 use super::voxelize::{voxelize, ScaleGeometry, VoxelBox, Voxelization};
 use super::BodyVolumeError;
@@ -187,6 +189,18 @@ impl BodyVolumeGeometry {
         voxel_box: &VoxelBox,
         device: &Device,
     ) -> Result<Self, BodyVolumeError> {
+        Self::build_with_method(vertices_smpl, voxel_box, ConvMethod::Auto, device)
+    }
+
+    /// [`Self::build`] with the sparse convolution method of every rulebook chosen by the
+    /// caller (`Auto` picks by fill ratio; `Im2col` measured fastest everywhere on flex, see
+    /// [`super::sparse_conv::IM2COL_MIN_FILL`]).
+    pub fn build_with_method(
+        vertices_smpl: &[[f32; 3]],
+        voxel_box: &VoxelBox,
+        method: ConvMethod,
+        device: &Device,
+    ) -> Result<Self, BodyVolumeError> {
         let voxels = voxelize(vertices_smpl, voxel_box)?;
         let mut levels = Vec::with_capacity(NUM_SCALES + 1);
         let mut submanifold_rules = Vec::with_capacity(NUM_SCALES + 1);
@@ -207,11 +221,11 @@ impl BodyVolumeGeometry {
         }
         let submanifold = submanifold_rules
             .iter()
-            .map(|r| RulebookTensors::new(r, device))
+            .map(|r| RulebookTensors::with_method(r, method, device))
             .collect();
         let strided = strided_rules
             .iter()
-            .map(|r| RulebookTensors::new(r, device))
+            .map(|r| RulebookTensors::with_method(r, method, device))
             .collect();
         let inverse: Vec<f32> = voxels
             .site_vertex_count
@@ -240,10 +254,10 @@ impl BodyVolumeGeometry {
     pub fn site_features(&self, vertex_features: Tensor<3>) -> Result<Tensor<3>, BodyVolumeError> {
         let dims = vertex_features.dims();
         let v = self.voxels.vertex_site.len();
-        if dims[1] != v {
+        if dims[0] == 0 || dims[1] != v {
             return Err(BodyVolumeError::shape(
                 "vertex_features",
-                format!("[N, {v}, C_v] (V of the body volume geometry)"),
+                format!("[N >= 1, {v}, C_v] (V of the body volume geometry)"),
                 &dims,
             ));
         }

@@ -3,9 +3,10 @@
 //!
 //! Two equivalent ways to run a rulebook on tensors (chosen per rulebook, see
 //! [`ConvMethod`]):
-//! - `Im2col`: one gather of the 27 neighbours of every output (a missing neighbour reads an
-//!   appended zero row) into `[N, P_out, 27 C_in]` and one matmul with `W` as `[27 C_in, C_out]`.
-//!   No scatter; its cost grows with `27 P_out` whatever the number of active neighbours.
+//! - `Im2col`: a gather of the 27 neighbours of every output (a missing neighbour reads an
+//!   appended zero row) into `[N, P_out, 27 C_in]` and a matmul with `W` as `[27 C_in, C_out]`,
+//!   in blocks of outputs ([`GATHER_CHUNK_BYTES`]). No scatter; its cost grows with `27 P_out`
+//!   whatever the number of active neighbours.
 //! - `Pairs`: one matmul of every input with all 27 offsets' weights (`[N P_in, 27 C_out]`),
 //!   one gather of the T pairs' products and one scatter-add (`select_assign(.., Add)`) into
 //!   `[N, P_out, C_out]`. The matmul costs as much as `Im2col`'s, but only T rows move through
@@ -25,9 +26,14 @@ use super::BodyVolumeError;
 const TORCH_CONV_INIT_GAIN: f64 = 0.577_350_269_189_625_8;
 
 /// Rulebooks whose fill ratio (active (output, offset) slots / `27 P_out`) is at least this
-/// run as `Im2col`, sparser ones as `Pairs`. Measured on the CPU (ndarray, 2 cores; see the
-/// crate's body-volume timing test): `Im2col` wins once about a fifth of the slots are filled.
-pub const IM2COL_MIN_FILL: f64 = 0.2;
+/// run as `Im2col` under [`ConvMethod::Auto`], sparser ones as `Pairs`. Measured at paper size
+/// (6890 vertices, 5 mm, 3 views, 2 busy cores; the `timing_paper_size` test): on ndarray
+/// `Pairs` is 2-3.5x faster on the two full-resolution rulebooks (fill 0.06-0.08: 78 vs 156 ms,
+/// 102 vs 371 ms) and slower from fill ~0.2 up; on flex blocked `Im2col` is faster at every
+/// fill (40 vs 90 ms, 58 vs 97 ms there; its missing neighbours all read one cached zero
+/// row). `Auto` suits ndarray; on flex (and GPUs, where a gather + matmul avoids atomics)
+/// build with [`ConvMethod::Im2col`] (~0.14 s less per paper-size forward on flex).
+pub const IM2COL_MIN_FILL: f64 = 0.1;
 
 /// How a rulebook is run on tensors (the results are equal up to float summation order).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -64,6 +70,8 @@ pub struct RulebookTensors {
     /// Output sites P_out.
     pub n_out: usize,
     indices: RulebookIndices,
+    /// Outputs per `Im2col` block; `None` = from [`GATHER_CHUNK_BYTES`].
+    outputs_per_chunk: Option<usize>,
 }
 
 impl RulebookTensors {
@@ -105,7 +113,15 @@ impl RulebookTensors {
             n_in: rulebook.n_in,
             n_out: rulebook.n_out,
             indices,
+            outputs_per_chunk: None,
         }
+    }
+
+    /// Runs `Im2col` in blocks of `outputs` output sites (at least 1) instead of the
+    /// [`GATHER_CHUNK_BYTES`] default; the result is the same (for tests and tuning).
+    pub fn with_outputs_per_chunk(mut self, outputs: usize) -> Self {
+        self.outputs_per_chunk = Some(outputs.max(1));
+        self
     }
 
     /// The method these tensors run with (`Im2col` or `Pairs`).
@@ -114,6 +130,27 @@ impl RulebookTensors {
             RulebookIndices::Im2col { .. } => ConvMethod::Im2col,
             RulebookIndices::Pairs { .. } => ConvMethod::Pairs,
         }
+    }
+}
+
+/// Size of one gathered block (`Im2col` columns, trilinear corners), bytes. Gathering in
+/// blocks this small instead of all at once keeps the allocator reusing memory instead of
+/// mapping fresh pages for every block: on flex at paper size 1.5-2x faster per `Im2col`
+/// convolution and ~4x faster trilinear sampling (64 MiB blocks gain nothing; 1-4 MiB are
+/// as fast). Results do not depend on it.
+pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
+
+/// Rows per gathered block when a row holds `floats_per_row` f32 values (at least 1).
+pub(crate) fn chunk_len(floats_per_row: usize) -> usize {
+    (GATHER_CHUNK_BYTES / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
+}
+
+/// Concatenates chunk results along `dim` (no copy for a single chunk).
+pub(crate) fn cat_parts<const D: usize>(mut parts: Vec<Tensor<D>>, dim: usize) -> Tensor<D> {
+    if parts.len() == 1 {
+        parts.remove(0)
+    } else {
+        Tensor::cat(parts, dim)
     }
 }
 
@@ -202,11 +239,11 @@ impl SparseConv3d {
         let weight = self.weight.val();
         let [_, c_in, c_out] = weight.dims();
         let dims = features.dims();
-        if dims[1] != rulebook.n_in || dims[2] != c_in {
+        if dims[0] == 0 || dims[1] != rulebook.n_in || dims[2] != c_in {
             return Err(BodyVolumeError::shape(
                 "SparseConv3d features",
                 format!(
-                    "[N, {}, {c_in}] (P_in of the rulebook, C_in)",
+                    "[N >= 1, {}, {c_in}] (P_in of the rulebook, C_in)",
                     rulebook.n_in
                 ),
                 &dims,
@@ -214,16 +251,38 @@ impl SparseConv3d {
         }
         let n = dims[0];
         let p_out = rulebook.n_out;
+        if rulebook.n_in == 0 || p_out == 0 {
+            return Err(BodyVolumeError::invalid(
+                "SparseConv3d rulebook",
+                "at least one input and one output site",
+                (rulebook.n_in, p_out),
+            ));
+        }
         // All gathers and scatters are row operations on 2D [rows, C] tensors (the fast path
         // of the CPU backends), the N views stacked along the rows.
         let out = match &rulebook.indices {
             RulebookIndices::Im2col { neighbours } => {
-                let rows = per_view_rows(neighbours, n, rulebook.n_in + 1);
-                rows_with_zero_row(features)
-                    .select(0, rows) // [N * P_out * 27, C_in]
-                    .reshape([n * p_out, KERNEL_VOLUME * c_in])
-                    .matmul(weight.reshape([KERNEL_VOLUME * c_in, c_out]))
-                    .reshape([n, p_out, c_out])
+                let rows = rows_with_zero_row(features); // [N * (P_in + 1), C_in]
+                let w = weight.reshape([KERNEL_VOLUME * c_in, c_out]);
+                let chunk = rulebook
+                    .outputs_per_chunk
+                    .unwrap_or_else(|| chunk_len(n * KERNEL_VOLUME * c_in));
+                let mut parts = Vec::with_capacity(p_out.div_ceil(chunk));
+                for start in (0..p_out).step_by(chunk) {
+                    let len = chunk.min(p_out - start);
+                    let index =
+                        neighbours
+                            .clone()
+                            .narrow(0, start * KERNEL_VOLUME, len * KERNEL_VOLUME);
+                    parts.push(
+                        rows.clone()
+                            .select(0, per_view_rows(&index, n, rulebook.n_in + 1))
+                            .reshape([n * len, KERNEL_VOLUME * c_in])
+                            .matmul(w.clone())
+                            .reshape([n, len, c_out]),
+                    );
+                }
+                cat_parts(parts, 1)
             }
             RulebookIndices::Pairs {
                 product_row,
@@ -231,7 +290,7 @@ impl SparseConv3d {
             } => {
                 let device = features.device();
                 let out = Tensor::zeros([n * p_out, c_out], &device);
-                if rulebook.n_in == 0 || product_row.dims()[0] == 0 {
+                if product_row.dims()[0] == 0 {
                     out.reshape([n, p_out, c_out])
                 } else {
                     // Every input times every offset's weight: [N * P_in * 27, C_out].
@@ -261,9 +320,4 @@ impl SparseConv3d {
             None => out,
         })
     }
-}
-
-#[doc(hidden)]
-pub fn int_tensor_pub(values: &[u32], device: &Device) -> Tensor<1, Int> {
-    int_tensor(values, device)
 }
