@@ -51,7 +51,9 @@ pub struct ModelConfig {
 impl ModelConfig {
     /// Channels of the encoder's feature map.
     pub fn image_channels(&self) -> usize {
-        ImageEncoderConfig::new().with_base_width(self.encoder_width).out_channels()
+        ImageEncoderConfig::new()
+            .with_base_width(self.encoder_width)
+            .out_channels()
     }
 
     pub(crate) fn encoder(&self) -> ImageEncoderConfig {
@@ -59,7 +61,9 @@ impl ModelConfig {
     }
 
     pub(crate) fn pixel_feature(&self) -> PixelFeatureConfig {
-        PixelFeatureConfig::new().with_d_image(self.image_channels()).with_d_model(self.d_model)
+        PixelFeatureConfig::new()
+            .with_d_image(self.image_channels())
+            .with_d_model(self.d_model)
     }
 
     pub(crate) fn attention(&self) -> ViewCrossAttentionConfig {
@@ -71,7 +75,9 @@ impl ModelConfig {
     }
 
     pub(crate) fn density(&self) -> DensityHeadConfig {
-        DensityHeadConfig::new().with_d_input(self.d_model).with_d_hidden(self.d_hidden)
+        DensityHeadConfig::new()
+            .with_d_input(self.d_model)
+            .with_d_hidden(self.d_hidden)
     }
 
     pub(crate) fn colour(&self) -> ColourHeadConfig {

@@ -106,7 +106,10 @@ impl ImageEncoderConfig {
                 .with_strides([2, 2])
                 .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
                 .init(),
-            layer1: vec![BasicBlock::new(w, w, 1, device), BasicBlock::new(w, w, 1, device)],
+            layer1: vec![
+                BasicBlock::new(w, w, 1, device),
+                BasicBlock::new(w, w, 1, device),
+            ],
             layer2: vec![
                 BasicBlock::new(w, 2 * w, 2, device),
                 BasicBlock::new(2 * w, 2 * w, 1, device),
@@ -186,7 +189,10 @@ pub fn upsample_bilinear(f: Tensor<4>, size: [usize; 2]) -> Tensor<4> {
     let a_w = Tensor::<2>::from_data(TensorData::new(bilinear_matrix(w, ow), [ow, w]), &device);
     let a_h = Tensor::<2>::from_data(TensorData::new(bilinear_matrix(h, oh), [oh, h]), &device);
     // Along W: [N*C*h, w] x [w, W].
-    let x = f.reshape([n * c * h, w]).matmul(a_w.transpose()).reshape([n * c, h, ow]);
+    let x = f
+        .reshape([n * c * h, w])
+        .matmul(a_w.transpose())
+        .reshape([n * c, h, ow]);
     // Along H: [N*C, H, h] x [N*C, h, W].
     let a_h = a_h.unsqueeze_dim::<3>(0).expand([n * c, oh, h]);
     a_h.matmul(x).reshape([n, c, oh, ow])

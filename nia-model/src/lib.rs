@@ -5,6 +5,7 @@
 pub mod attention;
 pub mod blender;
 pub mod body_volume;
+pub mod config;
 pub mod device;
 pub mod encoder;
 pub mod encoder_import;
@@ -12,13 +13,12 @@ pub mod encoding;
 pub mod heads;
 pub mod ibr;
 pub mod loss;
-pub mod renderer;
-pub mod reposing;
-pub mod variant;
-pub mod config;
 pub mod model;
 pub mod query;
+pub mod renderer;
+pub mod reposing;
 pub mod scene;
+pub mod variant;
 
 pub use config::ModelConfig;
 pub use model::{NiaModel, PointOutput, RayBatch, SceneEncoding};

@@ -22,8 +22,8 @@ use crate::encoding::PositionalEncoding;
 use crate::heads::{view_mean, ColourHead, DensityHead};
 use crate::ibr::{fetch_source_colours, sample_views, PixelFeature};
 use crate::query::{PointInputs, PointTensors};
-use crate::reposing::Reposer;
 use crate::renderer::{render_rays, stratified_t, RenderError, RenderOutput};
+use crate::reposing::Reposer;
 use crate::scene::{SceneError, SceneGeometry, SceneInput};
 use crate::timing::{Stage, StageTimes, Stopwatch};
 use crate::variant::Variant;
@@ -192,7 +192,12 @@ impl NiaModel {
             let inputs = PointInputs::compute(geometry, &vertices, &dirs, None);
             let grid = Tensor::<3>::from_data(TensorData::new(inputs.proj_grid, [n, v, 2]), device);
             let raw = sample_views(feature_maps.clone(), grid)?; // [N, V, C_img]
-            let vis: Vec<f32> = geometry.vertex_visibility.iter().flatten().copied().collect();
+            let vis: Vec<f32> = geometry
+                .vertex_visibility
+                .iter()
+                .flatten()
+                .copied()
+                .collect();
             let vis = Tensor::<3>::from_data(TensorData::new(vis, [n, v, 1]), device);
             // Zero where the vertex is invisible in that view (after the bias).
             let vertex_features = self.vertex_reduce.forward(raw) * vis;
@@ -214,11 +219,19 @@ impl NiaModel {
         } else {
             None
         };
-        Ok(SceneEncoding { images, feature_maps, volume })
+        Ok(SceneEncoding {
+            images,
+            feature_maps,
+            volume,
+        })
     }
 
     /// The fields of M points.
-    pub fn query(&self, scene: &SceneEncoding, points: &PointTensors) -> Result<PointOutput, ModelError> {
+    pub fn query(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+    ) -> Result<PointOutput, ModelError> {
         let device = scene.images.device();
         self.query_timed(scene, points, &mut Stopwatch::new(None, &device))
     }
@@ -229,7 +242,9 @@ impl NiaModel {
         points: &PointTensors,
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointOutput, ModelError> {
-        let l = self.pixel_feature.forward(scene.feature_maps.clone(), points.proj_grid.clone())?; // [N, M, d]
+        let l = self
+            .pixel_feature
+            .forward(scene.feature_maps.clone(), points.proj_grid.clone())?; // [N, M, d]
         let source_colours = fetch_source_colours(scene.images.clone(), points.proj_grid.clone())?; // [N, M, 3]
         let body = match (&scene.volume, self.variant.uses_body()) {
             (Some((_, volume)), true) => Some(volume.sample(&points.corners)?),
@@ -239,10 +254,13 @@ impl NiaModel {
         let z = match (body, self.variant.uses_body()) {
             (Some(body), true) => {
                 let s = self.body_reduce.forward(body); // [N, M, d]
-                self.attention.forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))? // [M, N, d]
+                self.attention
+                    .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))? // [M, N, d]
             }
             (None, true) => {
-                return Err(ModelError::Rays("the scene was encoded without a body volume".into()))
+                return Err(ModelError::Rays(
+                    "the scene was encoded without a body volume".into(),
+                ))
             }
             (_, false) => l.clone().swap_dims(0, 1),
         };
@@ -266,7 +284,12 @@ impl NiaModel {
             self.cosine_temperature,
         )?;
         watch.mark(Stage::Blending);
-        Ok(PointOutput { sigma, colour: blended.colour, c0, blend_weights: blended.blend_weights })
+        Ok(PointOutput {
+            sigma,
+            colour: blended.colour,
+            c0,
+            blend_weights: blended.blend_weights,
+        })
     }
 
     /// Renders `rays` with `samples` stratified samples each. `jitter` ([R * S] in [0, 1]) is
@@ -295,7 +318,16 @@ impl NiaModel {
         device: &Device,
         times: Option<&mut StageTimes>,
     ) -> Result<RenderOutput, ModelError> {
-        self.render_posed(scene, geometry, rays, samples, jitter, device, times, QueryPose::Scene)
+        self.render_posed(
+            scene,
+            geometry,
+            rays,
+            samples,
+            jitter,
+            device,
+            times,
+            QueryPose::Scene,
+        )
     }
 
     /// Renders `rays` of a target camera with the body in another pose (pose animation,
@@ -366,16 +398,25 @@ impl NiaModel {
                 };
                 PointInputs::compute(geometry, &points, &dirs, volume)
             }
-            QueryPose::Reposed { reposer, target_rotation, target_translation } => {
+            QueryPose::Reposed {
+                reposer,
+                target_rotation,
+                target_translation,
+            } => {
                 // The body volume lives in the target pose (SMPL frame of the target); pixel
                 // features, colours and visibility are read at x' in the reference views.
                 let rt = target_rotation.transpose();
-                let volume_points: Vec<[f32; 3]> =
-                    points.iter().map(|&p| (rt * (p - target_translation)).to_array()).collect();
+                let volume_points: Vec<[f32; 3]> = points
+                    .iter()
+                    .map(|&p| (rt * (p - target_translation)).to_array())
+                    .collect();
                 let mapped = reposer
                     .map_points(&points, &dirs)
                     .map_err(|e| ModelError::Rays(format!("reposing: {e}")))?;
-                let volume = scene.volume.as_ref().map(|(vg, _)| (vg, volume_points.as_slice()));
+                let volume = scene
+                    .volume
+                    .as_ref()
+                    .map(|(vg, _)| (vg, volume_points.as_slice()));
                 PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume)
             }
         }
@@ -402,7 +443,11 @@ enum QueryPose<'a> {
     /// In the scene's own pose (novel view): no reposing work.
     Scene,
     /// In a target pose mapped to the scene's pose by `reposer`.
-    Reposed { reposer: &'a Reposer, target_rotation: Mat3, target_translation: Vec3 },
+    Reposed {
+        reposer: &'a Reposer,
+        target_rotation: Mat3,
+        target_translation: Vec3,
+    },
 }
 
 /// Sample points `o + t d` and their directions, ray-major.

@@ -97,15 +97,17 @@ impl PointInputs {
         let mut visibility = vec![0.0f32; n * m];
         for (view, vis) in geometry.vertex_visibility.iter().enumerate() {
             let out = &mut visibility[view * m..(view + 1) * m];
-            out.par_iter_mut().zip(nearest.par_iter()).for_each(|(o, near)| {
-                *o = if near.is_hit() {
-                    let [i, j, k] = faces[near.face as usize];
-                    let b = near.bary;
-                    vis[i as usize] * b[0] + vis[j as usize] * b[1] + vis[k as usize] * b[2]
-                } else {
-                    0.0
-                };
-            });
+            out.par_iter_mut()
+                .zip(nearest.par_iter())
+                .for_each(|(o, near)| {
+                    *o = if near.is_hit() {
+                        let [i, j, k] = faces[near.face as usize];
+                        let b = near.bary;
+                        vis[i as usize] * b[0] + vis[j as usize] * b[1] + vis[k as usize] * b[2]
+                    } else {
+                        0.0
+                    };
+                });
         }
         let corners = match volume {
             Some((vg, points)) => vg.corners(points),
@@ -127,7 +129,10 @@ impl PointInputs {
         let (n, m) = (self.num_views, self.num_points);
         PointTensors {
             num_points: m,
-            proj_grid: Tensor::from_data(TensorData::new(self.proj_grid.clone(), [n, m, 2]), device),
+            proj_grid: Tensor::from_data(
+                TensorData::new(self.proj_grid.clone(), [n, m, 2]),
+                device,
+            ),
             view_dir_features: Tensor::from_data(
                 TensorData::new(self.view_dir_features.clone(), [n, m, 4]),
                 device,

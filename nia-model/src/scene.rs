@@ -19,15 +19,27 @@ pub const RAY_BOX_PADDING_M: f32 = 0.05;
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     #[error("scene: {field}: expected {expected}, got {got}")]
-    Invalid { field: String, expected: String, got: String },
+    Invalid {
+        field: String,
+        expected: String,
+        got: String,
+    },
     #[error("scene: body mesh: {0}")]
     Mesh(#[from] nia_data::raster::MeshError),
     #[error("scene: {0}")]
     Volume(#[from] crate::body_volume::BodyVolumeError),
 }
 
-fn invalid(field: impl Into<String>, expected: impl Into<String>, got: impl std::fmt::Debug) -> SceneError {
-    SceneError::Invalid { field: field.into(), expected: expected.into(), got: format!("{got:?}") }
+fn invalid(
+    field: impl Into<String>,
+    expected: impl Into<String>,
+    got: impl std::fmt::Debug,
+) -> SceneError {
+    SceneError::Invalid {
+        field: field.into(),
+        expected: expected.into(),
+        got: format!("{got:?}"),
+    }
 }
 
 /// One source view.
@@ -95,37 +107,68 @@ impl SceneGeometry {
         let body = &input.body;
         let v = body.vertices.len();
         if v < 4 || body.faces.is_empty() {
-            return Err(invalid("body", "a mesh with at least 4 vertices and 1 face", (v, body.faces.len())));
+            return Err(invalid(
+                "body",
+                "a mesh with at least 4 vertices and 1 face",
+                (v, body.faces.len()),
+            ));
         }
         if let Some(i) = body.vertices.iter().position(|p| !p.is_finite()) {
-            return Err(invalid(format!("body.vertices[{i}]"), "finite coordinates", body.vertices[i]));
+            return Err(invalid(
+                format!("body.vertices[{i}]"),
+                "finite coordinates",
+                body.vertices[i],
+            ));
         }
         if !body.rh.is_finite() || !body.th.is_finite() {
             return Err(invalid("body Rh/Th", "finite values", (body.rh, body.th)));
         }
-        let (w0, h0) = (input.views[0].camera.width as usize, input.views[0].camera.height as usize);
+        let (w0, h0) = (
+            input.views[0].camera.width as usize,
+            input.views[0].camera.height as usize,
+        );
         for (i, view) in input.views.iter().enumerate() {
             let (w, h) = (view.camera.width as usize, view.camera.height as usize);
             if (w, h) != (w0, h0) || w == 0 || h == 0 {
-                return Err(invalid(format!("views[{i}].camera size"), format!("{w0}x{h0} like view 0, non-empty"), (w, h)));
+                return Err(invalid(
+                    format!("views[{i}].camera size"),
+                    format!("{w0}x{h0} like view 0, non-empty"),
+                    (w, h),
+                ));
             }
             if view.image.len() != 3 * w * h {
-                return Err(invalid(format!("views[{i}].image"), format!("[3, {h}, {w}] = {} values", 3 * w * h), view.image.len()));
+                return Err(invalid(
+                    format!("views[{i}].image"),
+                    format!("[3, {h}, {w}] = {} values", 3 * w * h),
+                    view.image.len(),
+                ));
             }
             if view.image.iter().any(|x| !x.is_finite()) {
-                return Err(invalid(format!("views[{i}].image"), "finite values", "NaN or infinity"));
+                return Err(invalid(
+                    format!("views[{i}].image"),
+                    "finite values",
+                    "NaN or infinity",
+                ));
             }
             if view.vertex_visibility.len() != v {
-                return Err(invalid(format!("views[{i}].vertex_visibility"), format!("[{v}] (one per vertex)"), view.vertex_visibility.len()));
+                return Err(invalid(
+                    format!("views[{i}].vertex_visibility"),
+                    format!("[{v}] (one per vertex)"),
+                    view.vertex_visibility.len(),
+                ));
             }
         }
         let smpl_rotation = rodrigues(body.rh);
         let rt = smpl_rotation.transpose();
-        let vertices_smpl: Vec<[f32; 3]> =
-            body.vertices.iter().map(|&p| (rt * (p - body.th)).to_array()).collect();
+        let vertices_smpl: Vec<[f32; 3]> = body
+            .vertices
+            .iter()
+            .map(|&p| (rt * (p - body.th)).to_array())
+            .collect();
         let world_box = Aabb::from_points(&body.vertices)
             .ok_or_else(|| invalid("body.vertices", "a non-empty point set", v))?;
-        let voxel_box = VoxelBox::enclosing(&vertices_smpl, config.box_enlarge, config.voxel_size_m)?;
+        let voxel_box =
+            VoxelBox::enclosing(&vertices_smpl, config.box_enlarge, config.voxel_size_m)?;
         Ok(SceneGeometry {
             cameras: input.views.iter().map(|s| s.camera.clone()).collect(),
             image_hw: [h0, w0],
@@ -133,7 +176,11 @@ impl SceneGeometry {
             smpl_translation: body.th,
             ray_box: world_box.padded(RAY_BOX_PADDING_M),
             surface: SurfaceIndex::new(&body.vertices, &body.faces)?,
-            vertex_visibility: input.views.iter().map(|s| s.vertex_visibility.clone()).collect(),
+            vertex_visibility: input
+                .views
+                .iter()
+                .map(|s| s.vertex_visibility.clone())
+                .collect(),
             vertices_smpl,
             vertices_world: body.vertices.clone(),
             voxel_box,

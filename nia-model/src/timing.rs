@@ -64,7 +64,10 @@ impl StageTimes {
 
     /// Time spent in `stage`.
     pub fn get(&self, stage: Stage) -> Duration {
-        self.totals.iter().find(|(s, _)| *s == stage).map_or(Duration::ZERO, |(_, d)| *d)
+        self.totals
+            .iter()
+            .find(|(s, _)| *s == stage)
+            .map_or(Duration::ZERO, |(_, d)| *d)
     }
 
     /// Sum over all stages.
@@ -89,7 +92,11 @@ pub(crate) struct Stopwatch<'a> {
 
 impl<'a> Stopwatch<'a> {
     pub(crate) fn new(times: Option<&'a mut StageTimes>, device: &'a Device) -> Self {
-        Self { times, device, last: Instant::now() }
+        Self {
+            times,
+            device,
+            last: Instant::now(),
+        }
     }
 
     /// Ends the current stage: synchronises the device (only when timing) and charges it.

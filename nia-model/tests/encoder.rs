@@ -16,7 +16,11 @@ fn upsampling_matches_burn_interpolate() {
     let device = Device::ndarray();
     device.seed(0);
     for (h, w, oh, ow) in [(4, 6, 16, 24), (3, 5, 7, 11), (8, 8, 8, 8), (2, 2, 32, 32)] {
-        let f = Tensor::<4>::random([2, 3, h, w], burn::tensor::Distribution::Uniform(-1.0, 1.0), &device);
+        let f = Tensor::<4>::random(
+            [2, 3, h, w],
+            burn::tensor::Distribution::Uniform(-1.0, 1.0),
+            &device,
+        );
         let ours = upsample_bilinear(f.clone(), [oh, ow]);
         let reference = interpolate(
             f,
@@ -25,7 +29,10 @@ fn upsampling_matches_burn_interpolate() {
                 .with_output_size([oh, ow]),
         );
         let diff = (ours - reference).abs().max().into_scalar::<f32>();
-        assert!(diff <= UPSAMPLE_TOLERANCE, "{h}x{w} -> {oh}x{ow}: max diff {diff}");
+        assert!(
+            diff <= UPSAMPLE_TOLERANCE,
+            "{h}x{w} -> {oh}x{ow}: max diff {diff}"
+        );
     }
 }
 
@@ -37,8 +44,15 @@ fn encoder_gives_the_four_scale_pyramid_at_half_resolution() {
     let images = Tensor::<4>::ones([2, 3, 64, 48], &device).mul_scalar(0.5);
     let out = encoder.forward(images);
     assert_eq!(out.dims(), [2, config.out_channels(), 32, 24]);
-    assert_eq!(config.out_channels(), 64, "8 + 8 + 16 + 32 channels at base width 8");
+    assert_eq!(
+        config.out_channels(),
+        64,
+        "8 + 8 + 16 + 32 channels at base width 8"
+    );
     let values = out.into_data().try_to_vec::<f32>().unwrap();
     assert!(values.iter().all(|x| x.is_finite()));
-    assert!(values.iter().any(|&x| x > 0.0), "ReLU features are not all zero");
+    assert!(
+        values.iter().any(|&x| x > 0.0),
+        "ReLU features are not all zero"
+    );
 }

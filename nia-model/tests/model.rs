@@ -13,7 +13,12 @@ use nia_model::{ModelConfig, Variant};
 const SAMPLES: usize = 8;
 
 fn finite(t: &Tensor<2>) -> bool {
-    t.clone().into_data().try_to_vec::<f32>().unwrap().iter().all(|x| x.is_finite())
+    t.clone()
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap()
+        .iter()
+        .all(|x| x.is_finite())
 }
 
 #[test]
@@ -24,11 +29,18 @@ fn forward_renders_finite_colours_of_the_right_shape() {
     let config = ModelConfig::tiny();
     let model = config.init(&device);
     let geometry = SceneGeometry::new(&input, &config).unwrap();
-    let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
-    assert_eq!(scene.feature_maps.dims(), [3, config.image_channels(), 16, 16]);
+    let scene = model
+        .encode_scene(&input, &geometry, None, &device)
+        .unwrap();
+    assert_eq!(
+        scene.feature_maps.dims(),
+        [3, config.image_channels(), 16, 16]
+    );
     let rays = common::target_rays(&input, &geometry, 4);
     assert!(rays.len() >= 8, "most test rays hit the body box");
-    let out = model.render(&scene, &geometry, &rays, SAMPLES, None, &device).unwrap();
+    let out = model
+        .render(&scene, &geometry, &rays, SAMPLES, None, &device)
+        .unwrap();
     let r = rays.len();
     assert_eq!(out.rgb.dims(), [r, 3]);
     assert_eq!(out.rgb0.dims(), [r, 3]);
@@ -37,7 +49,10 @@ fn forward_renders_finite_colours_of_the_right_shape() {
     assert_eq!(bw.dims(), [r, 4]);
     assert!(finite(&out.rgb) && finite(&out.rgb0) && finite(&bw));
     let rgb = out.rgb.into_data().try_to_vec::<f32>().unwrap();
-    assert!(rgb.iter().all(|&c| (0.0..=1.0 + 1e-5).contains(&c)), "colours in [0, 1]");
+    assert!(
+        rgb.iter().all(|&c| (0.0..=1.0 + 1e-5).contains(&c)),
+        "colours in [0, 1]"
+    );
     // Accumulated blend weights equal the accumulated opacity (softmax rows sum to 1).
     let acc = out.acc.into_data().try_to_vec::<f32>().unwrap();
     let bw_sum = bw.sum_dim(1).into_data().try_to_vec::<f32>().unwrap();
@@ -55,13 +70,20 @@ fn variant_b_colour_is_the_nerf_colour_and_variant_a_has_no_body_volume() {
         let config = ModelConfig::tiny().with_variant(variant);
         let model = config.init(&device);
         let geometry = SceneGeometry::new(&input, &config).unwrap();
-        let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
+        let scene = model
+            .encode_scene(&input, &geometry, None, &device)
+            .unwrap();
         assert_eq!(scene.volume.is_some(), variant.uses_body());
         let rays = common::target_rays(&input, &geometry, 3);
-        let out = model.render(&scene, &geometry, &rays, SAMPLES, None, &device).unwrap();
+        let out = model
+            .render(&scene, &geometry, &rays, SAMPLES, None, &device)
+            .unwrap();
         if variant == Variant::NoIbr {
             let diff = (out.rgb - out.rgb0).abs().max().into_scalar::<f32>();
-            assert!(diff < 1e-6, "variant (b): rgb must equal the c0 composite, max diff {diff}");
+            assert!(
+                diff < 1e-6,
+                "variant (b): rgb must equal the c0 composite, max diff {diff}"
+            );
         } else {
             assert!(finite(&out.rgb));
         }
@@ -77,9 +99,13 @@ fn any_number_of_source_views_runs_with_the_same_weights() {
     for n in [1, 2, 4] {
         let input = common::scene(n, 32);
         let geometry = SceneGeometry::new(&input, &config).unwrap();
-        let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
+        let scene = model
+            .encode_scene(&input, &geometry, None, &device)
+            .unwrap();
         let rays = common::target_rays(&input, &geometry, 2);
-        let out = model.render(&scene, &geometry, &rays, SAMPLES, None, &device).unwrap();
+        let out = model
+            .render(&scene, &geometry, &rays, SAMPLES, None, &device)
+            .unwrap();
         assert_eq!(out.blend_weights.unwrap().dims(), [rays.len(), n + 1]);
         assert!(finite(&out.rgb));
     }
@@ -93,23 +119,38 @@ fn a_training_step_has_finite_gradients_everywhere_it_should() {
     let model = config.init(&device);
     let input = common::scene(3, 32);
     let geometry = SceneGeometry::new(&input, &config).unwrap();
-    let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
+    let scene = model
+        .encode_scene(&input, &geometry, None, &device)
+        .unwrap();
     let rays = common::target_rays(&input, &geometry, 3);
-    let jitter: Vec<f32> = (0..rays.len() * SAMPLES).map(|i| ((i * 37) % 100) as f32 / 100.0).collect();
-    let out = model.render(&scene, &geometry, &rays, SAMPLES, Some(&jitter), &device).unwrap();
+    let jitter: Vec<f32> = (0..rays.len() * SAMPLES)
+        .map(|i| ((i * 37) % 100) as f32 / 100.0)
+        .collect();
+    let out = model
+        .render(&scene, &geometry, &rays, SAMPLES, Some(&jitter), &device)
+        .unwrap();
     let gt = Tensor::<2>::ones([rays.len(), 3], &device).mul_scalar(0.5);
     let loss = render_loss(out.rgb, out.rgb0, gt).unwrap();
     let grads = loss.total.backward();
     fn check<const D: usize>(name: &str, w: Tensor<D>, grads: &burn::tensor::Gradients) {
-        let g = w.grad(grads).unwrap_or_else(|| panic!("{name} has no gradient"));
+        let g = w
+            .grad(grads)
+            .unwrap_or_else(|| panic!("{name} has no gradient"));
         let g = g.into_data().try_to_vec::<f32>().unwrap();
-        assert!(g.iter().all(|x| x.is_finite()), "{name}: non-finite gradient");
+        assert!(
+            g.iter().all(|x| x.is_finite()),
+            "{name}: non-finite gradient"
+        );
         assert!(g.iter().any(|&x| x != 0.0), "{name}: gradient is all zero");
     }
     check("encoder.conv1", model.encoder.conv1.weight.val(), &grads);
     check("vertex_reduce", model.vertex_reduce.weight.val(), &grads);
     check("body_reduce", model.body_reduce.weight.val(), &grads);
-    check("blender.token_input", model.blender.token_input.weight.val(), &grads);
+    check(
+        "blender.token_input",
+        model.blender.token_input.weight.val(),
+        &grads,
+    );
     check("density", model.density.layers[0].weight.val(), &grads);
 }
 
@@ -121,7 +162,9 @@ const BACKEND_TOLERANCE: f32 = 1e-3;
 #[cfg(feature = "wgpu")]
 #[test]
 fn wgpu_matches_ndarray() {
-    let Some(gpu) = common::wgpu_device() else { return };
+    let Some(gpu) = common::wgpu_device() else {
+        return;
+    };
     let cpu = Device::ndarray();
     cpu.seed(5);
     let config = ModelConfig::tiny();
@@ -132,7 +175,9 @@ fn wgpu_matches_ndarray() {
     let rays = common::target_rays(&input, &geometry, 3);
     let run = |m: &nia_model::NiaModel, d: &Device| {
         let scene = m.encode_scene(&input, &geometry, None, d).unwrap();
-        let out = m.render(&scene, &geometry, &rays, SAMPLES, None, d).unwrap();
+        let out = m
+            .render(&scene, &geometry, &rays, SAMPLES, None, d)
+            .unwrap();
         (
             out.rgb.into_data().try_to_vec::<f32>().unwrap(),
             out.acc.into_data().try_to_vec::<f32>().unwrap(),
@@ -146,7 +191,10 @@ fn wgpu_matches_ndarray() {
         .chain(acc_cpu.iter().zip(&acc_gpu))
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
-    assert!(max_diff <= BACKEND_TOLERANCE, "ndarray vs wgpu max difference {max_diff}");
+    assert!(
+        max_diff <= BACKEND_TOLERANCE,
+        "ndarray vs wgpu max difference {max_diff}"
+    );
 }
 
 #[test]
@@ -159,7 +207,10 @@ fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another(
     let model = config.init(&device);
     let input = common::scene(3, 32);
     let geometry = SceneGeometry::new(&input, &config).unwrap();
-    let spec = ProceduralSpec { target_vertices: 1500, ..ProceduralSpec::default() };
+    let spec = ProceduralSpec {
+        target_vertices: 1500,
+        ..ProceduralSpec::default()
+    };
     let body = ProceduralBody::generate(&spec).unwrap();
     let reference = SmplParams::default();
     let rays = common::target_rays(&input, &geometry, 3);
@@ -167,22 +218,57 @@ fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another(
     // Same pose: identical numbers to the novel-view path.
     let same = Reposer::new(&body, &reference, &reference).unwrap();
     assert!(same.is_identity() && !Reposer::needed(&reference, &reference));
-    let scene = model.encode_scene(&input, &geometry, None, &device).unwrap();
-    let plain = model.render(&scene, &geometry, &rays, SAMPLES, None, &device).unwrap();
+    let scene = model
+        .encode_scene(&input, &geometry, None, &device)
+        .unwrap();
+    let plain = model
+        .render(&scene, &geometry, &rays, SAMPLES, None, &device)
+        .unwrap();
     let reposed = model
-        .render_reposed(&scene, &geometry, &same, glam::Vec3::ZERO, glam::Vec3::ZERO, &rays, SAMPLES, None, &device, None)
+        .render_reposed(
+            &scene,
+            &geometry,
+            &same,
+            glam::Vec3::ZERO,
+            glam::Vec3::ZERO,
+            &rays,
+            SAMPLES,
+            None,
+            &device,
+            None,
+        )
         .unwrap();
     let diff = (plain.rgb - reposed.rgb).abs().max().into_scalar::<f32>();
     assert_eq!(diff, 0.0, "the identity reposing must be the plain path");
 
     // Another pose: the body volume moves to the target vertices, the images stay.
-    let target = SmplParams { poses: pose_for_motion(0.4, MotionKind::Walk), ..SmplParams::default() };
+    let target = SmplParams {
+        poses: pose_for_motion(0.4, MotionKind::Walk),
+        ..SmplParams::default()
+    };
     assert!(Reposer::needed(&reference, &target));
     let reposer = Reposer::new(&body, &reference, &target).unwrap();
-    let target_smpl: Vec<[f32; 3]> = reposer.target_vertices().iter().map(|v| v.to_array()).collect();
-    let scene = model.encode_scene(&input, &geometry, Some(&target_smpl), &device).unwrap();
+    let target_smpl: Vec<[f32; 3]> = reposer
+        .target_vertices()
+        .iter()
+        .map(|v| v.to_array())
+        .collect();
+    let scene = model
+        .encode_scene(&input, &geometry, Some(&target_smpl), &device)
+        .unwrap();
     let out = model
-        .render_reposed(&scene, &geometry, &reposer, glam::Vec3::ZERO, glam::Vec3::ZERO, &rays, SAMPLES, None, &device, None)
+        .render_reposed(
+            &scene,
+            &geometry,
+            &reposer,
+            glam::Vec3::ZERO,
+            glam::Vec3::ZERO,
+            &rays,
+            SAMPLES,
+            None,
+            &device,
+            None,
+        )
         .unwrap();
     assert_eq!(out.rgb.dims(), [rays.len(), 3]);
     assert!(finite(&out.rgb) && finite(&out.rgb0));
@@ -192,11 +278,18 @@ fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another(
 fn model_config_round_trips_through_json_with_paper_defaults() {
     let config = ModelConfig::new().with_variant(Variant::CosineWeighted);
     let json = serde_json::to_string(&config).unwrap();
-    assert!(json.contains("\"cosine_weighted\""), "variants serialise by their config names: {json}");
+    assert!(
+        json.contains("\"cosine_weighted\""),
+        "variants serialise by their config names: {json}"
+    );
     let back: ModelConfig = serde_json::from_str(&json).unwrap();
     assert_eq!(back.variant, Variant::CosineWeighted);
     assert_eq!(back.d_model, 128);
     assert_eq!(back.voxel_size_m, 0.005, "paper voxel size");
     assert_eq!(back.box_enlarge, 0.025, "paper box growth");
-    assert_eq!(back.image_channels(), 512, "ResNet-18 pyramid: 64 + 64 + 128 + 256");
+    assert_eq!(
+        back.image_channels(),
+        512,
+        "ResNet-18 pyramid: 64 + 64 + 128 + 256"
+    );
 }

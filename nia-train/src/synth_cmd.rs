@@ -54,9 +54,9 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         .expect("static progress template"),
     );
     let summary = synth::generate(&spec, &args.out, &mut |event| match event {
-        SynthEvent::SubjectStarted { index, count, id, .. } => {
-            bar.set_message(format!("subject {} of {count} (CoreView_{id})", index + 1))
-        }
+        SynthEvent::SubjectStarted {
+            index, count, id, ..
+        } => bar.set_message(format!("subject {} of {count} (CoreView_{id})", index + 1)),
         SynthEvent::ImageWritten { done, .. } => bar.set_position(done as u64),
         _ => {}
     })
@@ -70,6 +70,9 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         summary.out_dir.display()
     );
     println!("body model: {}", summary.body_model.display());
-    println!("train subjects {:?}, unseen test subjects {:?}", summary.train_subjects, summary.test_subjects);
+    println!(
+        "train subjects {:?}, unseen test subjects {:?}",
+        summary.train_subjects, summary.test_subjects
+    );
     Ok(())
 }

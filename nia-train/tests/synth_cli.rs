@@ -9,7 +9,8 @@ fn nia_train() -> Command {
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("nia-train-synth-cli-{}-{name}", std::process::id()));
+    let dir =
+        std::env::temp_dir().join(format!("nia-train-synth-cli-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     dir
 }
@@ -22,7 +23,10 @@ fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
             if path.is_dir() {
                 walk(root, &path, out);
             } else {
-                out.push((path.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&path).unwrap()));
+                out.push((
+                    path.strip_prefix(root).unwrap().to_path_buf(),
+                    std::fs::read(&path).unwrap(),
+                ));
             }
         }
     }
@@ -34,12 +38,26 @@ fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
 
 fn run_synth(out: &Path, seed: u64) {
     let status = nia_train()
-        .args(["synth", "--subjects", "1", "--frames", "2", "--cameras", "3", "--size", "48"])
+        .args([
+            "synth",
+            "--subjects",
+            "1",
+            "--frames",
+            "2",
+            "--cameras",
+            "3",
+            "--size",
+            "48",
+        ])
         .args(["--supersample", "1", "--seed", &seed.to_string(), "--out"])
         .arg(out)
         .output()
         .unwrap();
-    assert!(status.status.success(), "synth failed: {}", String::from_utf8_lossy(&status.stderr));
+    assert!(
+        status.status.success(),
+        "synth failed: {}",
+        String::from_utf8_lossy(&status.stderr)
+    );
 }
 
 #[test]
@@ -50,7 +68,10 @@ fn synth_writes_the_zju_layout_deterministically() {
     run_synth(&b, 3);
     let ta = tree(&a);
     let tb = tree(&b);
-    let names: Vec<String> = ta.iter().map(|(p, _)| p.to_string_lossy().replace('\\', "/")).collect();
+    let names: Vec<String> = ta
+        .iter()
+        .map(|(p, _)| p.to_string_lossy().replace('\\', "/"))
+        .collect();
     let subject = names
         .iter()
         .find_map(|n| n.strip_suffix("/annots.npy"))
@@ -82,6 +103,9 @@ fn synth_rejects_a_zero_size_naming_the_field() {
         .unwrap();
     assert!(!output.status.success());
     let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(stderr.contains("size"), "message should name the field: {stderr}");
+    assert!(
+        stderr.contains("size"),
+        "message should name the field: {stderr}"
+    );
     assert!(!stderr.contains("panicked"), "must not panic: {stderr}");
 }

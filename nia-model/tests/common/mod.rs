@@ -16,12 +16,24 @@ pub const VIS_TOL_M: f32 = 0.02;
 /// A camera on a ring of radius 2.5 m around the body centre, at `angle` radians.
 pub fn ring_camera(centre: Vec3, angle: f32, size: u32) -> Camera {
     let eye = centre + Vec3::new(2.5 * angle.sin(), 0.1, 2.5 * angle.cos());
-    Camera::look_at(eye, centre, Vec3::Y, size as f32 * 1.4, size as f32 * 1.4, size, size).unwrap()
+    Camera::look_at(
+        eye,
+        centre,
+        Vec3::Y,
+        size as f32 * 1.4,
+        size as f32 * 1.4,
+        size,
+        size,
+    )
+    .unwrap()
 }
 
 /// `views` source views of size `size` around the procedural body in its rest pose.
 pub fn scene(views: usize, size: u32) -> SceneInput {
-    let spec = ProceduralSpec { target_vertices: 1500, ..ProceduralSpec::default() };
+    let spec = ProceduralSpec {
+        target_vertices: 1500,
+        ..ProceduralSpec::default()
+    };
     let model = ProceduralBody::generate(&spec).unwrap();
     let posed = model.lbs(&SmplParams::default());
     let vertices = posed.vertices;
@@ -36,15 +48,29 @@ pub fn scene(views: usize, size: u32) -> SceneInput {
             for c in 0..3 {
                 for y in 0..s {
                     for x in 0..s {
-                        image[(c * s + y) * s + x] =
-                            0.5 + 0.4 * ((x as f32 * 0.7 + y as f32 * 0.3 + c as f32 * 2.0 + i as f32).sin());
+                        image[(c * s + y) * s + x] = 0.5
+                            + 0.4
+                                * ((x as f32 * 0.7 + y as f32 * 0.3 + c as f32 * 2.0 + i as f32)
+                                    .sin());
                     }
                 }
             }
-            SourceView { camera, image, vertex_visibility: vis.iter().map(|&b| b as f32).collect() }
+            SourceView {
+                camera,
+                image,
+                vertex_visibility: vis.iter().map(|&b| b as f32).collect(),
+            }
         })
         .collect();
-    SceneInput { views, body: SceneBody { vertices, faces, rh: Vec3::ZERO, th: Vec3::ZERO } }
+    SceneInput {
+        views,
+        body: SceneBody {
+            vertices,
+            faces,
+            rh: Vec3::ZERO,
+            th: Vec3::ZERO,
+        },
+    }
 }
 
 pub fn body_centre(vertices: &[Vec3]) -> Vec3 {
@@ -58,13 +84,20 @@ pub fn body_centre(vertices: &[Vec3]) -> Vec3 {
 
 /// Rays of a target camera through a `k x k` grid of pixels around the image centre that hit
 /// the scene's ray box.
-pub fn target_rays(input: &SceneInput, geometry: &nia_model::scene::SceneGeometry, k: usize) -> RayBatch {
+pub fn target_rays(
+    input: &SceneInput,
+    geometry: &nia_model::scene::SceneGeometry,
+    k: usize,
+) -> RayBatch {
     let centre = body_centre(&input.body.vertices);
     let camera = ring_camera(centre, 0.9, 64);
     let mut rays = RayBatch::default();
     for j in 0..k {
         for i in 0..k {
-            let px = glam::Vec2::new(24.0 + 16.0 * i as f32 / k as f32, 12.0 + 40.0 * j as f32 / k as f32);
+            let px = glam::Vec2::new(
+                24.0 + 16.0 * i as f32 / k as f32,
+                12.0 + 40.0 * j as f32 / k as f32,
+            );
             let ray = pixel_ray(&camera, px);
             if let Some((near, far)) = near_far(&ray, &geometry.ray_box) {
                 rays.origins.push(ray.origin);
@@ -84,8 +117,12 @@ pub fn target_rays(input: &SceneInput, geometry: &nia_model::scene::SceneGeometr
 pub fn wgpu_device() -> Option<burn::tensor::Device> {
     use burn::prelude::*;
     let probe = std::panic::catch_unwind(|| {
-        let device = nia_model::device::Backend::Wgpu.device().expect("wgpu compiled in");
-        let x = Tensor::<1>::from_floats([1.0, 2.0], &device).sum().into_scalar::<f32>();
+        let device = nia_model::device::Backend::Wgpu
+            .device()
+            .expect("wgpu compiled in");
+        let x = Tensor::<1>::from_floats([1.0, 2.0], &device)
+            .sum()
+            .into_scalar::<f32>();
         (device, x)
     });
     match probe {
