@@ -21,7 +21,7 @@ use crate::encoder::ImageEncoder;
 use crate::encoding::PositionalEncoding;
 use crate::heads::{view_mean, ColourHead, DensityHead};
 use crate::ibr::{fetch_source_colours, sample_views, PixelFeature};
-use crate::query::{PointInputs, PointTensors};
+use crate::query::{projection_grid, PointInputs, PointTensors};
 use crate::renderer::{render_rays, stratified_t, RenderError, RenderOutput};
 use crate::reposing::Reposer;
 use crate::scene::{SceneError, SceneGeometry, SceneInput};
@@ -186,11 +186,9 @@ impl NiaModel {
         watch.mark(Stage::Encoder);
         let volume = if self.variant.uses_body() {
             let v = geometry.vertices_world.len();
-            let vertices: Vec<Vec3> = geometry.vertices_world.clone();
-            let dirs = vec![Vec3::Z; v];
             // Vertex projections: the same projection rule as the query points.
-            let inputs = PointInputs::compute(geometry, &vertices, &dirs, None);
-            let grid = Tensor::<3>::from_data(TensorData::new(inputs.proj_grid, [n, v, 2]), device);
+            let grid = projection_grid(geometry, &geometry.vertices_world);
+            let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, v, 2]), device);
             let raw = sample_views(feature_maps.clone(), grid)?; // [N, V, C_img]
             let vis: Vec<f32> = geometry
                 .vertex_visibility

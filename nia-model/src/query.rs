@@ -34,6 +34,31 @@ pub struct PointInputs {
     pub corners: Vec<TrilinearCorners>,
 }
 
+/// [N, M, 2] projections of `points` ([M] world) into every source view, normalised for
+/// `grid_sample` with `align_corners = false`: `x_norm = (2u + 1) / W - 1` with OpenCV pixel
+/// centres at integer coordinates. Points behind a camera land far outside [-1, 1] (zeros).
+pub fn projection_grid(geometry: &SceneGeometry, points: &[Vec3]) -> Vec<f32> {
+    let m = points.len();
+    let [h, w] = geometry.image_hw;
+    let mut grid = vec![0.0f32; geometry.num_views() * m * 2];
+    for (view, camera) in geometry.cameras.iter().enumerate() {
+        grid[view * m * 2..(view + 1) * m * 2]
+            .par_chunks_mut(2)
+            .zip(points.par_iter())
+            .for_each(|(g, &x)| match camera.project(x) {
+                Some((uv, _depth)) => {
+                    g[0] = (2.0 * uv.x + 1.0) / w as f32 - 1.0;
+                    g[1] = (2.0 * uv.y + 1.0) / h as f32 - 1.0;
+                }
+                None => {
+                    g[0] = OUTSIDE_GRID;
+                    g[1] = OUTSIDE_GRID;
+                }
+            });
+    }
+    grid
+}
+
 /// [`PointInputs`] on a device.
 #[derive(Debug, Clone)]
 pub struct PointTensors {
@@ -62,27 +87,14 @@ impl PointInputs {
     ) -> Self {
         let m = image_points.len();
         let n = geometry.num_views();
-        let [h, w] = geometry.image_hw;
-        let mut proj_grid = vec![0.0f32; n * m * 2];
+        let proj_grid = projection_grid(geometry, image_points);
         let mut view_dir_features = vec![0.0f32; n * m * 4];
         for (view, camera) in geometry.cameras.iter().enumerate() {
             let centre = camera.centre();
-            let grid = &mut proj_grid[view * m * 2..(view + 1) * m * 2];
             let vdf = &mut view_dir_features[view * m * 4..(view + 1) * m * 4];
-            grid.par_chunks_mut(2)
-                .zip(vdf.par_chunks_mut(4))
+            vdf.par_chunks_mut(4)
                 .zip(image_points.par_iter().zip(dirs.par_iter()))
-                .for_each(|((g, f), (&x, &d))| {
-                    match camera.project(x) {
-                        Some((uv, _depth)) => {
-                            g[0] = (2.0 * uv.x + 1.0) / w as f32 - 1.0;
-                            g[1] = (2.0 * uv.y + 1.0) / h as f32 - 1.0;
-                        }
-                        None => {
-                            g[0] = OUTSIDE_GRID;
-                            g[1] = OUTSIDE_GRID;
-                        }
-                    }
+                .for_each(|(f, (&x, &d))| {
                     let d_n = (x - centre).normalize_or_zero();
                     let diff = d - d_n;
                     f[0] = diff.x;
