@@ -1,6 +1,8 @@
 //! Per-point fields: positional encoding, view-wise cross-attention, F_sigma / F_c0, IBR
 //! sampling and colour rules, the blender F_B and the variants' colour rules.
 
+mod support;
+
 use burn::module::Param;
 use burn::nn::Linear;
 use burn::prelude::*;
@@ -15,6 +17,7 @@ use nia_model::ibr::{
 };
 use nia_model::renderer::render_rays;
 use nia_model::variant::Variant;
+use support::{assert_close, device, tensor, values};
 
 /// f32 forward values computed along two different paths (reordered sums, sin/cos of the
 /// same angles): a few ulps of O(1) values.
@@ -28,32 +31,8 @@ const FD_STEP: f32 = 1e-3;
 const FD_ABS_TOL: f32 = 2e-3;
 const FD_REL_TOL: f32 = 2e-2;
 
-/// The reference CPU backend (deprecated upstream in favour of flex; the project keeps it).
-#[allow(deprecated)]
-fn device() -> Device {
-    Device::ndarray()
-}
-
-fn tensor<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Tensor<D> {
-    Tensor::from_data(TensorData::new(values, shape), device)
-}
-
-fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data().try_to_vec::<f32>().expect("f32 tensor")
-}
-
 fn random(rng: &mut Rng, n: usize, lo: f32, hi: f32) -> Vec<f32> {
     (0..n).map(|_| rng.range(lo, hi)).collect()
-}
-
-fn assert_close(got: &[f32], expected: &[f32], tol: f32, what: &str) {
-    assert_eq!(got.len(), expected.len(), "{what}: length");
-    for (i, (g, e)) in got.iter().zip(expected).enumerate() {
-        assert!(
-            (g - e).abs() <= tol * (1.0 + e.abs()),
-            "{what}[{i}]: got {g}, expected {e} (tol {tol})"
-        );
-    }
 }
 
 fn assert_finite(v: &[f32], what: &str) {

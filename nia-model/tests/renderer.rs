@@ -1,10 +1,13 @@
 //! Volume rendering, the stratified sampler and the loss: hand-computed cases, finite-difference
 //! gradients and the numerical hard cases of DESIGN.md section 5.
 
+mod support;
+
 use burn::prelude::*;
 use nia_data::rng::Rng;
 use nia_model::loss::{psnr_from_mse, render_loss};
 use nia_model::renderer::{render_rays, sample_weights, stratified_t, RenderError};
+use support::{assert_close, device, tensor, values};
 
 /// f32 forward values along two different evaluation orders: a few ulps of O(1) values.
 const VALUE_TOL: f32 = 1e-5;
@@ -14,30 +17,6 @@ const FD_STEP: f32 = 1e-2;
 /// f32 rounding of the loss over the step (~1e-7 / 1e-2); absolute plus relative part.
 const FD_ABS_TOL: f32 = 1e-3;
 const FD_REL_TOL: f32 = 1e-2;
-
-/// The reference CPU backend (deprecated upstream in favour of flex; the project keeps it).
-#[allow(deprecated)]
-fn device() -> Device {
-    Device::ndarray()
-}
-
-fn tensor<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Tensor<D> {
-    Tensor::from_data(TensorData::new(values, shape), device)
-}
-
-fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data().try_to_vec::<f32>().expect("f32 tensor")
-}
-
-fn assert_close(got: &[f32], expected: &[f32], tol: f32, what: &str) {
-    assert_eq!(got.len(), expected.len(), "{what}: length");
-    for (i, (g, e)) in got.iter().zip(expected).enumerate() {
-        assert!(
-            (g - e).abs() <= tol * (1.0 + e.abs()),
-            "{what}[{i}]: got {g}, expected {e} (tol {tol})"
-        );
-    }
-}
 
 fn assert_finite(v: &[f32], what: &str) {
     assert!(!v.is_empty(), "{what}: empty");
