@@ -1,26 +1,199 @@
 //! nia-train: training from config files (issue 5) and `synth`, the built-in synthetic dataset
 //! in the exact ZJU-MoCap layout.
+//!
+//! `nia-train --config configs/quickstart.toml [--backend ndarray|flex|wgpu] [--resume]
+//! [--out DIR] [--steps N]` (also as `nia-train train ...`), and `nia-train synth ...`.
 
 mod synth_cmd;
 
-use clap::{Parser, Subcommand};
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use nia_model::device::Backend;
+use nia_train::config::TrainConfig;
+use nia_train::events::TrainEvent;
+use nia_train::train_loop::{train, RunOptions};
 
 /// Train NIA models, or generate the synthetic ZJU-MoCap-layout dataset.
 #[derive(Parser)]
-#[command(version, about)]
+#[command(version, about, args_conflicts_with_subcommands = true)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    train: TrainArgs,
 }
 
 #[derive(Subcommand)]
 enum Command {
+    /// Train from a config file (the same as the top-level flags).
+    Train(TrainArgs),
     /// Generate synthetic subjects in the exact ZJU-MoCap layout.
     Synth(synth_cmd::SynthArgs),
 }
 
-fn main() -> anyhow::Result<()> {
-    match Cli::parse().command {
-        Command::Synth(args) => synth_cmd::run(args),
+#[derive(Args, Debug)]
+struct TrainArgs {
+    /// Run config (TOML), e.g. configs/quickstart.toml.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Override `train.backend`: ndarray, flex or wgpu.
+    #[arg(long, value_parser = parse_backend)]
+    backend: Option<Backend>,
+    /// Continue from the newest checkpoint in the output folder.
+    #[arg(long)]
+    resume: bool,
+    /// Output folder (default `runs/<config name>`): metrics.jsonl and checkpoints/.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Override `train.steps`.
+    #[arg(long)]
+    steps: Option<u64>,
+}
+
+fn parse_backend(s: &str) -> Result<Backend, String> {
+    match s.to_ascii_lowercase().as_str() {
+        "ndarray" => Ok(Backend::Ndarray),
+        "flex" => Ok(Backend::Flex),
+        "wgpu" => Ok(Backend::Wgpu),
+        other => Err(format!(
+            "unknown backend `{other}` (expected ndarray, flex or wgpu)"
+        )),
     }
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Some(Command::Synth(args)) => synth_cmd::run(args),
+        Some(Command::Train(args)) => run_train(args),
+        None => run_train(cli.train),
+    }
+}
+
+fn run_train(args: TrainArgs) -> anyhow::Result<()> {
+    let Some(config_path) = args.config else {
+        anyhow::bail!("missing `--config <FILE>` (e.g. configs/quickstart.toml); see --help");
+    };
+    let mut config = TrainConfig::load(&config_path)?;
+    if let Some(backend) = args.backend {
+        config.train.backend = backend;
+    }
+    if let Some(steps) = args.steps {
+        config.train.steps = steps;
+    }
+    let out = args.out.unwrap_or_else(|| {
+        let stem = config_path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "run".into());
+        PathBuf::from("runs").join(stem)
+    });
+    std::fs::create_dir_all(&out)
+        .with_context(|| format!("creating the output folder {}", out.display()))?;
+    let metrics_path = out.join("metrics.jsonl");
+    let mut metrics = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&metrics_path)
+        .with_context(|| format!("opening {}", metrics_path.display()))?;
+    let bar = ProgressBar::new(config.train.steps);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} train [{elapsed_precise}] {bar:30} {pos}/{len} steps (eta {eta}) {msg}",
+        )
+        .expect("static progress template"),
+    );
+    let mut write_error: Option<std::io::Error> = None;
+    let summary = train(
+        &config,
+        &RunOptions {
+            out: out.clone(),
+            resume: args.resume,
+        },
+        &mut |event| {
+            if write_error.is_none() {
+                let line = serde_json::to_string(&event).unwrap_or_default();
+                if let Err(e) = writeln!(metrics, "{line}") {
+                    write_error = Some(e);
+                }
+            }
+            match &event {
+                TrainEvent::DataReady {
+                    root,
+                    train_subjects,
+                    unseen_subjects,
+                    generated,
+                } => bar.println(format!(
+                    "data {}{}: train {:?}, held out {:?}",
+                    root.display(),
+                    if *generated { " (generated)" } else { "" },
+                    train_subjects,
+                    unseen_subjects
+                )),
+                TrainEvent::Started { first_step, .. } => bar.set_position(*first_step),
+                TrainEvent::Step {
+                    step,
+                    loss,
+                    psnr,
+                    rays_per_s,
+                    lr,
+                    ..
+                } => {
+                    bar.set_position(step + 1);
+                    bar.set_message(format!(
+                        "loss {loss:.4} psnr {psnr:.2} dB {rays_per_s:.0} rays/s lr {lr:.2e}"
+                    ));
+                }
+                TrainEvent::Skipped { step, reason } => {
+                    bar.set_position(step + 1);
+                    bar.println(format!("step {step} skipped: {reason}"));
+                }
+                TrainEvent::Checkpoint { path, .. } => {
+                    bar.println(format!("checkpoint {}", path.display()))
+                }
+                TrainEvent::Validation {
+                    step,
+                    images,
+                    psnr,
+                    ssim,
+                } => bar.println(format!(
+                    "validation after {step} steps: PSNR {psnr:.2} dB, SSIM {ssim:.4} on {images} held-out images"
+                )),
+                TrainEvent::Evaluation {
+                    split,
+                    images,
+                    psnr,
+                    ssim,
+                    ..
+                } => bar.println(format!(
+                    "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}"
+                )),
+                TrainEvent::Finished { .. } => {}
+            }
+        },
+    )
+    .with_context(|| format!("training {}", config_path.display()))?;
+    bar.finish_and_clear();
+    if let Some(e) = write_error {
+        return Err(e).with_context(|| format!("writing {}", metrics_path.display()));
+    }
+    println!(
+        "trained {} steps ({} this run, {} skipped); last loss {}; metrics {}",
+        summary.steps,
+        summary.steps_run,
+        summary.skipped,
+        summary
+            .last_loss
+            .map(|l| format!("{l:.5}"))
+            .unwrap_or_else(|| "-".into()),
+        metrics_path.display()
+    );
+    if let Some(c) = summary.last_checkpoint {
+        println!("checkpoint: {}", c.display());
+    }
+    Ok(())
 }

@@ -1,0 +1,53 @@
+//! What a training run reports: the library sends these through a callback; the binary draws
+//! the progress bar and appends each one as a JSON line to `OUT/metrics.jsonl`.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+/// One training event. Losses are the means of the step's rays (colours in [0, 1]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum TrainEvent {
+    /// The dataset is open (generated first when a `[synth]` section asked for it).
+    DataReady {
+        root: PathBuf,
+        train_subjects: Vec<String>,
+        unseen_subjects: Vec<String>,
+        generated: bool,
+    },
+    /// Training starts at `first_step` (0, or the step after a resumed checkpoint).
+    Started { first_step: u64, steps: u64 },
+    /// A step was taken. `loss = mse + mse0`; `psnr` of the blended colour (dB).
+    Step {
+        step: u64,
+        loss: f64,
+        mse: f64,
+        mse0: f64,
+        psnr: f64,
+        rays_per_s: f64,
+        lr: f64,
+    },
+    /// A step whose loss or gradients were not finite: no parameter was changed.
+    Skipped { step: u64, reason: String },
+    /// A checkpoint was written (atomically) after `step` steps.
+    Checkpoint { step: u64, path: PathBuf },
+    /// Periodic held-out check on the first few unseen-subject images: mean PSNR (dB, over
+    /// `mask_at_box`) and SSIM (NHP's setting).
+    Validation {
+        step: u64,
+        images: usize,
+        psnr: f64,
+        ssim: f64,
+    },
+    /// The final evaluation of a split (every image of the opened subjects), as NHP reports it.
+    Evaluation {
+        step: u64,
+        split: String,
+        images: usize,
+        psnr: f64,
+        ssim: f64,
+    },
+    /// The run ended after `steps` steps.
+    Finished { steps: u64, seconds: f64 },
+}

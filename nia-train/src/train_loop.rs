@@ -1,0 +1,435 @@
+//! The custom training loop on the autodiff device.
+//!
+//! Per step: the step's scene (a training frame, `source_views` random source cameras and one
+//! other target camera, [`TrainData::request_for_step`]), its training rays (NHP sampling),
+//! jittered stratified samples, the forward pass ([`NiaModel::encode_scene`] +
+//! [`NiaModel::render`]), the loss (NIA eq. 6), the backward pass, clipping of the gradient by
+//! its global L2 norm, and an Adam step at the scheduled learning rate. A step whose loss or
+//! gradient is not finite changes nothing and is reported as [`TrainEvent::Skipped`].
+//!
+//! Everything random in step `k` comes from `(seed, k)`: the loader's scene and rays, and the
+//! jitter. With the model and optimiser state restored from a checkpoint, a resumed run takes
+//! the same steps as an uninterrupted one.
+//!
+//! Data parallelism: one step is a function of (model, scene); with several devices each would
+//! take its own scene and the gradients would be summed with burn's `MultiGradientsParams` and
+//! `ModuleOptimizer::step_multi` before the same clipping and step.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::prelude::*;
+use nia_data::loader::{Scene, SceneLoader, SceneTarget};
+use nia_data::protocol::EvalSplit;
+use nia_data::rng::Rng;
+use nia_model::loss::{psnr_from_mse, render_loss};
+use nia_model::model::ModelError;
+use nia_model::scene::{SceneBody, SceneGeometry, SceneInput, SourceView};
+use nia_model::{ModelConfig, NiaModel, RayBatch};
+
+use crate::checkpoint::{self, CheckpointError};
+use crate::config::TrainConfig;
+use crate::data::{DataError, TrainData};
+use crate::evaluate::{eval_items, evaluate_items};
+use crate::events::TrainEvent;
+
+/// Label of the jitter stream forked from a step's RNG (the loader uses the request seed).
+const JITTER_STREAM: u64 = 1;
+
+/// A training error.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error("loader: {0}")]
+    Loader(#[from] nia_data::loader::LoaderError),
+    #[error("{0}")]
+    Backend(#[from] nia_model::device::BackendUnavailable),
+    #[error("step {step} ({subject}, frame {frame}): {source}")]
+    Model {
+        step: u64,
+        subject: String,
+        frame: usize,
+        source: ModelError,
+    },
+    #[error("evaluating {subject}, frame {frame}, view {view}: {message}")]
+    Eval {
+        subject: String,
+        frame: usize,
+        view: usize,
+        message: String,
+    },
+    #[error("checkpoint: {0}")]
+    Checkpoint(#[from] CheckpointError),
+    #[error("{}: cannot create the output folder: {source}", path.display())]
+    Out {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("protocol: {0}")]
+    Protocol(#[from] nia_data::protocol::ProtocolError),
+    #[error("the loader produced a scene without training rays at step {0}")]
+    NoRays(u64),
+}
+
+/// What a finished run reports.
+#[derive(Debug, Clone)]
+pub struct TrainSummary {
+    /// Steps completed in all (including those of a resumed checkpoint).
+    pub steps: u64,
+    /// Steps taken by this call.
+    pub steps_run: u64,
+    /// Steps skipped for non-finite loss or gradients.
+    pub skipped: u64,
+    /// Loss of the last taken step.
+    pub last_loss: Option<f64>,
+    pub last_checkpoint: Option<PathBuf>,
+}
+
+/// Run options beyond the config file.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    /// Output folder: `metrics.jsonl` is the binary's, `checkpoints/` the loop's.
+    pub out: PathBuf,
+    /// Continue from the newest checkpoint in `out`, if there is one.
+    pub resume: bool,
+}
+
+/// Trains `config` and reports through `on_event`.
+pub fn train(
+    config: &TrainConfig,
+    options: &RunOptions,
+    on_event: &mut dyn FnMut(TrainEvent),
+) -> Result<TrainSummary, TrainError> {
+    std::fs::create_dir_all(&options.out).map_err(|source| TrainError::Out {
+        path: options.out.clone(),
+        source,
+    })?;
+    let data = TrainData::open(config)?;
+    on_event(TrainEvent::DataReady {
+        root: config.data.root.clone(),
+        train_subjects: data.train_subject_names(),
+        unseen_subjects: data.unseen_subject_names(),
+        generated: data.generated,
+    });
+    let t = &config.train;
+    let device = t.backend.device()?.autodiff();
+    device.seed(t.seed);
+    let model_config = config.model.build();
+    let mut model = model_config.init(&device);
+    let mut optimizer = adam(config).init();
+    let mut first_step = 0;
+    let mut last_checkpoint = None;
+    let resume_from = if options.resume {
+        checkpoint::latest(&options.out)?
+    } else {
+        None
+    };
+    if let Some((_, dir)) = resume_from {
+        let (m, o, step) = checkpoint::load(&dir, model, optimizer)?;
+        model = m;
+        optimizer = o;
+        first_step = step;
+        last_checkpoint = Some(dir);
+    } else if let Some(dir) = &t.init_from {
+        model = checkpoint::load_model(dir, model)?;
+    }
+    on_event(TrainEvent::Started {
+        first_step,
+        steps: t.steps,
+    });
+    let requests = (first_step..t.steps)
+        .map(|step| data.request_for_step(t.seed, step, t.source_views))
+        .collect();
+    let loader = SceneLoader::new(data.source.clone(), requests, data.loader)?;
+    let run_start = Instant::now();
+    let mut summary = TrainSummary {
+        steps: first_step,
+        steps_run: 0,
+        skipped: 0,
+        last_loss: None,
+        last_checkpoint,
+    };
+    for (step, scene) in (first_step..t.steps).zip(loader) {
+        let scene = scene?;
+        let started = Instant::now();
+        let lr = config.optim.lr_at(step);
+        let outcome = train_step(
+            &model,
+            &model_config,
+            &scene,
+            &data.source.faces,
+            config,
+            step,
+            &device,
+        )?;
+        match outcome {
+            StepOutcome::Skipped(reason) => {
+                summary.skipped += 1;
+                on_event(TrainEvent::Skipped { step, reason });
+            }
+            StepOutcome::Taken {
+                grads,
+                loss,
+                mse,
+                mse0,
+                rays,
+            } => {
+                model = optimizer.step(lr, model, grads);
+                let seconds = started.elapsed().as_secs_f64().max(1e-9);
+                summary.last_loss = Some(loss);
+                on_event(TrainEvent::Step {
+                    step,
+                    loss,
+                    mse,
+                    mse0,
+                    psnr: psnr_from_mse(mse),
+                    rays_per_s: rays as f64 / seconds,
+                    lr,
+                });
+            }
+        }
+        let done = step + 1;
+        summary.steps = done;
+        summary.steps_run += 1;
+        if t.validate_every > 0 && done % t.validate_every == 0 {
+            let items = eval_items(&data, EvalSplit::UnseenSubjects, Some(t.validation_images))?;
+            let chunk = t.rays_per_step;
+            if let Some(m) = evaluate_items(
+                &model,
+                &model_config,
+                &data,
+                &items,
+                t.samples,
+                chunk,
+                &device,
+            )? {
+                on_event(TrainEvent::Validation {
+                    step: done,
+                    images: m.images,
+                    psnr: m.psnr,
+                    ssim: m.ssim,
+                });
+            }
+        }
+        if done % t.checkpoint_every == 0 || done == t.steps {
+            let path = checkpoint::save(
+                &options.out,
+                done,
+                &model,
+                &optimizer,
+                config,
+                &model_config,
+                t.keep_last,
+            )?;
+            on_event(TrainEvent::Checkpoint {
+                step: done,
+                path: path.clone(),
+            });
+            summary.last_checkpoint = Some(path);
+        }
+    }
+    if t.evaluate_at_end {
+        let split = EvalSplit::UnseenSubjects;
+        let items = eval_items(&data, split, None)?;
+        if let Some(m) = evaluate_items(
+            &model,
+            &model_config,
+            &data,
+            &items,
+            t.samples,
+            t.rays_per_step,
+            &device,
+        )? {
+            on_event(TrainEvent::Evaluation {
+                step: summary.steps,
+                split: split.name().to_string(),
+                images: m.images,
+                psnr: m.psnr,
+                ssim: m.ssim,
+            });
+        }
+    }
+    on_event(TrainEvent::Finished {
+        steps: summary.steps,
+        seconds: run_start.elapsed().as_secs_f64(),
+    });
+    Ok(summary)
+}
+
+/// Adam with the configured betas and epsilon (clipping is applied by the loop, by global norm).
+pub fn adam(config: &TrainConfig) -> AdamConfig {
+    AdamConfig::new()
+        .with_beta_1(config.optim.beta1)
+        .with_beta_2(config.optim.beta2)
+        .with_epsilon(config.optim.adam_eps)
+}
+
+enum StepOutcome {
+    Taken {
+        grads: GradientsParams,
+        loss: f64,
+        mse: f64,
+        mse0: f64,
+        rays: usize,
+    },
+    Skipped(String),
+}
+
+/// The network's view of a loaded scene.
+pub fn scene_input(scene: &Scene, faces: &[[u32; 3]]) -> SceneInput {
+    let views = scene
+        .sources
+        .iter()
+        .map(|s| {
+            let (w, h) = (s.image.width() as usize, s.image.height() as usize);
+            // [H * W * 3] interleaved -> [3, H, W] planar.
+            let mut planar = vec![0.0f32; 3 * w * h];
+            for (p, rgb) in s.image.image.chunks_exact(3).enumerate() {
+                for c in 0..3 {
+                    planar[c * w * h + p] = rgb[c];
+                }
+            }
+            SourceView {
+                camera: s.image.camera,
+                image: planar,
+                vertex_visibility: s.visibility.iter().map(|&v| v as f32).collect(),
+            }
+        })
+        .collect();
+    SceneInput {
+        views,
+        body: SceneBody {
+            vertices: scene.vertices.clone(),
+            faces: faces.to_vec(),
+            rh: scene.params.rh,
+            th: scene.params.th,
+        },
+    }
+}
+
+fn train_step(
+    model: &NiaModel,
+    model_config: &ModelConfig,
+    scene: &Scene,
+    faces: &[[u32; 3]],
+    config: &TrainConfig,
+    step: u64,
+    device: &Device,
+) -> Result<StepOutcome, TrainError> {
+    let SceneTarget::Rays(rays) = &scene.target else {
+        return Err(TrainError::NoRays(step));
+    };
+    let model_err = |source| TrainError::Model {
+        step,
+        subject: scene.subject.clone(),
+        frame: scene.frame,
+        source,
+    };
+    let input = scene_input(scene, faces);
+    let geometry =
+        SceneGeometry::new(&input, model_config).map_err(|e| model_err(ModelError::Scene(e)))?;
+    let encoded = model
+        .encode_scene(&input, &geometry, None, device)
+        .map_err(model_err)?;
+    let batch = RayBatch {
+        origins: rays.origins.clone(),
+        dirs: rays.dirs.clone(),
+        near: rays.near.clone(),
+        far: rays.far.clone(),
+    };
+    let samples = config.train.samples;
+    let mut jitter_rng = Rng::new(config.train.seed).fork(step).fork(JITTER_STREAM);
+    let jitter: Vec<f32> = (0..batch.len() * samples)
+        .map(|_| jitter_rng.uniform())
+        .collect();
+    let out = model
+        .render(&encoded, &geometry, &batch, samples, Some(&jitter), device)
+        .map_err(model_err)?;
+    let gt: Vec<f32> = rays.rgb.iter().flatten().copied().collect();
+    let gt = Tensor::<2>::from_data(TensorData::new(gt, [batch.len(), 3]), device);
+    let loss = render_loss(out.rgb, out.rgb0, gt).map_err(|e| model_err(ModelError::Shape(e)))?;
+    let values = Tensor::cat(
+        vec![
+            loss.total.clone().detach(),
+            loss.mse.detach(),
+            loss.mse0.detach(),
+        ],
+        0,
+    )
+    .into_data()
+    .convert::<f32>()
+    .try_to_vec::<f32>()
+    .unwrap_or_default();
+    let [total, mse, mse0] = match values.as_slice() {
+        [a, b, c] => [*a as f64, *b as f64, *c as f64],
+        _ => return Ok(StepOutcome::Skipped("the loss could not be read".into())),
+    };
+    if !total.is_finite() {
+        return Ok(StepOutcome::Skipped(format!("loss is {total}")));
+    }
+    let grads = loss.total.backward();
+    let mut grads = GradientsParams::from_grads(grads, model);
+    let norm = global_norm(model, &grads);
+    if !norm.is_finite() {
+        return Ok(StepOutcome::Skipped(format!("gradient norm is {norm}")));
+    }
+    let max_norm = config.optim.grad_clip_norm as f64;
+    if max_norm > 0.0 && norm > max_norm {
+        scale_gradients(model, &mut grads, (max_norm / norm) as f32);
+    }
+    Ok(StepOutcome::Taken {
+        grads,
+        loss: total,
+        mse,
+        mse0,
+        rays: batch.len(),
+    })
+}
+
+/// Sum of squares of every parameter gradient, as one tensor read.
+struct SquaredNorm<'a> {
+    grads: &'a GradientsParams,
+    total: Option<Tensor<1>>,
+}
+
+impl ModuleVisitor for SquaredNorm<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if let Some(g) = self.grads.get::<D>(param.id) {
+            let s = g.square().sum();
+            self.total = Some(match self.total.take() {
+                Some(t) => t + s,
+                None => s,
+            });
+        }
+    }
+}
+
+/// The global L2 norm of the gradient (NaN or infinite when any entry is).
+fn global_norm(model: &NiaModel, grads: &GradientsParams) -> f64 {
+    let mut v = SquaredNorm { grads, total: None };
+    model.visit(&mut v);
+    match v.total {
+        Some(t) => (t.into_scalar::<f32>() as f64).sqrt(),
+        None => 0.0,
+    }
+}
+
+struct Scale<'a> {
+    grads: &'a mut GradientsParams,
+    factor: f32,
+}
+
+impl ModuleVisitor for Scale<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if let Some(g) = self.grads.remove::<D>(param.id) {
+            self.grads.register(param.id, g.mul_scalar(self.factor));
+        }
+    }
+}
+
+fn scale_gradients(model: &NiaModel, grads: &mut GradientsParams, factor: f32) {
+    model.visit(&mut Scale { grads, factor });
+}

@@ -1,0 +1,276 @@
+//! `nia-train --config` end to end on ndarray: a tiny synthetic dataset generated from the
+//! config's `[synth]` section, 2 training steps, the JSONL log, checkpoints, config errors
+//! naming the key and the file, and resume equal to an uninterrupted run.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// Resumed and uninterrupted runs take the same steps from the same state; ndarray's
+/// multi-threaded reductions may order sums differently, so losses agree to 1e-4 relative.
+const RESUME_REL_TOL: f64 = 1e-4;
+
+/// The same weights rendering the same images: only reduction order may differ (ndarray).
+const EVAL_REPEAT_TOL_DB: f64 = 1e-3;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("nia-train-smoke-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A tiny config: 2 subjects (1 train, 1 held out), 2 frames, 4 cameras, 48 px.
+fn tiny_config(dir: &Path, steps: u64, extra_train: &str) -> PathBuf {
+    let text = format!(
+        r#"
+[data]
+root = "{root}"
+ratio = 1.0
+border_px = 1
+loader_threads = 1
+
+[synth]
+subjects = 2
+frames = 2
+cameras = 4
+size = 48
+supersample = 1
+test_fraction = 0.5
+
+[model]
+preset = "tiny"
+
+[optim]
+lr = 5e-4
+decay_steps = 1000
+grad_clip_norm = 1.0
+
+[train]
+steps = {steps}
+rays_per_step = 32
+samples = 8
+source_views = 3
+seed = 7
+checkpoint_every = 1
+keep_last = 2
+backend = "ndarray"
+{extra_train}
+"#,
+        root = dir.join("data").display().to_string().replace('\\', "/"),
+    );
+    let path = dir.join("tiny.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn nia_train(args: &[&str], config: &Path, out: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nia-train"))
+        .args(args)
+        .arg("--config")
+        .arg(config)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap()
+}
+
+fn ok(output: &Output) {
+    assert!(
+        output.status.success(),
+        "nia-train failed:\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+}
+
+fn events(out: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(out.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("bad JSON line {l}: {e}")))
+        .collect()
+}
+
+fn of_kind<'a>(events: &'a [serde_json::Value], kind: &str) -> Vec<&'a serde_json::Value> {
+    events.iter().filter(|e| e["event"] == kind).collect()
+}
+
+#[test]
+fn trains_two_steps_end_to_end_on_ndarray() {
+    let dir = scratch("two");
+    let config = tiny_config(&dir, 2, "validate_every = 2\nevaluate_at_end = true");
+    let out = dir.join("run");
+    ok(&nia_train(&[], &config, &out));
+    assert!(dir.join("data/synth.json").is_file(), "dataset generated");
+    let all = events(&out);
+    let ready = of_kind(&all, "data_ready");
+    assert_eq!(ready.len(), 1);
+    assert_eq!(ready[0]["generated"], true);
+    let steps = of_kind(&all, "step");
+    assert_eq!(steps.len(), 2, "two steps taken, none skipped: {all:?}");
+    for (i, s) in steps.iter().enumerate() {
+        assert_eq!(s["step"], i as u64);
+        let loss = s["loss"].as_f64().unwrap();
+        assert!(loss.is_finite() && loss > 0.0, "loss {loss}");
+        let (mse, mse0) = (s["mse"].as_f64().unwrap(), s["mse0"].as_f64().unwrap());
+        assert!((mse + mse0 - loss).abs() < 1e-5, "loss = mse + mse0");
+        assert!(s["psnr"].as_f64().unwrap().is_finite());
+        assert!(s["rays_per_s"].as_f64().unwrap() > 0.0);
+    }
+    // lr * 0.1^(1/1000) at step 1.
+    let lr1 = steps[1]["lr"].as_f64().unwrap();
+    assert!((lr1 - 5e-4 * 0.1f64.powf(1e-3)).abs() < 1e-12, "lr {lr1}");
+    let validation = of_kind(&all, "validation");
+    assert_eq!(validation.len(), 1, "{all:?}");
+    assert!(validation[0]["psnr"].as_f64().unwrap().is_finite());
+    let ssim = validation[0]["ssim"].as_f64().unwrap();
+    assert!((-1.0..=1.0).contains(&ssim), "ssim {ssim}");
+    let evaluation = of_kind(&all, "evaluation");
+    assert_eq!(evaluation.len(), 1, "{all:?}");
+    // The held-out subject: 2 frames x the cameras that are not input views.
+    assert!(evaluation[0]["images"].as_u64().unwrap() >= 2);
+    assert_eq!(evaluation[0]["split"], "unseen_subjects");
+    assert!(evaluation[0]["psnr"].as_f64().unwrap().is_finite());
+    assert_eq!(of_kind(&all, "checkpoint").len(), 2);
+    assert_eq!(of_kind(&all, "finished").len(), 1);
+    let ckpt = out.join("checkpoints/step_00000002");
+    for f in ["model.bpk", "optimizer.bpk", "config.json", "step.json"] {
+        assert!(ckpt.join(f).is_file(), "missing {f}");
+    }
+    let saved: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ckpt.join("config.json")).unwrap()).unwrap();
+    assert_eq!(saved["run"]["train"]["steps"], 2);
+    assert_eq!(
+        saved["model"]["d_model"], 16,
+        "the tiny preset was resolved"
+    );
+    let step: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ckpt.join("step.json")).unwrap()).unwrap();
+    assert_eq!(step["step"], 2);
+
+    // Evaluation only (`steps = 0`) from the checkpoint's weights renders the same images.
+    let eval_config = tiny_config(
+        &dir,
+        0,
+        &format!(
+            "evaluate_at_end = true\ninit_from = \"{}\"",
+            ckpt.display().to_string().replace('\\', "/")
+        ),
+    );
+    let eval_out = dir.join("eval");
+    ok(&nia_train(&[], &eval_config, &eval_out));
+    let again = events(&eval_out);
+    assert!(of_kind(&again, "step").is_empty(), "no training step");
+    let again = of_kind(&again, "evaluation");
+    assert_eq!(again.len(), 1);
+    let (p0, p1) = (
+        evaluation[0]["psnr"].as_f64().unwrap(),
+        again[0]["psnr"].as_f64().unwrap(),
+    );
+    assert!(
+        (p0 - p1).abs() < EVAL_REPEAT_TOL_DB,
+        "same weights, same images: {p0} vs {p1} dB"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn config_errors_name_the_key_and_the_file() {
+    let dir = scratch("bad");
+    let config = tiny_config(&dir, 2, "stepz = 3");
+    let output = nia_train(&[], &config, &dir.join("run"));
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("stepz"), "names the key: {stderr}");
+    assert!(stderr.contains("tiny.toml"), "names the file: {stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+
+    let text = std::fs::read_to_string(&config)
+        .unwrap()
+        .replace("stepz = 3", "")
+        .replace("samples = 8", "samples = \"eight\"");
+    std::fs::write(&config, text).unwrap();
+    let output = nia_train(&[], &config, &dir.join("run"));
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains("samples") && stderr.contains("tiny.toml"),
+        "wrong type names key and file: {stderr}"
+    );
+    assert!(
+        !dir.join("data").exists(),
+        "nothing generated for a bad config"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn resume_continues_like_an_uninterrupted_run() {
+    let dir = scratch("resume");
+    let config = tiny_config(&dir, 4, "");
+    let straight = dir.join("straight");
+    ok(&nia_train(&[], &config, &straight));
+    let resumed = dir.join("resumed");
+    ok(&nia_train(&["--steps", "2"], &config, &resumed));
+    // A write killed half-way leaves only a hidden temporary folder: never resumed from.
+    let partial = resumed.join("checkpoints/.tmp_step_00000099");
+    std::fs::create_dir_all(&partial).unwrap();
+    std::fs::write(partial.join("model.bpk"), b"truncated").unwrap();
+    ok(&nia_train(&["--resume"], &config, &resumed));
+    let a = events(&straight);
+    let b = events(&resumed);
+    let started = of_kind(&b, "started");
+    assert_eq!(started.len(), 2);
+    assert_eq!(started[1]["first_step"], 2, "resumed after step 2");
+    let loss = |events: &[serde_json::Value], step: u64| {
+        of_kind(events, "step")
+            .into_iter()
+            .find(|e| e["step"] == step)
+            .and_then(|e| e["loss"].as_f64())
+            .unwrap_or_else(|| panic!("no step {step}"))
+    };
+    for step in 0..4 {
+        let (x, y) = (loss(&a, step), loss(&b, step));
+        assert!(
+            (x - y).abs() <= RESUME_REL_TOL * x.abs(),
+            "step {step}: straight {x} vs resumed {y}"
+        );
+    }
+    // keep_last = 2.
+    let kept: Vec<_> = std::fs::read_dir(resumed.join("checkpoints"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("step_"))
+        .collect();
+    assert_eq!(kept.len(), 2, "{kept:?}");
+    assert!(
+        !partial.exists(),
+        "the killed write's leftovers are cleaned up"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn preset(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../configs")
+        .join(name)
+}
+
+#[test]
+fn presets_parse() {
+    let quick = nia_train::config::TrainConfig::load(&preset("quickstart.toml")).unwrap();
+    assert!(quick.synth.is_some(), "quickstart generates its data");
+    assert_eq!(quick.model.build().d_model, 16, "tiny network");
+    // zju.toml is complete but for the user's data: the only complaint is the missing folder.
+    let err = nia_train::config::TrainConfig::load(&preset("zju.toml"));
+    match err {
+        Ok(c) => assert_eq!(c.train.rays_per_step, 1024),
+        Err(e) => {
+            let msg = e.to_string();
+            assert!(
+                msg.contains("zju.toml")
+                    && (msg.contains("data.root") || msg.contains("data.smpl_model")),
+                "{msg}"
+            );
+        }
+    }
+}
