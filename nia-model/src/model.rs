@@ -9,7 +9,7 @@
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use glam::{Mat3, Vec3};
+use glam::Vec3;
 
 use crate::attention::ViewCrossAttention;
 use crate::blender::{BlendInputs, Blender, ShapeError};
@@ -41,6 +41,9 @@ pub enum ModelError {
     Render(#[from] RenderError),
     #[error("rays: {0}")]
     Rays(String),
+    /// Inputs that do not fit together (vertex counts, an encoding without a volume, reposing).
+    #[error("{0}")]
+    Input(String),
 }
 
 /// The NIA network.
@@ -201,7 +204,7 @@ impl NiaModel {
             let vertex_features = self.vertex_reduce.forward(raw) * vis;
             let at = volume_vertices_smpl.unwrap_or(&geometry.vertices_smpl);
             if at.len() != v {
-                return Err(ModelError::Rays(format!(
+                return Err(ModelError::Input(format!(
                     "volume vertices: expected {v} (one per scene vertex), got {}",
                     at.len()
                 )));
@@ -256,7 +259,7 @@ impl NiaModel {
                     .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))? // [M, N, d]
             }
             (None, true) => {
-                return Err(ModelError::Rays(
+                return Err(ModelError::Input(
                     "the scene was encoded without a body volume".into(),
                 ))
             }
@@ -331,8 +334,8 @@ impl NiaModel {
     /// Renders `rays` of a target camera with the body in another pose (pose animation,
     /// DESIGN step 9): `reposer` maps query points and directions from the target pose to the
     /// scene's (reference) pose; `scene` must have been encoded with its body volume on the
-    /// target-pose vertices (`volume_vertices_smpl` of [`NiaModel::encode_scene`], in the
-    /// target's SMPL frame: `x_smpl = R(Rh_t)^T (x - Th_t)`). When the target pose equals the
+    /// target-pose vertices (`volume_vertices_smpl` of [`NiaModel::encode_scene`]:
+    /// [`Reposer::target_vertices_smpl`]). When the target pose equals the
     /// reference pose this is exactly [`NiaModel::render`]: no deformation work at all.
     #[allow(clippy::too_many_arguments)]
     pub fn render_reposed(
@@ -340,8 +343,6 @@ impl NiaModel {
         scene: &SceneEncoding,
         geometry: &SceneGeometry,
         reposer: &Reposer,
-        target_rh: Vec3,
-        target_th: Vec3,
         rays: &RayBatch,
         samples: usize,
         jitter: Option<&[f32]>,
@@ -351,11 +352,7 @@ impl NiaModel {
         let pose = if reposer.is_identity() {
             QueryPose::Scene
         } else {
-            QueryPose::Reposed {
-                reposer,
-                target_rotation: nia_data::body::rodrigues(target_rh),
-                target_translation: target_th,
-            }
+            QueryPose::Reposed(reposer)
         };
         self.render_posed(scene, geometry, rays, samples, jitter, device, times, pose)
     }
@@ -396,21 +393,16 @@ impl NiaModel {
                 };
                 PointInputs::compute(geometry, &points, &dirs, volume)
             }
-            QueryPose::Reposed {
-                reposer,
-                target_rotation,
-                target_translation,
-            } => {
+            QueryPose::Reposed(reposer) => {
                 // The body volume lives in the target pose (SMPL frame of the target); pixel
                 // features, colours and visibility are read at x' in the reference views.
-                let rt = target_rotation.transpose();
                 let volume_points: Vec<[f32; 3]> = points
                     .iter()
-                    .map(|&p| (rt * (p - target_translation)).to_array())
+                    .map(|&p| reposer.target_to_smpl(p).to_array())
                     .collect();
                 let mapped = reposer
                     .map_points(&points, &dirs)
-                    .map_err(|e| ModelError::Rays(format!("reposing: {e}")))?;
+                    .map_err(|e| ModelError::Input(format!("reposing: {e}")))?;
                 let volume = scene
                     .volume
                     .as_ref()
@@ -441,11 +433,7 @@ enum QueryPose<'a> {
     /// In the scene's own pose (novel view): no reposing work.
     Scene,
     /// In a target pose mapped to the scene's pose by `reposer`.
-    Reposed {
-        reposer: &'a Reposer,
-        target_rotation: Mat3,
-        target_translation: Vec3,
-    },
+    Reposed(&'a Reposer),
 }
 
 /// Sample points `o + t d` and their directions, ray-major.

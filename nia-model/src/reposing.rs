@@ -37,11 +37,12 @@
 //! Query points are data (no gradient flows through them). The blended transforms are formed
 //! in f64, as in `nia_data::body::lbs`, and results are rounded to f32 once.
 
-use glam::{DAffine3, DMat3, DVec3, Vec3};
+use glam::{DAffine3, DMat3, DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 
 use nia_data::body::{
-    rodrigues_f64, BodyError, BodyModel, Posed, SmplParams, INVERSE_LBS_MIN_DET, NUM_JOINTS,
+    rodrigues, rodrigues_f64, BodyError, BodyModel, Posed, SmplParams, INVERSE_LBS_MIN_DET,
+    NUM_JOINTS,
 };
 use nia_data::raster::MeshError;
 use nia_data::surface::{interpolate_weights, Nearest, SurfaceIndex};
@@ -342,6 +343,9 @@ pub struct Reposer {
     reference: Posed,
     /// `None` for the identity (then `reference` serves as the target too).
     target: Option<Posed>,
+    /// The target's global placement (Rh as a rotation, Th): `world = R x_smpl + Th`.
+    target_rotation: Mat3,
+    target_translation: Vec3,
 }
 
 impl Reposer {
@@ -383,6 +387,8 @@ impl Reposer {
                 mode: Mode::Identity,
                 reference: reference_posed,
                 target: None,
+                target_rotation: rodrigues(target.rh),
+                target_translation: target.th,
             });
         }
         let target_posed = model.lbs(target);
@@ -427,7 +433,23 @@ impl Reposer {
             mode,
             reference: reference_posed,
             target: Some(target_posed),
+            target_rotation: rodrigues(target.rh),
+            target_translation: target.th,
         })
+    }
+
+    /// A target-pose world point in the target's SMPL frame: `R(Rh_t)^T (x - Th_t)`.
+    pub fn target_to_smpl(&self, p: Vec3) -> Vec3 {
+        self.target_rotation.transpose() * (p - self.target_translation)
+    }
+
+    /// [V] target-pose vertices in the target's SMPL frame (where the body volume of an
+    /// animation is built), metres.
+    pub fn target_vertices_smpl(&self) -> Vec<[f32; 3]> {
+        self.target_vertices()
+            .iter()
+            .map(|&v| self.target_to_smpl(v).to_array())
+            .collect()
     }
 
     /// Whether this reposer is the identity (target parameters equal the reference ones).

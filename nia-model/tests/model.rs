@@ -226,16 +226,7 @@ fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another(
         .unwrap();
     let reposed = model
         .render_reposed(
-            &scene,
-            &geometry,
-            &same,
-            glam::Vec3::ZERO,
-            glam::Vec3::ZERO,
-            &rays,
-            SAMPLES,
-            None,
-            &device,
-            None,
+            &scene, &geometry, &same, &rays, SAMPLES, None, &device, None,
         )
         .unwrap();
     let diff = (plain.rgb - reposed.rgb).abs().max().into_scalar::<f32>();
@@ -248,26 +239,13 @@ fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another(
     };
     assert!(Reposer::needed(&reference, &target));
     let reposer = Reposer::new(&body, &reference, &target).unwrap();
-    let target_smpl: Vec<[f32; 3]> = reposer
-        .target_vertices()
-        .iter()
-        .map(|v| v.to_array())
-        .collect();
+    let target_smpl = reposer.target_vertices_smpl();
     let scene = model
         .encode_scene(&input, &geometry, Some(&target_smpl), &device)
         .unwrap();
     let out = model
         .render_reposed(
-            &scene,
-            &geometry,
-            &reposer,
-            glam::Vec3::ZERO,
-            glam::Vec3::ZERO,
-            &rays,
-            SAMPLES,
-            None,
-            &device,
-            None,
+            &scene, &geometry, &reposer, &rays, SAMPLES, None, &device, None,
         )
         .unwrap();
     assert_eq!(out.rgb.dims(), [rays.len(), 3]);

@@ -392,3 +392,22 @@ fn timing_65536_points_near_the_body() {
         rayon::current_num_threads()
     );
 }
+
+/// f32 rigid transform and back of points within ~2 m of the origin.
+const SMPL_FRAME_TOL_M: f32 = 1e-5;
+
+#[test]
+fn target_vertices_in_the_smpl_frame_undo_the_global_placement() {
+    let reference = walk_reference();
+    let target = arm_swing_target();
+    let reposer = Reposer::new(model(), &reference, &target).unwrap();
+    let local = reposer.target_vertices_smpl();
+    let rotation = nia_data::body::rodrigues(target.rh);
+    for (world, smpl) in reposer.target_vertices().iter().zip(&local) {
+        let back = rotation * Vec3::from_array(*smpl) + target.th;
+        assert!(
+            back.distance(*world) < SMPL_FRAME_TOL_M,
+            "{back} vs {world}"
+        );
+    }
+}
