@@ -20,6 +20,15 @@ pub enum Backend {
 pub struct BackendUnavailable(pub &'static str);
 
 impl Backend {
+    /// The name burn's `BURN_DEVICE` variable (and our configs) use for this backend.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Ndarray => "ndarray",
+            Backend::Flex => "flex",
+            Backend::Wgpu => "wgpu",
+        }
+    }
+
     /// The inference device of this backend.
     pub fn device(self) -> Result<Device, BackendUnavailable> {
         match self {

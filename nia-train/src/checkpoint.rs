@@ -5,10 +5,16 @@
 //! A checkpoint is written into a hidden temporary folder and renamed into place, so a process
 //! killed mid-write leaves the previous checkpoints untouched and no partial `step_*` folder.
 //! Only the last `keep_last` are kept.
+//!
+//! Fault injection: with the environment variable [`FAULT_PAUSE_ENV`] set to a number of
+//! milliseconds, [`save`] sleeps that long after writing the model file into the temporary
+//! folder, so a crash test can kill the process in the middle of a checkpoint write.
 
 use std::path::{Path, PathBuf};
 
 use burn::module::Module;
+use burn::store::{ModuleRecord, RecordError};
+use burn::tensor::Bytes;
 use burn::optim::ModuleOptimizer;
 use nia_model::{ModelConfig, NiaModel};
 use serde::{Deserialize, Serialize};
@@ -23,6 +29,8 @@ pub const MODEL_FILE: &str = "model.bpk";
 pub const OPTIMIZER_FILE: &str = "optimizer.bpk";
 pub const CONFIG_FILE: &str = "config.json";
 pub const STEP_FILE: &str = "step.json";
+/// Milliseconds [`save`] pauses in the middle of a write (crash tests only; unset normally).
+pub const FAULT_PAUSE_ENV: &str = "NIA_FAULT_CHECKPOINT_PAUSE_MS";
 
 /// A checkpoint error, naming the file.
 #[derive(Debug, thiserror::Error)]
@@ -91,6 +99,12 @@ pub fn save(
             path: model_path.clone(),
             message: format!("{e:?}"),
         })?;
+    if let Some(ms) = std::env::var(FAULT_PAUSE_ENV)
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+    {
+        std::thread::sleep(std::time::Duration::from_millis(ms));
+    }
     let optim_path = tmp.join(OPTIMIZER_FILE);
     optimizer
         .save(&optim_path)
@@ -169,8 +183,25 @@ fn prune(root: &Path, keep_last: usize) -> Result<(), CheckpointError> {
     Ok(())
 }
 
+/// Reads a whole record file into memory: nothing of a checkpoint is read lazily later, so
+/// pruning or replacing the folder afterwards cannot pull data from under a loaded model.
+fn read_bytes(path: &Path) -> Result<Bytes, CheckpointError> {
+    Ok(Bytes::from_bytes_vec(std::fs::read(path).map_err(io(path))?))
+}
+
+fn record_error(path: &Path) -> impl FnOnce(RecordError) -> CheckpointError + '_ {
+    move |e| CheckpointError::Record {
+        path: path.to_path_buf(),
+        message: format!("{e:?}"),
+    }
+}
+
 /// Loads a checkpoint folder into `model` and `optimizer` (fresh ones of the same config);
 /// returns them with the number of steps completed.
+///
+/// burn materialises optimiser state on its default device and moves each tensor to its
+/// parameter's device on the next step; binaries set `BURN_DEVICE` to the training backend so
+/// that the default is that device.
 pub fn load(
     dir: &Path,
     model: NiaModel,
@@ -182,20 +213,11 @@ pub fn load(
         path: step_path.clone(),
         source,
     })?;
-    let model_path = dir.join(MODEL_FILE);
-    let model = model
-        .try_load_file(&model_path)
-        .map_err(|e| CheckpointError::Record {
-            path: model_path.clone(),
-            message: format!("{e:?}"),
-        })?;
+    let model = load_model(dir, model)?;
     let optim_path = dir.join(OPTIMIZER_FILE);
     let optimizer = optimizer
-        .load(&optim_path)
-        .map_err(|e| CheckpointError::Record {
-            path: optim_path.clone(),
-            message: format!("{e:?}"),
-        })?;
+        .from_bytes(read_bytes(&optim_path)?)
+        .map_err(record_error(&optim_path))?;
     Ok((model, optimizer, info.step))
 }
 
@@ -203,10 +225,9 @@ pub fn load(
 /// evaluating another run's model).
 pub fn load_model(dir: &Path, model: NiaModel) -> Result<NiaModel, CheckpointError> {
     let model_path = dir.join(MODEL_FILE);
+    let record =
+        ModuleRecord::from_bytes(read_bytes(&model_path)?).map_err(record_error(&model_path))?;
     model
-        .try_load_file(&model_path)
-        .map_err(|e| CheckpointError::Record {
-            path: model_path.clone(),
-            message: format!("{e:?}"),
-        })
+        .try_load_record(record)
+        .map_err(record_error(&model_path))
 }

@@ -65,6 +65,15 @@ fn parse_backend(s: &str) -> Result<Backend, String> {
     }
 }
 
+/// Makes burn's default device the training backend (unless the user set `BURN_DEVICE`):
+/// burn materialises restored optimiser state on the default device, which with the `wgpu`
+/// feature compiled in would otherwise be the GPU even for a CPU run.
+fn pin_default_device(backend: Backend) {
+    if std::env::var_os("BURN_DEVICE").is_none() {
+        std::env::set_var("BURN_DEVICE", backend.name());
+    }
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
@@ -85,6 +94,7 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
     if let Some(steps) = args.steps {
         config.train.steps = steps;
     }
+    pin_default_device(config.train.backend);
     let out = args.out.unwrap_or_else(|| {
         let stem = config_path
             .file_stem()
