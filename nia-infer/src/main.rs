@@ -4,6 +4,9 @@
 //! and model logic lives in `nia-data` and `nia-model`.
 
 mod commands;
+mod model_load;
+mod pictures;
+mod subject_scene;
 
 use std::process::ExitCode;
 
@@ -23,6 +26,17 @@ enum Cli {
     /// Throughput of the network's forward pass and training step (rays/s) with the share of
     /// time per stage, on a procedural-body scene (paper setting by default).
     Bench(commands::bench::BenchArgs),
+    /// Pack a training checkpoint into one self-describing model file (`.nia`).
+    Export(commands::export::ExportArgs),
+    /// Render novel views of one frame from a few source views (PNGs, opacity and blend-weight
+    /// maps, render.json with rays, network evaluations and time per stage).
+    Render(commands::render::RenderArgs),
+    /// Repose the subject of a reference frame to other frames' SMPL poses: PNG frames and an
+    /// animated GIF.
+    Animate(commands::animate::AnimateArgs),
+    /// Score a split with the protocol's PSNR and SSIM: metrics.json, metrics.csv, report.md,
+    /// comparison grids and blend-weight maps.
+    Eval(commands::eval::EvalArgs),
 }
 
 /// Runs the subcommand; on failure prints the error and its causes on one line to stderr
@@ -32,6 +46,10 @@ fn main() -> ExitCode {
         Cli::Inspect(args) => commands::inspect::run(&args),
         Cli::Metrics(args) => commands::metrics::run(&args),
         Cli::Bench(args) => commands::bench::run(args),
+        Cli::Export(args) => commands::export::run(&args),
+        Cli::Render(args) => commands::render::run(&args),
+        Cli::Animate(args) => commands::animate::run(&args),
+        Cli::Eval(args) => commands::eval::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -48,7 +48,67 @@ pub struct ModelConfig {
     pub cosine_temperature: f32,
 }
 
+/// Largest layer width [`ModelConfig::check`] accepts (the paper's widest is 512 channels).
+const MAX_WIDTH: usize = 1 << 14;
+
 impl ModelConfig {
+    /// Checks that the config describes a buildable network: every width in 1..=16384, at
+    /// least one convolution per stage where one is required, and finite positive voxel size,
+    /// box growth and temperature. Model files are checked with it before any allocation.
+    pub fn check(&self) -> Result<(), String> {
+        let bv = &self.body_volume;
+        let widths = [
+            ("encoder_width", self.encoder_width),
+            ("d_model", self.d_model),
+            ("d_hidden", self.d_hidden),
+            ("d_blend", self.d_blend),
+            ("body_volume.vertex_channels", bv.vertex_channels),
+            ("body_volume.full_channels", bv.full_channels),
+        ]
+        .into_iter()
+        .chain(
+            bv.scale_channels
+                .iter()
+                .map(|&c| ("body_volume.scale_channels", c)),
+        );
+        for (name, value) in widths {
+            if value == 0 || value > MAX_WIDTH {
+                return Err(format!("`{name}` = {value}, expected 1..={MAX_WIDTH}"));
+            }
+        }
+        if self.dir_frequencies > 32 {
+            return Err(format!(
+                "`dir_frequencies` = {}, expected at most 32",
+                self.dir_frequencies
+            ));
+        }
+        if bv.full_convs > 64 || bv.scale_convs.iter().any(|&n| n > 64) {
+            return Err("`body_volume` convolution counts must be at most 64".into());
+        }
+        let positive = [
+            ("voxel_size_m", self.voxel_size_m),
+            ("cosine_temperature", self.cosine_temperature),
+        ];
+        for (name, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(format!("`{name}` = {value}, expected a finite value > 0"));
+            }
+        }
+        if !(self.box_enlarge.is_finite() && self.box_enlarge >= 0.0) {
+            return Err(format!(
+                "`box_enlarge` = {}, expected a finite value >= 0",
+                self.box_enlarge
+            ));
+        }
+        if !(bv.norm_epsilon.is_finite() && bv.norm_epsilon > 0.0) {
+            return Err(format!(
+                "`body_volume.norm_epsilon` = {}, expected a finite value > 0",
+                bv.norm_epsilon
+            ));
+        }
+        Ok(())
+    }
+
     /// Channels of the encoder's feature map.
     pub fn image_channels(&self) -> usize {
         ImageEncoderConfig::new()

@@ -187,44 +187,86 @@ impl NiaModel {
         let images = Tensor::<4>::from_data(TensorData::new(pixels, [n, 3, h, w]), device);
         let feature_maps = self.encoder.forward(images.clone());
         watch.mark(Stage::Encoder);
-        let volume = if self.variant.uses_body() {
-            let v = geometry.vertices_world.len();
-            // Vertex projections: the same projection rule as the query points.
-            let grid = projection_grid(geometry, &geometry.vertices_world);
-            let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, v, 2]), device);
-            let raw = sample_views(feature_maps.clone(), grid)?; // [N, V, C_img]
-            let vis: Vec<f32> = geometry
-                .vertex_visibility
-                .iter()
-                .flatten()
-                .copied()
-                .collect();
-            let vis = Tensor::<3>::from_data(TensorData::new(vis, [n, v, 1]), device);
-            // Zero where the vertex is invisible in that view (after the bias).
-            let vertex_features = self.vertex_reduce.forward(raw) * vis;
-            let at = volume_vertices_smpl.unwrap_or(&geometry.vertices_smpl);
-            if at.len() != v {
-                return Err(ModelError::Input(format!(
-                    "volume vertices: expected {v} (one per scene vertex), got {}",
-                    at.len()
-                )));
-            }
-            let voxel_box = match volume_vertices_smpl {
-                Some(at) => VoxelBox::enclosing(at, self.box_enlarge, self.voxel_size_m)?,
-                None => geometry.voxel_box,
-            };
-            let vg = BodyVolumeGeometry::build(at, &voxel_box, device)?;
-            let volume = self.body_volume.forward(&vg, vertex_features)?;
+        let volume = self.body_volume_of(&feature_maps, geometry, volume_vertices_smpl, device)?;
+        if volume.is_some() {
             watch.mark(Stage::BodyVolume);
-            Some((vg, volume))
-        } else {
-            None
-        };
+        }
         Ok(SceneEncoding {
             images,
             feature_maps,
             volume,
         })
+    }
+
+    /// The same scene's encoding with the body volume rebuilt on other vertices
+    /// (`volume_vertices_smpl`, [V] SMPL frame: a new target pose), reusing the source images'
+    /// feature maps: per-pose work only, for animating one scene through many poses.
+    pub fn encode_pose_timed(
+        &self,
+        scene: &SceneEncoding,
+        geometry: &SceneGeometry,
+        volume_vertices_smpl: &[[f32; 3]],
+        device: &Device,
+        times: Option<&mut StageTimes>,
+    ) -> Result<SceneEncoding, ModelError> {
+        let mut watch = Stopwatch::new(times, device);
+        let volume = self.body_volume_of(
+            &scene.feature_maps,
+            geometry,
+            Some(volume_vertices_smpl),
+            device,
+        )?;
+        if volume.is_some() {
+            watch.mark(Stage::BodyVolume);
+        }
+        Ok(SceneEncoding {
+            images: scene.images.clone(),
+            feature_maps: scene.feature_maps.clone(),
+            volume,
+        })
+    }
+
+    /// Vertex features from the feature maps and the sparse-convolution body volume built on
+    /// `volume_vertices_smpl` (default: the scene's own vertices); `None` for variant (a).
+    fn body_volume_of(
+        &self,
+        feature_maps: &Tensor<4>,
+        geometry: &SceneGeometry,
+        volume_vertices_smpl: Option<&[[f32; 3]]>,
+        device: &Device,
+    ) -> Result<Option<(BodyVolumeGeometry, BodyVolume)>, ModelError> {
+        if !self.variant.uses_body() {
+            return Ok(None);
+        }
+        let n = feature_maps.dims()[0];
+        let v = geometry.vertices_world.len();
+        // Vertex projections: the same projection rule as the query points.
+        let grid = projection_grid(geometry, &geometry.vertices_world);
+        let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, v, 2]), device);
+        let raw = sample_views(feature_maps.clone(), grid)?; // [N, V, C_img]
+        let vis: Vec<f32> = geometry
+            .vertex_visibility
+            .iter()
+            .flatten()
+            .copied()
+            .collect();
+        let vis = Tensor::<3>::from_data(TensorData::new(vis, [n, v, 1]), device);
+        // Zero where the vertex is invisible in that view (after the bias).
+        let vertex_features = self.vertex_reduce.forward(raw) * vis;
+        let at = volume_vertices_smpl.unwrap_or(&geometry.vertices_smpl);
+        if at.len() != v {
+            return Err(ModelError::Input(format!(
+                "volume vertices: expected {v} (one per scene vertex), got {}",
+                at.len()
+            )));
+        }
+        let voxel_box = match volume_vertices_smpl {
+            Some(at) => VoxelBox::enclosing(at, self.box_enlarge, self.voxel_size_m)?,
+            None => geometry.voxel_box,
+        };
+        let vg = BodyVolumeGeometry::build(at, &voxel_box, device)?;
+        let volume = self.body_volume.forward(&vg, vertex_features)?;
+        Ok(Some((vg, volume)))
     }
 
     /// The fields of M points.

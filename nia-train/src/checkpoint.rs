@@ -13,9 +13,9 @@
 use std::path::{Path, PathBuf};
 
 use burn::module::Module;
+use burn::optim::ModuleOptimizer;
 use burn::store::{ModuleRecord, RecordError};
 use burn::tensor::Bytes;
-use burn::optim::ModuleOptimizer;
 use nia_model::{ModelConfig, NiaModel};
 use serde::{Deserialize, Serialize};
 
@@ -92,8 +92,11 @@ pub fn save(
     }
     std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
     let model_path = tmp.join(MODEL_FILE);
+    // `valid()` first: BatchNorm's running statistics keep the last forward pass's update
+    // pending until synchronised, and a record of the module as it stands would store the
+    // statistics of one step earlier than the weights.
     model
-        .clone()
+        .valid()
         .save_file(&model_path)
         .map_err(|e| CheckpointError::Record {
             path: model_path.clone(),
@@ -186,7 +189,9 @@ fn prune(root: &Path, keep_last: usize) -> Result<(), CheckpointError> {
 /// Reads a whole record file into memory: nothing of a checkpoint is read lazily later, so
 /// pruning or replacing the folder afterwards cannot pull data from under a loaded model.
 fn read_bytes(path: &Path) -> Result<Bytes, CheckpointError> {
-    Ok(Bytes::from_bytes_vec(std::fs::read(path).map_err(io(path))?))
+    Ok(Bytes::from_bytes_vec(
+        std::fs::read(path).map_err(io(path))?,
+    ))
 }
 
 fn record_error(path: &Path) -> impl FnOnce(RecordError) -> CheckpointError + '_ {

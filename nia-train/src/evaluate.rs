@@ -1,17 +1,28 @@
-//! Held-out evaluation during and after training: whole target images rendered without
-//! autodiff, scored as NHP/NIA report them (PSNR over `mask_at_box`, SSIM on its
-//! bounding-rectangle crop, [`nia_data::metrics::evaluate`]), averaged over the images.
+//! Held-out evaluation, during training and in `nia-infer eval`: whole target images rendered
+//! without autodiff ([`nia_model::image_render`]), scored as NHP/NIA report them (PSNR over
+//! `mask_at_box`, SSIM on its bounding-rectangle crop, [`nia_data::metrics::evaluate`]).
+//!
+//! Two tasks (the paper's):
+//! - [`EvalTask::NovelView`]: the source views and the target view are of the same frame.
+//! - [`EvalTask::NovelPose`]: the source views are of a reference frame (by default the first
+//!   frame of the subject's range in the split); the body is reposed to the evaluated frame's
+//!   SMPL parameters and rendered from the target camera, scored against that frame's image.
 
-use nia_data::loader::{eval_requests, load_scene, SceneTarget};
+use std::time::Instant;
+
+use nia_data::loader::{eval_requests, load_scene, Scene, SceneRequest, SceneTarget};
 use nia_data::metrics::{evaluate, ImageMetrics, ImageView, MetricsError, SsimOptions};
 use nia_data::protocol::{EvalItem, EvalSplit};
-use nia_data::rays::{near_far, pixel_centre, pixel_ray};
+use nia_model::image_render::{render_image, ImageRays, ImageRenderOptions, RenderedImage};
 use nia_model::model::ModelError;
+use nia_model::reposing::Reposer;
 use nia_model::scene::SceneGeometry;
-use nia_model::{ModelConfig, NiaModel, RayBatch};
+use nia_model::timing::StageTimes;
+use nia_model::{ModelConfig, NiaModel};
 
 use burn::module::Module;
 use burn::prelude::*;
+use serde::Serialize;
 
 use crate::data::TrainData;
 use crate::train_loop::{scene_input, TrainError};
@@ -24,6 +35,79 @@ pub struct EvalSummary {
     pub psnr: f64,
     /// Mean per-image SSIM (NHP's data range 2).
     pub ssim: f64,
+}
+
+impl EvalSummary {
+    /// The mean of `results`; `None` when empty.
+    pub fn of(results: &[ImageResult]) -> Option<Self> {
+        if results.is_empty() {
+            return None;
+        }
+        let n = results.len() as f64;
+        Some(EvalSummary {
+            images: results.len(),
+            psnr: results.iter().map(|r| r.psnr).sum::<f64>() / n,
+            ssim: results.iter().map(|r| r.ssim).sum::<f64>() / n,
+        })
+    }
+}
+
+/// The paper's two evaluation tasks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EvalTask {
+    NovelView,
+    /// `reference_frame`: the frame whose images are the sources (`None`: the first frame of
+    /// the subject's range in the split). Items of the reference frame itself are skipped.
+    NovelPose {
+        reference_frame: Option<usize>,
+    },
+}
+
+/// How to evaluate.
+#[derive(Debug, Clone, Copy)]
+pub struct EvalOptions {
+    pub task: EvalTask,
+    /// Samples per ray.
+    pub samples: usize,
+    /// Rays per network call.
+    pub chunk: usize,
+    /// Collect per-stage timings (synchronises the device after each stage).
+    pub timed: bool,
+}
+
+/// The score and cost of one evaluated image.
+#[derive(Debug, Clone, Serialize)]
+pub struct ImageResult {
+    pub subject: String,
+    /// The frame whose image is the ground truth (and whose pose is rendered).
+    pub frame: usize,
+    /// The frame of the source images (equal to `frame` for novel views).
+    pub reference_frame: usize,
+    pub input_views: Vec<usize>,
+    pub target_view: usize,
+    pub psnr: f64,
+    pub ssim: f64,
+    /// Rays sent to the network.
+    pub rays: usize,
+    /// Points evaluated by the network.
+    pub point_evaluations: u64,
+    /// Wall time of the image (encoding, reposing set-up and rendering; not loading).
+    pub seconds: f64,
+    #[serde(skip)]
+    pub times: StageTimes,
+}
+
+/// Everything about one evaluated image, for writers of pictures.
+pub struct EvaluatedImage<'a> {
+    pub result: &'a ImageResult,
+    /// The scene the sources came from (the reference frame for novel poses).
+    pub sources: &'a Scene,
+    /// Ground-truth image of the target view.
+    pub ground_truth: &'a nia_data::dataset::ViewImage,
+    /// [H * W] the scored region.
+    pub mask_at_box: &'a [bool],
+    pub rendered: &'a RenderedImage,
 }
 
 /// The evaluation images of `split` among the opened subjects, at most `limit` of them.
@@ -59,8 +143,168 @@ pub fn eval_items(
     })
 }
 
-/// Renders `items` with `samples` samples per ray in chunks of `chunk` rays on the plain
-/// (non-autodiff) version of `device`; `None` when there is nothing to evaluate.
+/// The frame novel-pose items of `subject` take their sources from.
+fn reference_frame(data: &TrainData, split: EvalSplit, subject: &str, task: EvalTask) -> usize {
+    match task {
+        EvalTask::NovelPose {
+            reference_frame: Some(f),
+        } => f,
+        _ => data
+            .protocol
+            .split(split)
+            .iter()
+            .find(|s| s.subject == subject)
+            .map_or(0, |s| s.frames.begin),
+    }
+}
+
+/// Renders and scores `items` of `split` on the plain (non-autodiff) version of `device`,
+/// calling `on_image` for each; returns the per-image results in item order.
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_images(
+    model: &NiaModel,
+    model_config: &ModelConfig,
+    data: &TrainData,
+    split: EvalSplit,
+    items: &[EvalItem],
+    options: EvalOptions,
+    device: &Device,
+    on_image: &mut dyn FnMut(EvaluatedImage<'_>) -> Result<(), TrainError>,
+) -> Result<Vec<ImageResult>, TrainError> {
+    let plain = device.clone().inner();
+    let model = model.valid();
+    let requests = eval_requests(items, &data.source.subjects)?;
+    let mut results = Vec::with_capacity(requests.len());
+    for (i, request) in requests.iter().enumerate() {
+        let task = options.task;
+        let reference = match task {
+            EvalTask::NovelView => request.frame,
+            EvalTask::NovelPose { .. } => {
+                let subject = &data.source.subjects[request.subject].name;
+                let r = reference_frame(data, split, subject, task);
+                if r == request.frame {
+                    continue;
+                }
+                r
+            }
+        };
+        // The target (ground truth, body box, pose) is always the evaluated frame; for a novel
+        // pose the sources come from the reference frame.
+        let target_scene = load_scene(
+            &data.source,
+            &SceneRequest {
+                input_views: if reference == request.frame {
+                    request.input_views.clone()
+                } else {
+                    Vec::new()
+                },
+                ..request.clone()
+            },
+            i,
+            &data.loader,
+        )?;
+        let source_scene = if reference == request.frame {
+            None
+        } else {
+            Some(load_scene(
+                &data.source,
+                &SceneRequest {
+                    frame: reference,
+                    ..request.clone()
+                },
+                i,
+                &data.loader,
+            )?)
+        };
+        let sources = source_scene.as_ref().unwrap_or(&target_scene);
+        let SceneTarget::Image { image, mask_at_box } = &target_scene.target else {
+            continue;
+        };
+        let eval_err = |message: String| TrainError::Eval {
+            subject: target_scene.subject.clone(),
+            frame: target_scene.frame,
+            view: target_scene.target_view,
+            message,
+        };
+        let model_err = |e: ModelError| eval_err(e.to_string());
+        let started = Instant::now();
+        let mut times = StageTimes::default();
+        let input = scene_input(sources, &data.source.faces);
+        let geometry = SceneGeometry::new(&input, model_config)
+            .map_err(|e| model_err(ModelError::Scene(e)))?;
+        let reposer = match &source_scene {
+            None => None,
+            Some(reference_scene) => Some(
+                Reposer::new(
+                    &data.body_model,
+                    &reference_scene.params,
+                    &target_scene.params,
+                )
+                .map_err(|e| eval_err(format!("reposing from frame {reference}: {e}")))?,
+            ),
+        };
+        let volume_vertices = reposer.as_ref().map(|r| r.target_vertices_smpl());
+        let encoding = model
+            .encode_scene_timed(
+                &input,
+                &geometry,
+                volume_vertices.as_deref(),
+                &plain,
+                options.timed.then_some(&mut times),
+            )
+            .map_err(model_err)?;
+        let rays = ImageRays::new(&image.camera, &target_scene.body_box, Some(mask_at_box));
+        let mut rendered = render_image(
+            &model,
+            &encoding,
+            &geometry,
+            reposer.as_ref(),
+            &rays,
+            ImageRenderOptions {
+                samples: options.samples,
+                chunk: options.chunk,
+                timed: options.timed,
+            },
+            &plain,
+            &mut |_, _| {},
+        )
+        .map_err(model_err)?;
+        times.merge(&rendered.times);
+        rendered.times = times.clone();
+        let seconds = started.elapsed().as_secs_f64();
+        let (w, h) = (rendered.width, rendered.height);
+        let metrics_err = |e: MetricsError| eval_err(e.to_string());
+        let pv = ImageView::new("prediction", &rendered.rgb, w, h, 3).map_err(metrics_err)?;
+        let gv = ImageView::new("ground truth", &image.image, w, h, 3).map_err(metrics_err)?;
+        let ImageMetrics { psnr, ssim } =
+            evaluate(&pv, &gv, mask_at_box, SsimOptions::nhp()).map_err(metrics_err)?;
+        let result = ImageResult {
+            subject: target_scene.subject.clone(),
+            frame: target_scene.frame,
+            reference_frame: reference,
+            input_views: request.input_views.clone(),
+            target_view: request.target_view,
+            psnr,
+            ssim,
+            rays: rendered.rays,
+            point_evaluations: rendered.point_evaluations,
+            seconds,
+            times,
+        };
+        on_image(EvaluatedImage {
+            result: &result,
+            sources,
+            ground_truth: image,
+            mask_at_box,
+            rendered: &rendered,
+        })?;
+        results.push(result);
+    }
+    Ok(results)
+}
+
+/// Novel-view evaluation of `items` of the unseen-subject split with `samples` samples per ray
+/// in chunks of `chunk` rays (what training reports); `None` when there is nothing to evaluate.
 pub fn evaluate_items(
     model: &NiaModel,
     model_config: &ModelConfig,
@@ -70,87 +314,20 @@ pub fn evaluate_items(
     chunk: usize,
     device: &Device,
 ) -> Result<Option<EvalSummary>, TrainError> {
-    if items.is_empty() {
-        return Ok(None);
-    }
-    let plain = device.clone().inner();
-    let model = model.valid();
-    let requests = eval_requests(items, &data.source.subjects)?;
-    let (mut psnr, mut ssim) = (0.0, 0.0);
-    for (i, request) in requests.iter().enumerate() {
-        let scene = load_scene(&data.source, request, i, &data.loader)?;
-        let SceneTarget::Image { image, mask_at_box } = &scene.target else {
-            continue;
-        };
-        let model_err = |source| TrainError::Eval {
-            subject: scene.subject.clone(),
-            frame: scene.frame,
-            view: scene.target_view,
-            message: format!("{source}"),
-        };
-        let input = scene_input(&scene, &data.source.faces);
-        let geometry = SceneGeometry::new(&input, model_config)
-            .map_err(|e| model_err(ModelError::Scene(e)))?;
-        let encoded = model
-            .encode_scene(&input, &geometry, None, &plain)
-            .map_err(model_err)?;
-        let (w, h) = (image.width() as usize, image.height() as usize);
-        let mut pixels = Vec::new();
-        let mut batch = RayBatch::default();
-        for p in (0..w * h).filter(|&p| mask_at_box[p]) {
-            let ray = pixel_ray(&image.camera, pixel_centre(p % w, p / w));
-            if let Some((near, far)) = near_far(&ray, &scene.body_box) {
-                if far > near {
-                    batch.origins.push(ray.origin);
-                    batch.dirs.push(ray.dir);
-                    batch.near.push(near);
-                    batch.far.push(far);
-                    pixels.push(p);
-                }
-            }
-        }
-        // Pixels without a ray render the black background.
-        let mut pred = vec![0.0f32; w * h * 3];
-        for start in (0..batch.len()).step_by(chunk.max(1)) {
-            let end = (start + chunk.max(1)).min(batch.len());
-            let part = RayBatch {
-                origins: batch.origins[start..end].to_vec(),
-                dirs: batch.dirs[start..end].to_vec(),
-                near: batch.near[start..end].to_vec(),
-                far: batch.far[start..end].to_vec(),
-            };
-            let out = model
-                .render(&encoded, &geometry, &part, samples, None, &plain)
-                .map_err(model_err)?;
-            let rgb = out
-                .rgb
-                .into_data()
-                .convert::<f32>()
-                .try_to_vec::<f32>()
-                .unwrap_or_default();
-            for (k, &p) in pixels[start..end].iter().enumerate() {
-                for c in 0..3 {
-                    pred[3 * p + c] = rgb.get(3 * k + c).copied().unwrap_or(f32::NAN);
-                }
-            }
-        }
-        let metrics_err = |e: MetricsError| TrainError::Eval {
-            subject: scene.subject.clone(),
-            frame: scene.frame,
-            view: scene.target_view,
-            message: e.to_string(),
-        };
-        let pv = ImageView::new("prediction", &pred, w, h, 3).map_err(metrics_err)?;
-        let gv = ImageView::new("ground truth", &image.image, w, h, 3).map_err(metrics_err)?;
-        let ImageMetrics { psnr: p, ssim: s } =
-            evaluate(&pv, &gv, mask_at_box, SsimOptions::nhp()).map_err(metrics_err)?;
-        psnr += p;
-        ssim += s;
-    }
-    let n = requests.len() as f64;
-    Ok(Some(EvalSummary {
-        images: requests.len(),
-        psnr: psnr / n,
-        ssim: ssim / n,
-    }))
+    let results = evaluate_images(
+        model,
+        model_config,
+        data,
+        EvalSplit::UnseenSubjects,
+        items,
+        EvalOptions {
+            task: EvalTask::NovelView,
+            samples,
+            chunk,
+            timed: false,
+        },
+        device,
+        &mut |_| Ok(()),
+    )?;
+    Ok(EvalSummary::of(&results))
 }

@@ -172,7 +172,11 @@ fn sigkill_during_a_checkpoint_write_keeps_the_previous_checkpoint() {
         String::from_utf8_lossy(&output.stderr)
     );
     assert_eq!(load_latest(&out), 3);
-    assert!(partial_writes(&out).is_empty(), "{:?}", partial_writes(&out));
+    assert!(
+        partial_writes(&out).is_empty(),
+        "{:?}",
+        partial_writes(&out)
+    );
     let log = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
     assert!(
         log.contains(r#""event":"started","first_step":1"#),

@@ -1,5 +1,7 @@
-//! One file per subcommand: argument struct (clap) and a `run` function.
-
+pub mod animate;
 pub mod bench;
+pub mod eval;
+pub mod export;
 pub mod inspect;
 pub mod metrics;
+pub mod render;

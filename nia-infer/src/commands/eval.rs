@@ -1,0 +1,320 @@
+//! `nia-infer eval`: the protocol's PSNR and SSIM (NHP/NIA: PSNR over `mask_at_box`, SSIM on
+//! its bounding-rectangle crop) per image, per subject and overall, in `metrics.json`,
+//! `metrics.csv` and a `report.md` table; comparison grids (sources | prediction | ground
+//! truth | error map) and blend-weight maps (channel 0 = NeRF, 1..N = source views) as PNGs.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Args, ValueEnum};
+use nia_data::protocol::EvalSplit;
+use nia_train::data::{OpenFor, TrainData};
+use nia_train::evaluate::{
+    eval_items, evaluate_images, EvalOptions, EvalSummary, EvalTask, ImageResult,
+};
+use serde::Serialize;
+
+use crate::commands::animate::write_json;
+use crate::commands::render::{progress_bar, stage_ms};
+use crate::model_load::{LoadedModel, ModelArgs};
+use crate::pictures::{blend_weight_maps, error_map, rgb8, row, save_png, ERROR_MAP_MAX};
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+#[value(rename_all = "snake_case")]
+pub enum TaskArg {
+    /// Sources and target of the same frame.
+    NovelView,
+    /// Sources of a reference frame, the body reposed to each evaluated frame.
+    NovelPose,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+#[value(rename_all = "snake_case")]
+pub enum SplitArg {
+    /// The paper's test split: subjects never seen in training.
+    Test,
+    UnseenSubjects,
+    SeenSubjectsUnseenPoses,
+    SeenSubjectsSeenPoses,
+}
+
+impl SplitArg {
+    fn split(self) -> EvalSplit {
+        match self {
+            SplitArg::Test | SplitArg::UnseenSubjects => EvalSplit::UnseenSubjects,
+            SplitArg::SeenSubjectsUnseenPoses => EvalSplit::SeenSubjectsUnseenPoses,
+            SplitArg::SeenSubjectsSeenPoses => EvalSplit::SeenSubjectsSeenPoses,
+        }
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Dataset root holding the subject folders (default: the model's training data root).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// SMPL model (default: the model's training setting, else the dataset's body_model.npz).
+    #[arg(long)]
+    pub smpl: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "test")]
+    pub split: SplitArg,
+    #[arg(long, value_enum, default_value = "novel_view")]
+    pub task: TaskArg,
+    /// Novel pose: the frame whose images are the sources (default: the first frame of each
+    /// subject's range in the split).
+    #[arg(long)]
+    pub ref_frame: Option<usize>,
+    /// Evaluate only the first N images of the split.
+    #[arg(long)]
+    pub limit: Option<usize>,
+    /// Skip the grid and blend-weight PNGs.
+    #[arg(long)]
+    pub no_pictures: bool,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(Serialize)]
+struct Mean {
+    images: usize,
+    psnr: f64,
+    ssim: f64,
+}
+
+impl From<EvalSummary> for Mean {
+    fn from(s: EvalSummary) -> Self {
+        Mean {
+            images: s.images,
+            psnr: s.psnr,
+            ssim: s.ssim,
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct ImageRow<'a> {
+    #[serde(flatten)]
+    result: &'a ImageResult,
+    stage_ms: BTreeMap<String, f64>,
+}
+
+#[derive(Serialize)]
+struct Metrics<'a> {
+    model: PathBuf,
+    model_step: u64,
+    data: PathBuf,
+    split: &'static str,
+    task: &'static str,
+    /// Novel pose: the source frame given on the command line (`None`: each subject's first).
+    reference_frame: Option<usize>,
+    samples: usize,
+    overall: Mean,
+    subjects: BTreeMap<String, Mean>,
+    images: Vec<ImageRow<'a>>,
+}
+
+fn task_name(task: TaskArg) -> &'static str {
+    match task {
+        TaskArg::NovelView => "novel_view",
+        TaskArg::NovelPose => "novel_pose",
+    }
+}
+
+fn image_stem(r: &ImageResult) -> String {
+    format!("{}_frame{:04}_view{:02}", r.subject, r.frame, r.target_view)
+}
+
+pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
+    let loaded = LoadedModel::open(&args.model)?;
+    let samples = loaded.samples(&args.model);
+    let split = args.split.split();
+    let task = match args.task {
+        TaskArg::NovelView => EvalTask::NovelView,
+        TaskArg::NovelPose => EvalTask::NovelPose {
+            reference_frame: args.ref_frame,
+        },
+    };
+    let mut run = loaded.run.clone();
+    if let Some(root) = &args.data {
+        run.data.root = root.clone();
+    }
+    if let Some(smpl) = &args.smpl {
+        run.data.smpl_model = Some(smpl.clone());
+    }
+    let data = TrainData::open_for(&run, OpenFor::Evaluation(split))
+        .with_context(|| format!("opening the `{}` split", split.name()))?;
+    let items = eval_items(&data, split, args.limit)?;
+    if items.is_empty() {
+        anyhow::bail!(
+            "{}: the `{}` split has no images to evaluate",
+            run.data.root.display(),
+            split.name()
+        );
+    }
+    let pictures = args.out.join("pictures");
+    std::fs::create_dir_all(&pictures)
+        .with_context(|| format!("creating {}", pictures.display()))?;
+    let bar = progress_bar(items.len() as u64, "eval");
+    let results = evaluate_images(
+        &loaded.model,
+        &loaded.config,
+        &data,
+        split,
+        &items,
+        EvalOptions {
+            task,
+            samples,
+            chunk: args.model.chunk,
+            timed: true,
+        },
+        &loaded.device,
+        &mut |e| {
+            bar.inc(1);
+            bar.set_message(format!("{:.2} dB", e.result.psnr));
+            if args.no_pictures {
+                return Ok(());
+            }
+            let stem = image_stem(e.result);
+            let (w, h) = (e.rendered.width, e.rendered.height);
+            let mut tiles: Vec<_> = e
+                .sources
+                .sources
+                .iter()
+                .map(|s| {
+                    rgb8(
+                        &s.image.image,
+                        s.image.width() as usize,
+                        s.image.height() as usize,
+                    )
+                })
+                .collect();
+            tiles.push(rgb8(&e.rendered.rgb, w, h));
+            tiles.push(rgb8(&e.ground_truth.image, w, h));
+            tiles.push(error_map(
+                &e.rendered.rgb,
+                &e.ground_truth.image,
+                e.mask_at_box,
+                w,
+                h,
+            ));
+            let save = |name: String, img| {
+                save_png(&pictures.join(name), &img).map_err(|err| {
+                    nia_train::train_loop::TrainError::Eval {
+                        subject: e.result.subject.clone(),
+                        frame: e.result.frame,
+                        view: e.result.target_view,
+                        message: format!("{err:#}"),
+                    }
+                })
+            };
+            save(format!("{stem}_grid.png"), row(&tiles))?;
+            save(
+                format!("{stem}_blend.png"),
+                blend_weight_maps(&e.rendered.blend_weights, e.rendered.blend_channels, w, h),
+            )
+        },
+    )?;
+    bar.finish_and_clear();
+    let overall = EvalSummary::of(&results)
+        .context("no image was evaluated (novel pose skips the reference frame itself)")?;
+    let mut by_subject: BTreeMap<String, Vec<ImageResult>> = BTreeMap::new();
+    for r in &results {
+        by_subject
+            .entry(r.subject.clone())
+            .or_default()
+            .push(r.clone());
+    }
+    let subjects: BTreeMap<String, Mean> = by_subject
+        .iter()
+        .filter_map(|(k, v)| EvalSummary::of(v).map(|s| (k.clone(), s.into())))
+        .collect();
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let metrics = Metrics {
+        model: loaded.path.clone(),
+        model_step: loaded.step,
+        data: run.data.root.clone(),
+        split: split.name(),
+        task: task_name(args.task),
+        reference_frame: args.ref_frame,
+        samples,
+        overall: overall.into(),
+        subjects,
+        images: results
+            .iter()
+            .map(|r| ImageRow {
+                result: r,
+                stage_ms: stage_ms(&r.times),
+            })
+            .collect(),
+    };
+    write_json(&args.out.join("metrics.json"), &metrics)?;
+
+    let mut csv = String::from(
+        "subject,frame,reference_frame,target_view,input_views,psnr,ssim,rays,point_evaluations,seconds\n",
+    );
+    for r in &results {
+        let views: Vec<String> = r.input_views.iter().map(|v| v.to_string()).collect();
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{},{:.6},{:.6},{},{},{:.4}",
+            r.subject,
+            r.frame,
+            r.reference_frame,
+            r.target_view,
+            views.join(" "),
+            r.psnr,
+            r.ssim,
+            r.rays,
+            r.point_evaluations,
+            r.seconds
+        );
+    }
+    let csv_path = args.out.join("metrics.csv");
+    std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
+
+    let task_title = match args.task {
+        TaskArg::NovelView => "novel view",
+        TaskArg::NovelPose => "novel pose",
+    };
+    let mut md = format!(
+        "# Evaluation: {task_title}, split `{}`\n\nModel `{}` (step {}), data `{}`, {samples} samples per ray.\n\n| subject | images | PSNR (dB) | SSIM |\n|---|---:|---:|---:|\n",
+        split.name(),
+        loaded.path.display(),
+        loaded.step,
+        run.data.root.display()
+    );
+    for (name, v) in &by_subject {
+        if let Some(s) = EvalSummary::of(v) {
+            let _ = writeln!(
+                md,
+                "| {name} | {} | {:.2} | {:.4} |",
+                s.images, s.psnr, s.ssim
+            );
+        }
+    }
+    let _ = writeln!(
+        md,
+        "| **all** | {} | **{:.2}** | **{:.4}** |\n\nPSNR over `mask_at_box`, SSIM on its bounding-rectangle crop (NHP/NIA protocol). Pictures: `pictures/*_grid.png` (sources | prediction | ground truth | error, black to white = 0 to {ERROR_MAP_MAX} mean absolute error) and `pictures/*_blend.png` (blend weights: NeRF colour, then source views).",
+        overall.images, overall.psnr, overall.ssim
+    );
+    let md_path = args.out.join("report.md");
+    std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+    println!(
+        "{}",
+        serde_json::json!({
+            "split": split.name(),
+            "task": task_name(args.task),
+            "images": overall.images,
+            "psnr": overall.psnr,
+            "ssim": overall.ssim,
+            "out": args.out,
+        })
+    );
+    Ok(())
+}

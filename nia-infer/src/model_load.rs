@@ -1,0 +1,119 @@
+//! Loading a `.nia` model file for inference: the network on the chosen backend, with the run
+//! config it was trained with (whose data, protocol and sampling settings are the defaults of
+//! every command).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use burn::prelude::Device;
+use clap::Args;
+use nia_model::device::Backend;
+use nia_model::model_file::ModelFile;
+use nia_model::{ModelConfig, NiaModel};
+use nia_train::config::TrainConfig;
+
+/// The model and how to run it (shared by render, animate and eval).
+#[derive(Args, Debug, Clone)]
+pub struct ModelArgs {
+    /// Model file written by `nia-infer export`.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Backend: ndarray, flex or wgpu (default: flex on the CPU).
+    #[arg(long, value_parser = parse_backend, default_value = "flex")]
+    pub backend: Backend,
+    /// Samples per ray (default: the training setting stored in the model file).
+    #[arg(long)]
+    pub samples: Option<usize>,
+    /// Rays per network call; bounds memory (about chunk x samples points in flight).
+    #[arg(long, default_value_t = 1024)]
+    pub chunk: usize,
+}
+
+pub fn parse_backend(s: &str) -> Result<Backend, String> {
+    match s.to_ascii_lowercase().as_str() {
+        "ndarray" => Ok(Backend::Ndarray),
+        "flex" => Ok(Backend::Flex),
+        "wgpu" => Ok(Backend::Wgpu),
+        other => Err(format!(
+            "unknown backend `{other}` (expected ndarray, flex or wgpu)"
+        )),
+    }
+}
+
+/// A loaded model file.
+pub struct LoadedModel {
+    pub path: PathBuf,
+    pub model: NiaModel,
+    pub config: ModelConfig,
+    /// The run config the model was trained with.
+    pub run: TrainConfig,
+    /// Training steps taken.
+    pub step: u64,
+    pub device: Device,
+}
+
+impl LoadedModel {
+    /// Reads, checks and loads `args.model` on `args.backend`.
+    pub fn open(args: &ModelArgs) -> anyhow::Result<Self> {
+        if args.chunk == 0 {
+            anyhow::bail!("--chunk must be at least 1");
+        }
+        if args.samples == Some(0) {
+            anyhow::bail!("--samples must be at least 1");
+        }
+        let path = &args.model;
+        let file = ModelFile::read(path)?;
+        let run: TrainConfig =
+            serde_json::from_value(file.header.run.clone()).with_context(|| {
+                format!(
+                    "{}: header field `run`: not a nia-train run config",
+                    path.display()
+                )
+            })?;
+        let device = args.backend.device()?;
+        let model = file.load(path, &device)?;
+        Ok(LoadedModel {
+            path: path.clone(),
+            model,
+            config: file.header.model.clone(),
+            run,
+            step: file.header.step,
+            device,
+        })
+    }
+
+    /// Samples per ray: the command line's, else the training setting.
+    pub fn samples(&self, args: &ModelArgs) -> usize {
+        args.samples.unwrap_or(self.run.train.samples)
+    }
+}
+
+/// The SMPL model for a dataset at `root`: `--smpl` if given, else the run config's
+/// `data.smpl_model`, else `body_model.npz` of the synthetic layout (at `root` or its parent).
+pub fn smpl_path(
+    explicit: Option<&Path>,
+    run: &TrainConfig,
+    root: &Path,
+) -> anyhow::Result<PathBuf> {
+    if let Some(p) = explicit {
+        return Ok(p.to_path_buf());
+    }
+    if let Some(p) = &run.data.smpl_model {
+        return Ok(p.clone());
+    }
+    let candidates = [
+        root.join(nia_data::synth::BODY_MODEL_FILE),
+        root.join("..").join(nia_data::synth::BODY_MODEL_FILE),
+    ];
+    candidates
+        .iter()
+        .find(|p| p.is_file())
+        .cloned()
+        .with_context(|| {
+            format!(
+                "no SMPL model: pass --smpl <SMPL_NEUTRAL.pkl or .npz> (looked for {} and {})",
+                candidates[0].display(),
+                candidates[1].display()
+            )
+        })
+}

@@ -1,0 +1,473 @@
+//! `nia-infer export`, `eval`, `render` and `animate` on a model really trained by `nia-train`
+//! (2 steps of the tiny network on a tiny synthetic dataset), run as a user would, plus the
+//! errors of broken model files and data folders.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+use nia_data::protocol::EvalSplit;
+use nia_model::model_file::{ModelFile, MAGIC};
+use nia_train::checkpoint::{self, SavedConfig, CONFIG_FILE};
+use nia_train::config::TrainConfig;
+use nia_train::data::{OpenFor, TrainData};
+use nia_train::evaluate::{eval_items, evaluate_images, EvalOptions, EvalTask};
+use nia_train::events::TrainEvent;
+use nia_train::train_loop::{train, RunOptions};
+
+/// Eval in nia-infer and at the end of training render the same rays with the same weights
+/// (including BatchNorm's running statistics); only the chunking differs (1024 rays vs the
+/// training batch), which may reorder float sums.
+const EVAL_REPRODUCE_TOL_DB: f64 = 1e-6;
+const EVAL_REPRODUCE_TOL_SSIM: f64 = 1e-7;
+/// The issue's bound for an exported model against its checkpoint.
+const EXPORT_RENDER_TOL: f32 = 1e-5;
+
+/// A trained tiny run shared by the tests: (scratch folder, run folder, the final evaluation
+/// event of nia-train).
+struct Trained {
+    dir: PathBuf,
+    run: PathBuf,
+    model: PathBuf,
+    evaluation: serde_json::Value,
+}
+
+fn trained() -> &'static Trained {
+    static TRAINED: OnceLock<Trained> = OnceLock::new();
+    TRAINED.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("nia-infer-models-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let config = dir.join("tiny.toml");
+        std::fs::write(
+            &config,
+            format!(
+                r#"
+[data]
+root = "{}"
+ratio = 1.0
+border_px = 1
+loader_threads = 1
+
+[synth]
+subjects = 2
+frames = 3
+cameras = 4
+size = 40
+supersample = 1
+test_fraction = 0.5
+
+[model]
+preset = "tiny"
+
+[train]
+steps = 2
+rays_per_step = 32
+samples = 8
+source_views = 3
+seed = 11
+checkpoint_every = 2
+validate_every = 0
+evaluate_at_end = true
+backend = "ndarray"
+"#,
+                dir.join("data").display().to_string().replace('\\', "/")
+            ),
+        )
+        .unwrap();
+        let run = dir.join("run");
+        // Trained in-process through nia-train's library (the same loop as its binary).
+        let config = TrainConfig::load(&config).unwrap();
+        let mut evaluation = None;
+        train(
+            &config,
+            &RunOptions {
+                out: run.clone(),
+                resume: false,
+            },
+            &mut |event| {
+                if let TrainEvent::Evaluation {
+                    images, psnr, ssim, ..
+                } = event
+                {
+                    evaluation = Some(serde_json::json!({
+                        "images": images, "psnr": psnr, "ssim": ssim
+                    }));
+                }
+            },
+        )
+        .unwrap();
+        let evaluation = evaluation.expect("nia-train evaluated the unseen subject");
+        let model = dir.join("tiny.nia");
+        let out = nia_infer(&[
+            "export",
+            "--checkpoint",
+            run.to_str().unwrap(),
+            "--out",
+            model.to_str().unwrap(),
+        ]);
+        ok(&out);
+        Trained {
+            dir,
+            run,
+            model,
+            evaluation,
+        }
+    })
+}
+
+fn nia_infer(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nia-infer"))
+        .args(args)
+        .output()
+        .expect("run nia-infer")
+}
+
+fn ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "nia-infer failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Exit non-zero with every `expected` text in stderr, and no panic.
+fn fails_with(out: &Output, expected: &[&str]) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "expected a failure, got success");
+    assert!(!err.contains("panicked"), "panicked: {err}");
+    for e in expected {
+        assert!(err.contains(e), "stderr lacks `{e}`: {err}");
+    }
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = trained().dir.join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn export_writes_a_self_describing_file() {
+    let t = trained();
+    let bytes = std::fs::read(&t.model).unwrap();
+    assert_eq!(&bytes[..8], MAGIC);
+    let file = ModelFile::parse(&t.model, &bytes).unwrap();
+    assert_eq!(file.header.step, 2);
+    assert_eq!(file.header.model.encoder_width, 8, "the tiny preset");
+    assert_eq!(file.header.run["train"]["samples"], 8);
+}
+
+#[test]
+fn eval_reproduces_the_numbers_training_printed() {
+    let t = trained();
+    let out_dir = scratch("eval");
+    let out = nia_infer(&[
+        "eval",
+        "--model",
+        s(&t.model),
+        "--backend",
+        "ndarray",
+        "--out",
+        s(&out_dir),
+    ]);
+    ok(&out);
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("metrics.json")).unwrap())
+            .unwrap();
+    let overall = &metrics["overall"];
+    assert_eq!(overall["images"], t.evaluation["images"]);
+    let (psnr, train_psnr) = (
+        overall["psnr"].as_f64().unwrap(),
+        t.evaluation["psnr"].as_f64().unwrap(),
+    );
+    let (ssim, train_ssim) = (
+        overall["ssim"].as_f64().unwrap(),
+        t.evaluation["ssim"].as_f64().unwrap(),
+    );
+    assert!(
+        (psnr - train_psnr).abs() < EVAL_REPRODUCE_TOL_DB,
+        "eval {psnr} vs training {train_psnr}"
+    );
+    assert!((ssim - train_ssim).abs() < EVAL_REPRODUCE_TOL_SSIM);
+    // Per image in JSON and CSV, per subject, the report table, and the pictures.
+    let images = metrics["images"].as_array().unwrap();
+    assert_eq!(images.len() as u64, overall["images"].as_u64().unwrap());
+    for image in images {
+        assert!(image["psnr"].as_f64().unwrap().is_finite());
+        let rays = image["rays"].as_u64().unwrap();
+        assert_eq!(image["point_evaluations"].as_u64().unwrap(), rays * 8);
+        assert!(image["stage_ms"]["encoder"].as_f64().unwrap() > 0.0);
+        let stem = format!(
+            "{}_frame{:04}_view{:02}",
+            image["subject"].as_str().unwrap(),
+            image["frame"].as_u64().unwrap(),
+            image["target_view"].as_u64().unwrap()
+        );
+        let grid = image::open(out_dir.join("pictures").join(format!("{stem}_grid.png")))
+            .unwrap()
+            .to_rgb8();
+        // 3 sources + prediction + ground truth + error map, 40 px each, 2 px gaps.
+        assert_eq!((grid.width(), grid.height()), (6 * 40 + 5 * 2, 40));
+        let blend = image::open(out_dir.join("pictures").join(format!("{stem}_blend.png")))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(
+            blend.width(),
+            4 * 40 + 3 * 2,
+            "NeRF + 3 source-view channels"
+        );
+    }
+    assert_eq!(metrics["subjects"].as_object().unwrap().len(), 1);
+    let csv = std::fs::read_to_string(out_dir.join("metrics.csv")).unwrap();
+    assert_eq!(csv.lines().count(), images.len() + 1);
+    let report = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
+    assert!(report.contains(&format!("**{psnr:.2}**")), "{report}");
+}
+
+#[test]
+fn novel_pose_eval_reposes_from_the_reference_frame() {
+    let t = trained();
+    let out_dir = scratch("eval-pose");
+    let out = nia_infer(&[
+        "eval",
+        "--model",
+        s(&t.model),
+        "--backend",
+        "ndarray",
+        "--task",
+        "novel_pose",
+        "--no-pictures",
+        "--out",
+        s(&out_dir),
+    ]);
+    ok(&out);
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("metrics.json")).unwrap())
+            .unwrap();
+    assert_eq!(metrics["task"], "novel_pose");
+    let images = metrics["images"].as_array().unwrap();
+    assert!(!images.is_empty());
+    for image in images {
+        assert_ne!(
+            image["frame"], image["reference_frame"],
+            "the reference is skipped"
+        );
+        assert!(image["psnr"].as_f64().unwrap().is_finite());
+    }
+}
+
+#[test]
+fn exported_file_renders_what_the_checkpoint_renders() {
+    let t = trained();
+    let (_, dir) = checkpoint::latest(&t.run).unwrap().unwrap();
+    let saved: SavedConfig =
+        serde_json::from_str(&std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap()).unwrap();
+    #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
+    let device = burn::prelude::Device::ndarray();
+    let from_checkpoint = checkpoint::load_model(&dir, saved.model.init(&device)).unwrap();
+    let file = ModelFile::read(&t.model).unwrap();
+    let from_file = file.load(&t.model, &device).unwrap();
+    let data =
+        TrainData::open_for(&saved.run, OpenFor::Evaluation(EvalSplit::UnseenSubjects)).unwrap();
+    let items = eval_items(&data, EvalSplit::UnseenSubjects, Some(2)).unwrap();
+    let options = EvalOptions {
+        task: EvalTask::NovelView,
+        samples: 8,
+        chunk: 256,
+        timed: false,
+    };
+    let render = |model| {
+        let mut images = Vec::new();
+        evaluate_images(
+            model,
+            &saved.model,
+            &data,
+            EvalSplit::UnseenSubjects,
+            &items,
+            options,
+            &device,
+            &mut |e| {
+                images.push(e.rendered.rgb.clone());
+                Ok(())
+            },
+        )
+        .unwrap();
+        images
+    };
+    let a = render(&from_checkpoint);
+    let b = render(&from_file);
+    assert_eq!(a.len(), 2);
+    let max = a
+        .iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max);
+    assert!(max <= EXPORT_RENDER_TOL, "max difference {max}");
+    assert!(
+        a.iter().flatten().any(|&v| v > 0.0),
+        "something was rendered"
+    );
+}
+
+#[test]
+fn render_and_animate_write_pictures() {
+    let t = trained();
+    let subject = t.dir.join("data/CoreView_2");
+    let out_dir = scratch("render");
+    let out = nia_infer(&[
+        "render",
+        "--model",
+        s(&t.model),
+        "--data",
+        s(&subject),
+        "--frame",
+        "1",
+        "--views",
+        "0,1,2",
+        "--targets",
+        "3,1",
+        "--out",
+        s(&out_dir),
+    ]);
+    ok(&out);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("render.json")).unwrap())
+            .unwrap();
+    for (i, view) in [3, 1].iter().enumerate() {
+        let img = &report["images"][i];
+        assert_eq!(img["target_view"], *view);
+        let (rays, pixels) = (
+            img["rays"].as_u64().unwrap(),
+            img["pixels"].as_u64().unwrap(),
+        );
+        assert!(
+            rays > 0 && rays < pixels,
+            "rays missing the box are skipped: {rays}/{pixels}"
+        );
+        let png = image::open(out_dir.join(format!("frame0001_view{view:02}.png"))).unwrap();
+        assert_eq!((png.width(), png.height()), (40, 40));
+    }
+
+    let anim = scratch("animate");
+    let out = nia_infer(&[
+        "animate",
+        "--model",
+        s(&t.model),
+        "--data",
+        s(&subject),
+        "--ref-frame",
+        "0",
+        "--views",
+        "0,1,2",
+        "--target",
+        "3",
+        "--poses",
+        "0..=2",
+        "--out",
+        s(&anim),
+    ]);
+    ok(&out);
+    for i in 0..3 {
+        assert!(anim.join(format!("pose_{i:04}.png")).is_file());
+    }
+    let gif = std::fs::File::open(anim.join("animation.gif")).unwrap();
+    use image::AnimationDecoder;
+    let frames = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif))
+        .unwrap()
+        .into_frames()
+        .collect_frames()
+        .unwrap();
+    assert_eq!(frames.len(), 3);
+}
+
+#[test]
+fn broken_model_files_and_data_give_clear_errors() {
+    let t = trained();
+    let dir = scratch("broken");
+    let bytes = std::fs::read(&t.model).unwrap();
+    let eval_with =
+        |model: &Path| nia_infer(&["eval", "--model", s(model), "--out", s(&dir.join("out"))]);
+    // Truncated in the weights.
+    let truncated = dir.join("truncated.nia");
+    std::fs::write(&truncated, &bytes[..bytes.len() - 100]).unwrap();
+    fails_with(
+        &eval_with(&truncated),
+        &["truncated.nia", "truncated", "weights"],
+    );
+    // Truncated in the header.
+    let short = dir.join("short.nia");
+    std::fs::write(&short, &bytes[..30]).unwrap();
+    fails_with(&eval_with(&short), &["short.nia", "truncated", "header"]);
+    // One flipped byte in the weights.
+    let corrupt = dir.join("corrupt.nia");
+    let mut flipped = bytes.clone();
+    let last = flipped.len() - 10;
+    flipped[last] ^= 0x55;
+    std::fs::write(&corrupt, &flipped).unwrap();
+    fails_with(&eval_with(&corrupt), &["corrupt.nia", "checksum"]);
+    // Not a model file at all.
+    let text = dir.join("notes.nia");
+    std::fs::write(&text, "hello").unwrap();
+    fails_with(&eval_with(&text), &["notes.nia", "NIAMODEL"]);
+    // Weights of the tiny network under a header claiming the paper's network.
+    let mut file = ModelFile::read(&t.model).unwrap();
+    file.header.model = nia_model::ModelConfig::new();
+    let other = dir.join("other-config.nia");
+    file.write(&other).unwrap();
+    fails_with(&eval_with(&other), &["other-config.nia", "another config"]);
+    // Missing file.
+    fails_with(&eval_with(&dir.join("absent.nia")), &["absent.nia"]);
+
+    // A data folder missing a requested view's image.
+    let data = dir.join("data");
+    copy_dir(&t.dir.join("data/CoreView_2"), &data);
+    std::fs::remove_dir_all(data.join("Camera_B2")).unwrap();
+    let render = |subject: &Path, views: &str| {
+        nia_infer(&[
+            "render",
+            "--model",
+            s(&t.model),
+            "--data",
+            s(subject),
+            "--smpl",
+            s(&t.dir.join("data/body_model.npz")),
+            "--frame",
+            "0",
+            "--views",
+            views,
+            "--targets",
+            "3",
+            "--out",
+            s(&dir.join("render")),
+        ])
+    };
+    fails_with(
+        &render(&data, "0,1,2"),
+        &["Camera_B2", "camera folder missing"],
+    );
+    // A camera index the subject does not have.
+    fails_with(
+        &render(&t.dir.join("data/CoreView_2"), "0,1,9"),
+        &["--views 9", "4 cameras"],
+    );
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), &target).unwrap();
+        }
+    }
+}
