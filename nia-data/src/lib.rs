@@ -13,6 +13,7 @@ pub mod dataset;
 pub mod formats;
 pub mod loader;
 pub mod metrics;
+pub mod occupancy;
 pub mod protocol;
 pub mod raster;
 pub mod rays;

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use burn::prelude::Device;
 use clap::Args;
+use nia_model::adaptive::AdaptiveConfig;
 use nia_model::device::Backend;
 use nia_model::model_file::ModelFile;
 use nia_model::{ModelConfig, NiaModel};
@@ -27,6 +28,21 @@ pub struct ModelArgs {
     /// Rays per network call; bounds memory (about chunk x samples points in flight).
     #[arg(long, default_value_t = 1024)]
     pub chunk: usize,
+    /// Empty-space skipping: on or off (default: the model's `[render]` setting, on).
+    #[arg(long, value_parser = parse_switch)]
+    pub skip_empty_space: Option<bool>,
+    /// Distance from the SMPL surface within which samples are evaluated, metres (default:
+    /// the model's `[render]` setting).
+    #[arg(long)]
+    pub empty_space_m: Option<f32>,
+}
+
+pub fn parse_switch(s: &str) -> Result<bool, String> {
+    match s.to_ascii_lowercase().as_str() {
+        "on" | "true" | "yes" | "1" => Ok(true),
+        "off" | "false" | "no" | "0" => Ok(false),
+        other => Err(format!("`{other}`: expected on or off")),
+    }
 }
 
 pub fn parse_backend(s: &str) -> Result<Backend, String> {
@@ -58,8 +74,14 @@ impl LoadedModel {
         if args.chunk == 0 {
             anyhow::bail!("--chunk must be at least 1");
         }
-        if args.samples == Some(0) {
-            anyhow::bail!("--samples must be at least 1");
+        if args.samples.is_some_and(|s| s < 2) {
+            anyhow::bail!("--samples must be at least 2");
+        }
+        if args
+            .empty_space_m
+            .is_some_and(|m| !(m.is_finite() && m >= 0.0))
+        {
+            anyhow::bail!("--empty-space-m must be a distance >= 0 (metres)");
         }
         let path = &args.model;
         let file = ModelFile::read(path)?;
@@ -80,6 +102,18 @@ impl LoadedModel {
             step: file.header.step,
             device,
         })
+    }
+
+    /// Adaptive work: the model's `[render]` setting with the command line's overrides.
+    pub fn adaptive(&self, args: &ModelArgs) -> AdaptiveConfig {
+        let mut a = self.run.render;
+        if let Some(on) = args.skip_empty_space {
+            a.skip_empty_space = on;
+        }
+        if let Some(m) = args.empty_space_m {
+            a.empty_space_m = m;
+        }
+        a
     }
 
     /// Samples per ray: the command line's, else the training setting.

@@ -281,6 +281,7 @@ fn exported_file_renders_what_the_checkpoint_renders() {
         samples: 8,
         chunk: 256,
         timed: false,
+        adaptive: saved.run.render,
     };
     let render = |model| {
         let mut images = Vec::new();

@@ -86,7 +86,7 @@ pub struct RenderedImage {
     pub blend_weights: Vec<f32>,
     /// Rays sent to the network.
     pub rays: usize,
-    /// Points the network evaluated (rays x samples).
+    /// Points the network evaluated (rays x samples, less the samples skipped as empty space).
     pub point_evaluations: u64,
     /// Time per stage (only filled when timing was asked for).
     pub times: StageTimes,
@@ -154,6 +154,7 @@ pub fn render_image(
             acc,
             depth,
             blend_weights,
+            point_evaluations,
         } = match reposer {
             Some(reposer) => model.render_reposed(
                 encoding,
@@ -199,7 +200,7 @@ pub fn render_image(
             out.blend_weights[k * p..k * p + k].copy_from_slice(&weights[k * i..k * i + k]);
         }
         out.rays += n;
-        out.point_evaluations += (n * options.samples) as u64;
+        out.point_evaluations += point_evaluations as u64;
         progress(end, total);
     }
     if let Some(bad) = out.rgb.iter().position(|v| !v.is_finite()) {

@@ -2,6 +2,7 @@
 //! view-wise cross-attention, heads, image-based rendering, blending, volume rendering,
 //! reposing). One code path for every backend; the `Device` picks it at run time.
 
+pub mod adaptive;
 pub mod attention;
 pub mod blender;
 pub mod body_volume;

@@ -7,9 +7,13 @@
 //! cross-attention, F_sigma and F_c0, and the blend. [`NiaModel::render`] puts it together for
 //! a batch of rays with stratified samples and volume rendering.
 
+use std::sync::Arc;
+
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
+use burn::tensor::IndexingUpdateOp;
 use glam::Vec3;
+use nia_data::occupancy::OccupancyGrid;
 
 use crate::attention::ViewCrossAttention;
 use crate::blender::{BlendInputs, Blender, ShapeError};
@@ -114,6 +118,18 @@ pub struct SceneEncoding {
     pub feature_maps: Tensor<4>,
     /// The body volume and its geometry (`None` for variant (a), which has no body).
     pub volume: Option<(BodyVolumeGeometry, BodyVolume)>,
+    /// Empty-space skipping: the occupancy grid of the rendered pose's mesh (world frame).
+    /// `None` (the default) evaluates every sample.
+    pub occupancy: Option<Arc<OccupancyGrid>>,
+}
+
+impl SceneEncoding {
+    /// This encoding with empty-space skipping by `grid` (built on the mesh of the pose that
+    /// will be rendered: the scene's own for a novel view, the target pose's when reposing).
+    pub fn with_occupancy(mut self, grid: Option<Arc<OccupancyGrid>>) -> Self {
+        self.occupancy = grid;
+        self
+    }
 }
 
 /// Fields of M points.
@@ -195,6 +211,7 @@ impl NiaModel {
             images,
             feature_maps,
             volume,
+            occupancy: None,
         })
     }
 
@@ -223,6 +240,7 @@ impl NiaModel {
             images: scene.images.clone(),
             feature_maps: scene.feature_maps.clone(),
             volume,
+            occupancy: None,
         })
     }
 
@@ -423,6 +441,95 @@ impl NiaModel {
         }
         let t = stratified_t(&rays.near, &rays.far, samples, jitter)?;
         let (points, dirs) = sample_points(rays, &t, samples);
+        let total = points.len();
+        // Empty-space skipping: only samples in occupied cells reach the network (and, when
+        // reposing, the reposing transform); the others keep zero density.
+        let kept: Option<Vec<usize>> = scene.occupancy.as_ref().and_then(|grid| {
+            let kept: Vec<usize> = (0..total).filter(|&i| grid.occupied(points[i])).collect();
+            (kept.len() < total).then_some(kept)
+        });
+        let (points, dirs) = match &kept {
+            Some(k) => (
+                k.iter().map(|&i| points[i]).collect(),
+                k.iter().map(|&i| dirs[i]).collect(),
+            ),
+            None => (points, dirs),
+        };
+        let evaluated = points.len();
+        let (sigma, colour, c0, blend) = if evaluated == 0 {
+            let n1 = scene.images.dims()[0] + 1;
+            (
+                Tensor::<1>::zeros([total], device),
+                Tensor::<2>::zeros([total, 3], device),
+                Tensor::<2>::zeros([total, 3], device),
+                Tensor::<2>::zeros([total, n1], device),
+            )
+        } else {
+            let out =
+                self.query_points(scene, geometry, &points, &dirs, pose, device, &mut watch)?;
+            match &kept {
+                None => (out.sigma, out.colour, out.c0, out.blend_weights),
+                Some(k) => {
+                    let index: Vec<i64> = k.iter().map(|&i| i as i64).collect();
+                    let index =
+                        Tensor::<1, Int>::from_data(TensorData::new(index, [evaluated]), device);
+                    let n1 = out.blend_weights.dims()[1];
+                    let scatter1 = |values: Tensor<1>| {
+                        Tensor::<1>::zeros([total], device).select_assign(
+                            0,
+                            index.clone(),
+                            values,
+                            IndexingUpdateOp::Add,
+                        )
+                    };
+                    let scatter2 = |values: Tensor<2>, width: usize| {
+                        Tensor::<2>::zeros([total, width], device).select_assign(
+                            0,
+                            index.clone(),
+                            values,
+                            IndexingUpdateOp::Add,
+                        )
+                    };
+                    (
+                        scatter1(out.sigma),
+                        scatter2(out.colour, 3),
+                        scatter2(out.c0, 3),
+                        scatter2(out.blend_weights, n1),
+                    )
+                }
+            }
+        };
+        let n1 = blend.dims()[1];
+        let t = Tensor::<2>::from_data(TensorData::new(t, [r, samples]), device);
+        let far = Tensor::<1>::from_data(TensorData::new(rays.far.clone(), [r]), device);
+        let mut rendered = render_rays(
+            sigma.reshape([r, samples]),
+            colour.reshape([r, samples, 3]),
+            c0.reshape([r, samples, 3]),
+            t,
+            far,
+            Some(blend.reshape([r, samples, n1])),
+        )?;
+        rendered.point_evaluations = evaluated;
+        watch.mark(Stage::Compositing);
+        Ok(rendered)
+    }
+}
+
+impl NiaModel {
+    /// The fields at `points` / `dirs` ([M] world, in the rendered pose): the query inputs
+    /// (reposed into the scene's pose first when `pose` says so) and the network.
+    #[allow(clippy::too_many_arguments)]
+    fn query_points(
+        &self,
+        scene: &SceneEncoding,
+        geometry: &SceneGeometry,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        pose: QueryPose<'_>,
+        device: &Device,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
         let inputs = match pose {
             QueryPose::Scene => {
                 let volume_points: Option<Vec<[f32; 3]>> = scene
@@ -433,7 +540,7 @@ impl NiaModel {
                     (Some((vg, _)), Some(vp)) => Some((vg, vp.as_slice())),
                     _ => None,
                 };
-                PointInputs::compute(geometry, &points, &dirs, volume)
+                PointInputs::compute(geometry, points, dirs, volume)
             }
             QueryPose::Reposed(reposer) => {
                 // The body volume lives in the target pose (SMPL frame of the target); pixel
@@ -443,7 +550,7 @@ impl NiaModel {
                     .map(|&p| reposer.target_to_smpl(p).to_array())
                     .collect();
                 let mapped = reposer
-                    .map_points(&points, &dirs)
+                    .map_points(points, dirs)
                     .map_err(|e| ModelError::Input(format!("reposing: {e}")))?;
                 let volume = scene
                     .volume
@@ -453,20 +560,7 @@ impl NiaModel {
             }
         }
         .to_tensors(device);
-        let out = self.query_timed(scene, &inputs, &mut watch)?;
-        let n1 = out.blend_weights.dims()[1];
-        let t = Tensor::<2>::from_data(TensorData::new(t, [r, samples]), device);
-        let far = Tensor::<1>::from_data(TensorData::new(rays.far.clone(), [r]), device);
-        let rendered = render_rays(
-            out.sigma.reshape([r, samples]),
-            out.colour.reshape([r, samples, 3]),
-            out.c0.reshape([r, samples, 3]),
-            t,
-            far,
-            Some(out.blend_weights.reshape([r, samples, n1])),
-        )?;
-        watch.mark(Stage::Compositing);
-        Ok(rendered)
+        self.query_timed(scene, &inputs, watch)
     }
 }
 

@@ -139,6 +139,8 @@ pub struct RenderOutput {
     pub depth: Tensor<1>,
     /// Blend weights accumulated along the ray, `[R, N + 1]` (None when none were given).
     pub blend_weights: Option<Tensor<2>>,
+    /// Sample points the network evaluated (`R * S` unless empty space was skipped).
+    pub point_evaluations: usize,
 }
 
 /// The compositing weights w_i = T_i alpha_i of every sample.
@@ -226,5 +228,6 @@ pub fn render_rays(
         acc: weights.clone().sum_dim(1).reshape([r]),
         depth: (weights * t).sum_dim(1).reshape([r]),
         blend_weights: blend.map(composite),
+        point_evaluations: r * s,
     })
 }

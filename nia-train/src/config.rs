@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use nia_data::dataset::DatasetFormat;
 use nia_data::synth::SynthSpec;
+use nia_model::adaptive::AdaptiveConfig;
 use nia_model::device::Backend;
 use nia_model::{ModelConfig, Variant};
 use serde::{Deserialize, Serialize};
@@ -373,6 +374,9 @@ pub struct TrainConfig {
     pub train: TrainSection,
     #[serde(default)]
     pub synth: Option<SynthSection>,
+    /// `[render]`: adaptive work of evaluation and inference (empty-space skipping).
+    #[serde(default)]
+    pub render: AdaptiveConfig,
 }
 
 impl TrainConfig {
@@ -424,6 +428,21 @@ impl TrainConfig {
         }
         if t.keep_last == 0 {
             return Err(bad("train.keep_last", ">= 1", "0".into()));
+        }
+        let r = &self.render;
+        if !(r.empty_space_m.is_finite() && r.empty_space_m >= 0.0) {
+            return Err(bad(
+                "render.empty_space_m",
+                "a distance >= 0 (metres)",
+                r.empty_space_m.to_string(),
+            ));
+        }
+        if !(r.occupancy_cell_m.is_finite() && r.occupancy_cell_m >= 0.005) {
+            return Err(bad(
+                "render.occupancy_cell_m",
+                "a cell edge >= 0.005 (metres)",
+                r.occupancy_cell_m.to_string(),
+            ));
         }
         let o = &self.optim;
         if !(o.lr.is_finite() && o.lr > 0.0) {

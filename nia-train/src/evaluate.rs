@@ -13,6 +13,7 @@ use std::time::Instant;
 use nia_data::loader::{eval_requests, load_scene, Scene, SceneRequest, SceneTarget};
 use nia_data::metrics::{evaluate, ImageMetrics, ImageView, MetricsError, SsimOptions};
 use nia_data::protocol::{EvalItem, EvalSplit};
+use nia_model::adaptive::AdaptiveConfig;
 use nia_model::image_render::{render_image, ImageRays, ImageRenderOptions, RenderedImage};
 use nia_model::model::ModelError;
 use nia_model::reposing::Reposer;
@@ -74,6 +75,8 @@ pub struct EvalOptions {
     pub chunk: usize,
     /// Collect per-stage timings (synchronises the device after each stage).
     pub timed: bool,
+    /// Empty-space skipping.
+    pub adaptive: AdaptiveConfig,
 }
 
 /// The score and cost of one evaluated image.
@@ -244,6 +247,15 @@ pub fn evaluate_images(
             ),
         };
         let volume_vertices = reposer.as_ref().map(|r| r.target_vertices_smpl());
+        // The occupancy grid of the rendered pose's mesh (per frame and pose).
+        let posed_vertices = match &reposer {
+            Some(r) => r.target_vertices(),
+            None => &target_scene.vertices[..],
+        };
+        let occupancy = options
+            .adaptive
+            .occupancy(posed_vertices, &data.source.faces)
+            .map_err(|e| eval_err(e.to_string()))?;
         let encoding = model
             .encode_scene_timed(
                 &input,
@@ -252,7 +264,8 @@ pub fn evaluate_images(
                 &plain,
                 options.timed.then_some(&mut times),
             )
-            .map_err(model_err)?;
+            .map_err(model_err)?
+            .with_occupancy(occupancy);
         let rays = ImageRays::new(&image.camera, &target_scene.body_box, Some(mask_at_box));
         let mut rendered = render_image(
             &model,
@@ -305,6 +318,7 @@ pub fn evaluate_images(
 
 /// Novel-view evaluation of `items` of the unseen-subject split with `samples` samples per ray
 /// in chunks of `chunk` rays (what training reports); `None` when there is nothing to evaluate.
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate_items(
     model: &NiaModel,
     model_config: &ModelConfig,
@@ -312,6 +326,7 @@ pub fn evaluate_items(
     items: &[EvalItem],
     samples: usize,
     chunk: usize,
+    adaptive: AdaptiveConfig,
     device: &Device,
 ) -> Result<Option<EvalSummary>, TrainError> {
     let results = evaluate_images(
@@ -325,6 +340,7 @@ pub fn evaluate_items(
             samples,
             chunk,
             timed: false,
+            adaptive,
         },
         device,
         &mut |_| Ok(()),

@@ -204,6 +204,7 @@ pub fn train(
                 &items,
                 t.samples,
                 chunk,
+                config.render,
                 &device,
             )? {
                 on_event(TrainEvent::Validation {
@@ -241,6 +242,7 @@ pub fn train(
             &items,
             t.samples,
             t.rays_per_step,
+            config.render,
             &device,
         )? {
             on_event(TrainEvent::Evaluation {

@@ -145,6 +145,7 @@ fn poses(args: &AnimateArgs, opened: &OpenedSubject) -> anyhow::Result<Vec<(Stri
 pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
     let loaded = LoadedModel::open(&args.model)?;
     let samples = loaded.samples(&args.model);
+    let adaptive = loaded.adaptive(&args.model);
     let opened = OpenedSubject::open(&args.subject, &loaded.run)?;
     opened.check_views("--target", &[args.target])?;
     opened.check_frame("--ref-frame", args.ref_frame)?;
@@ -175,6 +176,7 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
         let body_box = BoxPadding::nhp()
             .body_box(reposer.target_vertices())
             .with_context(|| format!("{label}: the posed body has no finite vertices"))?;
+        let occupancy = adaptive.occupancy(reposer.target_vertices(), &opened.source.faces)?;
         let encoding = if reposer.is_identity() {
             base.clone()
         } else {
@@ -185,7 +187,8 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
                 &loaded.device,
                 Some(&mut times),
             )?
-        };
+        }
+        .with_occupancy(occupancy);
         let rays = ImageRays::new(&camera, &body_box, None);
         let img = render_image(
             &loaded.model,

@@ -110,6 +110,7 @@ struct Metrics<'a> {
     data: PathBuf,
     split: &'static str,
     task: &'static str,
+    adaptive: nia_model::adaptive::AdaptiveConfig,
     /// Novel pose: the source frame given on the command line (`None`: each subject's first).
     reference_frame: Option<usize>,
     samples: usize,
@@ -132,6 +133,7 @@ fn image_stem(r: &ImageResult) -> String {
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let loaded = LoadedModel::open(&args.model)?;
     let samples = loaded.samples(&args.model);
+    let adaptive = loaded.adaptive(&args.model);
     let split = args.split.split();
     let task = match args.task {
         TaskArg::NovelView => EvalTask::NovelView,
@@ -171,6 +173,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             samples,
             chunk: args.model.chunk,
             timed: true,
+            adaptive,
         },
         &loaded.device,
         &mut |e| {
@@ -241,6 +244,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         data: run.data.root.clone(),
         split: split.name(),
         task: task_name(args.task),
+        adaptive,
         reference_frame: args.ref_frame,
         samples,
         overall: overall.into(),

@@ -61,6 +61,7 @@ struct Report {
     views: Vec<usize>,
     samples: usize,
     chunk: usize,
+    adaptive: nia_model::adaptive::AdaptiveConfig,
     /// Per-scene work (encoder, body volume), done once for all targets.
     encode_seconds: f64,
     encode_stage_ms: BTreeMap<String, f64>,
@@ -102,13 +103,18 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let mut encode_times = StageTimes::default();
     let input = scene_input(&scene, &opened.source.faces);
     let geometry = SceneGeometry::new(&input, &loaded.config)?;
-    let encoding = loaded.model.encode_scene_timed(
-        &input,
-        &geometry,
-        None,
-        &loaded.device,
-        Some(&mut encode_times),
-    )?;
+    let adaptive = loaded.adaptive(&args.model);
+    let occupancy = adaptive.occupancy(&scene.vertices, &opened.source.faces)?;
+    let encoding = loaded
+        .model
+        .encode_scene_timed(
+            &input,
+            &geometry,
+            None,
+            &loaded.device,
+            Some(&mut encode_times),
+        )?
+        .with_occupancy(occupancy);
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let mut images = Vec::new();
@@ -170,6 +176,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         views,
         samples,
         chunk: args.model.chunk,
+        adaptive,
         encode_seconds,
         encode_stage_ms: stage_ms(&encode_times),
         images,
