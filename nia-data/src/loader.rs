@@ -12,6 +12,7 @@
 //! request only when the consumer has released a slot.
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::sync::mpsc::{self, Receiver, SyncSender};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -54,6 +55,12 @@ pub enum LoaderError {
     },
     #[error("the loader's worker threads stopped before producing request {index}")]
     WorkersStopped { index: usize },
+    #[error("{}: {stored} vertices, but the SMPL model's faces use {expected} (the vertices come from another body model: check the SMPL model path)", vertices.display())]
+    VertexCount {
+        vertices: PathBuf,
+        stored: usize,
+        expected: usize,
+    },
 }
 
 /// Loader settings.
@@ -178,6 +185,19 @@ pub fn load_scene(
         })?;
     let frame = request.frame;
     let vertices = subject.load_vertices(frame)?;
+    let expected = source
+        .faces
+        .iter()
+        .flatten()
+        .max()
+        .map_or(0, |&m| m as usize + 1);
+    if vertices.len() != expected {
+        return Err(LoaderError::VertexCount {
+            vertices: subject.vertices_path(frame)?,
+            stored: vertices.len(),
+            expected,
+        });
+    }
     let params = subject.load_params(frame)?;
     let vertices_path = subject.vertices_path(frame)?;
     let body_box = config.box_padding.body_box(&vertices).ok_or_else(|| {

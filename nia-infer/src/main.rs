@@ -6,6 +6,7 @@
 mod commands;
 mod model_load;
 mod pictures;
+mod plot;
 mod subject_scene;
 
 use std::process::ExitCode;
@@ -37,6 +38,10 @@ enum Cli {
     /// Score a split with the protocol's PSNR and SSIM: metrics.json, metrics.csv, report.md,
     /// comparison grids and blend-weight maps.
     Eval(commands::eval::EvalArgs),
+    /// What accuracy costs in time: PSNR, SSIM, milliseconds and network points per image over
+    /// samples per ray, source views, resolution and empty-space skipping (sweep.csv,
+    /// sweep.md, sweep.svg with the Pareto front).
+    Sweep(commands::sweep::SweepArgs),
 }
 
 /// Runs the subcommand; on failure prints the error and its causes on one line to stderr
@@ -50,6 +55,7 @@ fn main() -> ExitCode {
         Cli::Render(args) => commands::render::run(&args),
         Cli::Animate(args) => commands::animate::run(&args),
         Cli::Eval(args) => commands::eval::run(&args),
+        Cli::Sweep(args) => commands::sweep::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

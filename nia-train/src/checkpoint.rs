@@ -100,7 +100,7 @@ pub fn save(
         .save_file(&model_path)
         .map_err(|e| CheckpointError::Record {
             path: model_path.clone(),
-            message: format!("{e:?}"),
+            message: e.to_string(),
         })?;
     if let Some(ms) = std::env::var(FAULT_PAUSE_ENV)
         .ok()
@@ -113,7 +113,7 @@ pub fn save(
         .save(&optim_path)
         .map_err(|e| CheckpointError::Record {
             path: optim_path.clone(),
-            message: format!("{e:?}"),
+            message: e.to_string(),
         })?;
     write_json(
         &tmp.join(CONFIG_FILE),
@@ -197,7 +197,7 @@ fn read_bytes(path: &Path) -> Result<Bytes, CheckpointError> {
 fn record_error(path: &Path) -> impl FnOnce(RecordError) -> CheckpointError + '_ {
     move |e| CheckpointError::Record {
         path: path.to_path_buf(),
-        message: format!("{e:?}"),
+        message: e.to_string(),
     }
 }
 

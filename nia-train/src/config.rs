@@ -340,6 +340,20 @@ impl SynthSection {
     }
 }
 
+/// The `[synth]` key of a [`SynthSpec`] field name.
+fn synth_key(field: &'static str) -> &'static str {
+    match field {
+        "subjects" => "synth.subjects",
+        "frames" => "synth.frames",
+        "cameras" => "synth.cameras",
+        "size" => "synth.size",
+        "seed" => "synth.seed",
+        "supersample" => "synth.supersample",
+        "test_fraction" => "synth.test_fraction",
+        _ => "synth",
+    }
+}
+
 /// The dotted key (`section.key`) whose line holds byte `offset` of `text`, from the nearest
 /// `[section]` header above it and the text before `=` on that line.
 fn key_at(text: &str, offset: usize) -> Option<String> {
@@ -429,6 +443,32 @@ impl TrainConfig {
         if t.keep_last == 0 {
             return Err(bad("train.keep_last", ">= 1", "0".into()));
         }
+        if let Some(synth) = &self.synth {
+            if let Err(nia_data::synth::SynthError::Spec {
+                field,
+                expected,
+                got,
+            }) = synth.spec().validate()
+            {
+                return Err(ConfigError::Invalid {
+                    path: path.to_path_buf(),
+                    key: synth_key(field),
+                    expected,
+                    got,
+                });
+            }
+        }
+        if let Err(message) = self.model.build().check() {
+            return Err(bad("model", "a buildable network", message));
+        }
+        let d = &self.data;
+        if !(d.body_fraction.is_finite() && (0.0..=1.0).contains(&d.body_fraction)) {
+            return Err(bad(
+                "data.body_fraction",
+                "a fraction in [0, 1]",
+                d.body_fraction.to_string(),
+            ));
+        }
         let r = &self.render;
         if !(r.empty_space_m.is_finite() && r.empty_space_m >= 0.0) {
             return Err(bad(
@@ -445,6 +485,18 @@ impl TrainConfig {
             ));
         }
         let o = &self.optim;
+        for (key, beta) in [("optim.beta1", o.beta1), ("optim.beta2", o.beta2)] {
+            if !(beta.is_finite() && (0.0..1.0).contains(&beta)) {
+                return Err(bad(key, "a number in [0, 1)", beta.to_string()));
+            }
+        }
+        if !(o.adam_eps.is_finite() && o.adam_eps > 0.0) {
+            return Err(bad(
+                "optim.adam_eps",
+                "a positive number",
+                o.adam_eps.to_string(),
+            ));
+        }
         if !(o.lr.is_finite() && o.lr > 0.0) {
             return Err(bad("optim.lr", "a positive number", o.lr.to_string()));
         }

@@ -42,6 +42,15 @@ pub enum DataError {
     },
     #[error("the protocol has no training frames")]
     NoTrainingFrames,
+    #[error("{}: `{key}` is {data} in this dataset, but the config's `[synth]` says {config} (point data.root at the dataset the config describes, or fix the config)", description.display())]
+    SynthMismatch {
+        description: PathBuf,
+        key: &'static str,
+        config: String,
+        data: String,
+    },
+    #[error("{}: not a synthetic dataset description: {message}", path.display())]
+    Description { path: PathBuf, message: String },
     #[error("{}: no dataset here (expected the `{protocol}` protocol's files, e.g. {})", root.display(), root.join(example).display())]
     NoDataset {
         root: PathBuf,
@@ -114,6 +123,7 @@ impl TrainData {
                     })?;
                     generated = true;
                 }
+                check_description(&root.join(DESCRIPTION_FILE), &spec)?;
                 Protocol::synthetic(&spec, 1)
             }
             (None, ProtocolName::Nhp) => Protocol::nhp(),
@@ -131,11 +141,11 @@ impl TrainData {
         })?;
         let dataset = DatasetConfig {
             ratio: data.ratio,
-            smpl_model: Some(smpl),
+            smpl_model: Some(smpl.clone()),
             ..DatasetConfig::for_format(data.format)
         };
         if let OpenFor::Evaluation(split) = purpose {
-            return Self::open_split(config, protocol, split, model, &dataset);
+            return Self::open_split(config, protocol, split, model, &smpl, &dataset);
         }
         let mut subjects = Vec::new();
         for entry in &protocol.train {
@@ -146,14 +156,14 @@ impl TrainData {
                     subject: entry.subject.clone(),
                 });
             }
-            subjects.push(Subject::open(&dir, &dataset)?);
+            subjects.push(open_subject(&dir, &dataset, &smpl, &model)?);
         }
         let num_train_subjects = subjects.len();
         // Held-out subjects are opened when present (validation); training does not need them.
         for entry in &protocol.unseen_subjects {
             let dir = root.join(&entry.subject);
             if dir.is_dir() && !subjects.iter().any(|s| s.name == entry.subject) {
-                subjects.push(Subject::open(&dir, &dataset)?);
+                subjects.push(open_subject(&dir, &dataset, &smpl, &model)?);
             }
         }
         let views = config.train.source_views;
@@ -196,6 +206,7 @@ impl TrainData {
         protocol: Protocol,
         split: EvalSplit,
         model: BodyModel,
+        smpl: &std::path::Path,
         dataset: &DatasetConfig,
     ) -> Result<Self, DataError> {
         let root = &config.data.root;
@@ -203,7 +214,7 @@ impl TrainData {
         for entry in protocol.split(split) {
             let dir = root.join(&entry.subject);
             if dir.is_dir() && !subjects.iter().any(|s| s.name == entry.subject) {
-                let subject = Subject::open(&dir, dataset)?;
+                let subject = open_subject(&dir, dataset, smpl, &model)?;
                 protocol.check_subject(
                     &subject.name,
                     subject.num_cameras(),
@@ -295,4 +306,69 @@ fn loader_config(config: &TrainConfig) -> LoaderConfig {
         box_padding: BoxPadding::nhp(),
         ..LoaderConfig::default()
     }
+}
+
+/// Checks that the dataset's `synth.json` agrees with the config's `[synth]` on what the split
+/// protocol depends on (subjects, frames, cameras, test fraction); the image size may differ
+/// (the same subjects rendered at another resolution).
+fn check_description(
+    path: &std::path::Path,
+    spec: &nia_data::synth::SynthSpec,
+) -> Result<(), DataError> {
+    let text = std::fs::read_to_string(path).map_err(|e| DataError::Description {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let json: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| DataError::Description {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+    let data = &json["spec"];
+    let fields: [(&'static str, serde_json::Value); 4] = [
+        ("synth.subjects", spec.subjects.into()),
+        ("synth.frames", spec.frames.into()),
+        ("synth.cameras", spec.cameras.into()),
+        ("synth.test_fraction", spec.test_fraction.into()),
+    ];
+    for (key, config) in fields {
+        let name = key.trim_start_matches("synth.");
+        let found = &data[name];
+        let equal = match (found.as_f64(), config.as_f64()) {
+            (Some(a), Some(b)) => (a - b).abs() < 1e-6,
+            _ => false,
+        };
+        if !equal {
+            return Err(DataError::SynthMismatch {
+                description: path.to_path_buf(),
+                key,
+                config: config.to_string(),
+                data: found.to_string(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Opens a subject and checks that its stored vertices (frame 0) fit the SMPL model.
+fn open_subject(
+    dir: &std::path::Path,
+    dataset: &DatasetConfig,
+    smpl: &std::path::Path,
+    model: &BodyModel,
+) -> Result<Subject, DataError> {
+    let subject = Subject::open(dir, dataset)?;
+    if subject.num_frames() > 0 {
+        let stored = subject.load_vertices(0)?.len();
+        if stored != model.v_template.len() {
+            return Err(DatasetError::VertexCount {
+                model: smpl.to_path_buf(),
+                vertices: subject.vertices_path(0)?,
+                model_vertices: model.v_template.len(),
+                stored_vertices: stored,
+            }
+            .into());
+        }
+    }
+    Ok(subject)
 }

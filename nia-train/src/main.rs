@@ -50,7 +50,7 @@ struct TrainArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Override `train.steps`.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     steps: Option<u64>,
 }
 

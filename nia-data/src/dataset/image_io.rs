@@ -26,18 +26,35 @@ pub enum ImageIoError {
     Invalid { what: &'static str, msg: String },
 }
 
+/// Bytes at the end of a JPEG file searched for its end-of-image marker (some writers pad a
+/// little after it).
+const JPEG_TAIL_SEARCH: usize = 4096;
+
+/// Whether a JPEG's last bytes hold the end-of-image marker `FF D9`. Inside the entropy-coded
+/// data `FF` is always followed by `00` or a restart marker, so `FF D9` there is the real end.
+fn has_jpeg_end(bytes: &[u8]) -> bool {
+    let tail = &bytes[bytes.len().saturating_sub(JPEG_TAIL_SEARCH)..];
+    tail.windows(2).any(|w| w == [0xFF, 0xD9])
+}
+
 fn decode(path: &Path) -> Result<image::DynamicImage, ImageIoError> {
-    let reader = image::ImageReader::open(path).map_err(|source| ImageIoError::Io {
+    let bytes = std::fs::read(path).map_err(|source| ImageIoError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    let reader = reader
-        .with_guessed_format()
-        .map_err(|source| ImageIoError::Io {
+    let format = image::guess_format(&bytes).map_err(|e| ImageIoError::Decode {
+        path: path.to_path_buf(),
+        msg: e.to_string(),
+    })?;
+    // The JPEG decoder fills a cut-off file's missing blocks in silently: refuse it instead
+    // (a half-downloaded dataset must not train on grey images).
+    if format == image::ImageFormat::Jpeg && !has_jpeg_end(&bytes) {
+        return Err(ImageIoError::Decode {
             path: path.to_path_buf(),
-            source,
-        })?;
-    reader.decode().map_err(|e| ImageIoError::Decode {
+            msg: "truncated JPEG: no end-of-image marker (FF D9); the file is cut short (incomplete download or copy?)".into(),
+        });
+    }
+    image::load_from_memory_with_format(&bytes, format).map_err(|e| ImageIoError::Decode {
         path: path.to_path_buf(),
         msg: e.to_string(),
     })

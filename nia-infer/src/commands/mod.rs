@@ -5,3 +5,4 @@ pub mod export;
 pub mod inspect;
 pub mod metrics;
 pub mod render;
+pub mod sweep;

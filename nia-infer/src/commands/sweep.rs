@@ -1,0 +1,237 @@
+//! `nia-infer sweep`: what accuracy costs in time. Over samples per ray, source views,
+//! resolution ratio and empty-space skipping, the protocol's PSNR and SSIM with milliseconds
+//! and network point evaluations per image: `sweep.csv`, `sweep.md` and `sweep.svg` (PSNR
+//! against time, Pareto front marked).
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use nia_data::protocol::{EvalItem, EvalSplit};
+use nia_train::data::{OpenFor, TrainData};
+use nia_train::evaluate::{eval_items, evaluate_images, EvalOptions, EvalSummary, EvalTask};
+use serde::Serialize;
+
+use crate::commands::render::progress_bar;
+use crate::model_load::{LoadedModel, ModelArgs};
+use crate::plot::{pareto_front, scatter_svg, Series};
+
+#[derive(Args, Debug)]
+pub struct SweepArgs {
+    #[command(flatten)]
+    pub model: ModelArgs,
+    /// Dataset root (default: the model's training data root).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Samples per ray to try.
+    #[arg(long, value_delimiter = ',', default_value = "16,32,64,128")]
+    pub sample_counts: Vec<usize>,
+    /// Numbers of source views to try (the first k of the protocol's input views).
+    #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
+    pub view_counts: Vec<usize>,
+    /// Image resize ratios to try (of the dataset's native resolution).
+    #[arg(long, value_delimiter = ',', default_value = "0.25,0.5")]
+    pub ratios: Vec<f32>,
+    /// Images per setting (the first N of the unseen-subject split).
+    #[arg(long, default_value_t = 6)]
+    pub limit: usize,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct Row {
+    samples: usize,
+    views: usize,
+    ratio: f32,
+    skip_empty_space: bool,
+    images: usize,
+    psnr: f64,
+    ssim: f64,
+    ms_per_image: f64,
+    point_evaluations_per_image: f64,
+    pareto: bool,
+}
+
+pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
+    let loaded = LoadedModel::open(&args.model)?;
+    if args.sample_counts.iter().any(|&s| s < 2) {
+        anyhow::bail!("--sample-counts: every count must be at least 2");
+    }
+    if args.view_counts.contains(&0) {
+        anyhow::bail!("--view-counts: every count must be at least 1");
+    }
+    if let Some(r) = args.ratios.iter().find(|r| !(**r > 0.0 && **r <= 1.0)) {
+        anyhow::bail!("--ratios: {r} is not in (0, 1]");
+    }
+    let split = EvalSplit::UnseenSubjects;
+    let base_adaptive = loaded.adaptive(&args.model);
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let total = args.ratios.len() * args.view_counts.len() * args.sample_counts.len() * 2;
+    let bar = progress_bar(total as u64, "sweep");
+    let mut rows = Vec::new();
+    for &ratio in &args.ratios {
+        let mut run = loaded.run.clone();
+        if let Some(root) = &args.data {
+            run.data.root = root.clone();
+        }
+        run.data.ratio = Some(ratio);
+        let data = TrainData::open_for(&run, OpenFor::Evaluation(split))
+            .with_context(|| format!("opening the unseen subjects at ratio {ratio}"))?;
+        let items = eval_items(&data, split, Some(args.limit))?;
+        for &views in &args.view_counts {
+            if let Some(item) = items.iter().find(|i| i.input_views.len() < views) {
+                anyhow::bail!(
+                    "--view-counts {views}: the protocol gives {} only {} input views",
+                    item.subject,
+                    item.input_views.len()
+                );
+            }
+            let items: Vec<EvalItem> = items
+                .iter()
+                .map(|i| EvalItem {
+                    input_views: i.input_views[..views].to_vec(),
+                    ..i.clone()
+                })
+                .collect();
+            for &samples in &args.sample_counts {
+                for skip in [false, true] {
+                    bar.set_message(format!(
+                        "ratio {ratio}, {views} views, {samples} samples, skipping {}",
+                        if skip { "on" } else { "off" }
+                    ));
+                    let results = evaluate_images(
+                        &loaded.model,
+                        &loaded.config,
+                        &data,
+                        split,
+                        &items,
+                        EvalOptions {
+                            task: EvalTask::NovelView,
+                            samples,
+                            chunk: args.model.chunk,
+                            timed: false,
+                            adaptive: nia_model::adaptive::AdaptiveConfig {
+                                skip_empty_space: skip,
+                                ..base_adaptive
+                            },
+                        },
+                        &loaded.device,
+                        &mut |_| Ok(()),
+                    )?;
+                    let summary = EvalSummary::of(&results).context("no image evaluated")?;
+                    let n = results.len() as f64;
+                    rows.push(Row {
+                        samples,
+                        views,
+                        ratio,
+                        skip_empty_space: skip,
+                        images: summary.images,
+                        psnr: summary.psnr,
+                        ssim: summary.ssim,
+                        ms_per_image: results.iter().map(|r| r.seconds).sum::<f64>() * 1e3 / n,
+                        point_evaluations_per_image: results
+                            .iter()
+                            .map(|r| r.point_evaluations as f64)
+                            .sum::<f64>()
+                            / n,
+                        pareto: false,
+                    });
+                    bar.inc(1);
+                }
+            }
+        }
+    }
+    bar.finish_and_clear();
+    let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.ms_per_image, r.psnr)).collect();
+    for i in pareto_front(&points) {
+        rows[i].pareto = true;
+    }
+
+    let mut csv = String::from(
+        "samples,views,ratio,skip_empty_space,images,psnr,ssim,ms_per_image,point_evaluations_per_image,pareto\n",
+    );
+    for r in &rows {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{},{:.4},{:.5},{:.2},{:.0},{}",
+            r.samples,
+            r.views,
+            r.ratio,
+            r.skip_empty_space,
+            r.images,
+            r.psnr,
+            r.ssim,
+            r.ms_per_image,
+            r.point_evaluations_per_image,
+            r.pareto
+        );
+    }
+    let csv_path = args.out.join("sweep.csv");
+    std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
+
+    let mut md = format!(
+        "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
+        loaded.path.display(),
+        loaded.step,
+        args.data.as_ref().unwrap_or(&loaded.run.data.root).display(),
+        args.limit,
+        args.model.backend.name(),
+    );
+    for r in &rows {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {:.2} | {:.4} | {:.0} | {:.0} | {} |",
+            r.ratio,
+            r.views,
+            r.samples,
+            if r.skip_empty_space { "on" } else { "off" },
+            r.psnr,
+            r.ssim,
+            r.ms_per_image,
+            r.point_evaluations_per_image,
+            if r.pareto { "**yes**" } else { "" }
+        );
+    }
+    let md_path = args.out.join("sweep.md");
+    std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+
+    let series = |skip: bool, name: &str, colour: &str| Series {
+        name: name.to_string(),
+        colour: colour.to_string(),
+        points: rows
+            .iter()
+            .filter(|r| r.skip_empty_space == skip)
+            .map(|r| {
+                (
+                    r.ms_per_image,
+                    r.psnr,
+                    format!("r{} v{} s{}", r.ratio, r.views, r.samples),
+                )
+            })
+            .collect(),
+    };
+    let mut front: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|r| r.pareto)
+        .map(|r| (r.ms_per_image, r.psnr))
+        .collect();
+    front.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let svg = scatter_svg(
+        "PSNR against time per image (unseen subjects)",
+        "milliseconds per image (log scale)",
+        "PSNR (dB)",
+        &[
+            series(false, "skipping off", "#d62728"),
+            series(true, "skipping on", "#1f77b4"),
+        ],
+        &front,
+    );
+    let svg_path = args.out.join("sweep.svg");
+    std::fs::write(&svg_path, svg).with_context(|| format!("writing {}", svg_path.display()))?;
+    println!("{}", serde_json::to_string_pretty(&rows)?);
+    Ok(())
+}
