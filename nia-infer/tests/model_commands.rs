@@ -201,7 +201,9 @@ fn eval_reproduces_the_numbers_training_printed() {
     for image in images {
         assert!(image["psnr"].as_f64().unwrap().is_finite());
         let rays = image["rays"].as_u64().unwrap();
-        assert_eq!(image["point_evaluations"].as_u64().unwrap(), rays * 8);
+        // Empty-space skipping (on by default) evaluates a part of the rays x samples.
+        let points = image["point_evaluations"].as_u64().unwrap();
+        assert!(points > 0 && points < rays * 8, "{points} of {}", rays * 8);
         assert!(image["stage_ms"]["encoder"].as_f64().unwrap() > 0.0);
         let stem = format!(
             "{}_frame{:04}_view{:02}",
