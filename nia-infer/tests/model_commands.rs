@@ -388,6 +388,85 @@ fn render_and_animate_write_pictures() {
         .collect_frames()
         .unwrap();
     assert_eq!(frames.len(), 3);
+
+    // Poses from a folder of params files (here the subject's own, in name order).
+    let from_params = scratch("animate-params");
+    let out = nia_infer(&[
+        "animate",
+        "--model",
+        s(&t.model),
+        "--data",
+        s(&subject),
+        "--ref-frame",
+        "0",
+        "--views",
+        "0,1,2",
+        "--target",
+        "3",
+        "--params",
+        s(&subject.join("params")),
+        "--out",
+        s(&from_params),
+    ]);
+    ok(&out);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(from_params.join("animate.json")).unwrap())
+            .unwrap();
+    let poses = report["poses"].as_array().unwrap();
+    assert_eq!(poses.len(), 3, "one pose per params file");
+    assert!(poses[2]["pose"].as_str().unwrap().ends_with("2.npy"));
+}
+
+#[test]
+fn sweep_writes_the_table_and_the_plot() {
+    let t = trained();
+    let out_dir = scratch("sweep");
+    let out = nia_infer(&[
+        "sweep",
+        "--model",
+        s(&t.model),
+        "--sample-counts",
+        "4,8",
+        "--view-counts",
+        "1,3",
+        "--ratios",
+        "1.0",
+        "--limit",
+        "1",
+        "--out",
+        s(&out_dir),
+    ]);
+    ok(&out);
+    let csv = std::fs::read_to_string(out_dir.join("sweep.csv")).unwrap();
+    // 2 sample counts x 2 view counts x 1 ratio x skipping on/off, plus the header.
+    assert_eq!(csv.lines().count(), 1 + 8, "{csv}");
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert!(
+        rows.iter().any(|r| r[9] == "true"),
+        "a Pareto front is marked"
+    );
+    for r in &rows {
+        let (psnr, evals): (f64, f64) = (r[5].parse().unwrap(), r[8].parse().unwrap());
+        assert!(psnr.is_finite() && evals > 0.0);
+    }
+    // Skipping on evaluates fewer points than off at the same setting.
+    let evals = |skip: &str| -> f64 {
+        rows.iter()
+            .find(|r| r[0] == "8" && r[1] == "3" && r[3] == skip)
+            .unwrap()[8]
+            .parse()
+            .unwrap()
+    };
+    assert!(evals("true") < evals("false"));
+    let svg = std::fs::read_to_string(out_dir.join("sweep.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.matches("<title>").count() == 8);
+    assert!(std::fs::read_to_string(out_dir.join("sweep.md"))
+        .unwrap()
+        .contains("| ratio | views | samples |"));
 }
 
 #[test]
