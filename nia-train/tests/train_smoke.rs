@@ -5,10 +5,6 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// Resumed and uninterrupted runs take the same steps from the same state; ndarray's
-/// multi-threaded reductions may order sums differently, so losses agree to 1e-4 relative.
-const RESUME_REL_TOL: f64 = 1e-4;
-
 /// The same weights rendering the same images: only reduction order may differ (ndarray).
 const EVAL_REPEAT_TOL_DB: f64 = 1e-3;
 
@@ -229,12 +225,17 @@ fn resume_continues_like_an_uninterrupted_run() {
             .unwrap_or_else(|| panic!("no step {step}"))
     };
     for step in 0..4 {
+        // The same steps from the same state (weights, BatchNorm statistics, Adam moments),
+        // deterministic on ndarray: identical losses.
         let (x, y) = (loss(&a, step), loss(&b, step));
-        assert!(
-            (x - y).abs() <= RESUME_REL_TOL * x.abs(),
-            "step {step}: straight {x} vs resumed {y}"
-        );
+        assert_eq!(x, y, "step {step}: straight {x} vs resumed {y}");
     }
+    // The final weights (BatchNorm running statistics included) are bit-identical.
+    assert_eq!(
+        final_weights(&straight),
+        final_weights(&resumed),
+        "resumed and uninterrupted runs end with the same weights"
+    );
     // keep_last = 2.
     let kept: Vec<_> = std::fs::read_dir(resumed.join("checkpoints"))
         .unwrap()
@@ -247,6 +248,35 @@ fn resume_continues_like_an_uninterrupted_run() {
         "the killed write's leftovers are cleaned up"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Every parameter and buffer of the newest checkpoint of `out`, as bits.
+fn final_weights(out: &Path) -> Vec<Vec<u32>> {
+    use burn::module::{Module, ModuleVisitor, Param};
+    use burn::prelude::*;
+    struct Collect(Vec<Vec<u32>>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let v = param
+                .val()
+                .into_data()
+                .convert::<f32>()
+                .try_to_vec::<f32>()
+                .unwrap();
+            self.0.push(v.iter().map(|x| x.to_bits()).collect());
+        }
+    }
+    let (_, dir) = nia_train::checkpoint::latest(out).unwrap().unwrap();
+    let saved: nia_train::checkpoint::SavedConfig = serde_json::from_str(
+        &std::fs::read_to_string(dir.join(nia_train::checkpoint::CONFIG_FILE)).unwrap(),
+    )
+    .unwrap();
+    #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
+    let device = Device::ndarray();
+    let model = nia_train::checkpoint::load_model(&dir, saved.model.init(&device)).unwrap();
+    let mut c = Collect(Vec::new());
+    model.visit(&mut c);
+    c.0
 }
 
 fn preset(name: &str) -> PathBuf {
