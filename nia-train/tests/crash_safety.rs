@@ -126,6 +126,9 @@ fn partial_writes(out: &Path) -> Vec<PathBuf> {
 /// Loads the newest complete checkpoint (model and optimiser) the way `--resume` does and
 /// returns its step.
 fn load_latest(out: &Path) -> u64 {
+    // burn restores optimiser state on its default device; keep it on the CPU here, as the
+    // nia-train binary does for a CPU run.
+    std::env::set_var("BURN_DEVICE", "ndarray");
     let (step, dir) = checkpoint::latest(out)
         .unwrap()
         .expect("a complete checkpoint exists");
@@ -190,8 +193,8 @@ fn survives_repeated_sigkills_at_random_points() {
     let steps = 6;
     let config = tiny_config(&dir, steps);
     let out = dir.join("run");
-    // Kill times after each (re)start, from a fixed LCG so failures reproduce; checkpoint
-    // writes pause 400 ms so a fair share of the kills land inside one.
+    // Kill times after each (re)start, from a fixed LCG so failures reproduce; the second kill
+    // waits for a checkpoint write (they pause 400 ms half-way) and lands inside it.
     let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
     let mut kills = 0;
     let mut mid_write = 0;
@@ -202,16 +205,32 @@ fn survives_repeated_sigkills_at_random_points() {
         let delay = Duration::from_millis(300 + (state >> 33) % 2_500);
         let mut child = spawn(&config, &out, cycle > 0, Some(400));
         let start = Instant::now();
-        while start.elapsed() < delay && child.try_wait().unwrap().is_none() {
-            std::thread::sleep(Duration::from_millis(5));
+        if cycle == 1 {
+            // One kill is aimed inside a checkpoint write: wait for a temporary folder.
+            while partial_writes(&out).is_empty()
+                && child.try_wait().unwrap().is_none()
+                && start.elapsed() < WAIT_LIMIT
+            {
+                std::thread::sleep(Duration::from_millis(2));
+            }
+        } else {
+            while start.elapsed() < delay && child.try_wait().unwrap().is_none() {
+                std::thread::sleep(Duration::from_millis(5));
+            }
         }
         if child.try_wait().unwrap().is_some() {
             // Finished before the kill: nothing left to interrupt.
             break;
         }
+        let cycle_start = std::time::SystemTime::now() - start.elapsed();
         kill9(&mut child);
         kills += 1;
-        if !partial_writes(&out).is_empty() {
+        // A temporary folder created by this process: the kill landed inside its write.
+        if partial_writes(&out).iter().any(|p| {
+            std::fs::metadata(p)
+                .and_then(|m| m.modified())
+                .is_ok_and(|t| t >= cycle_start)
+        }) {
             mid_write += 1;
         }
         if checkpoint::latest(&out).unwrap().is_some() {
@@ -226,6 +245,7 @@ fn survives_repeated_sigkills_at_random_points() {
     );
     assert_eq!(load_latest(&out), steps, "the run completed");
     assert!(partial_writes(&out).is_empty());
-    assert!(kills >= 1, "at least one kill landed before the run ended");
+    assert!(kills >= 2, "kills landed before the run ended: {kills}");
+    assert!(mid_write >= 1, "one kill landed inside a checkpoint write");
     eprintln!("survived {kills} SIGKILLs ({mid_write} inside a checkpoint write)");
 }
