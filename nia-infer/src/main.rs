@@ -1,4 +1,4 @@
-//! nia-infer: render, animate, evaluate, export, inspect.
+//! nia-infer: export, render, animate, evaluate, sweep, bench, inspect, metrics.
 //!
 //! A thin binary: each subcommand parses its arguments and calls the libraries; all data
 //! and model logic lives in `nia-data` and `nia-model`.
