@@ -20,7 +20,7 @@ pub struct ModelArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// Backend: ndarray, flex or wgpu (default: flex on the CPU).
-    #[arg(long, value_parser = parse_backend, default_value = "flex")]
+    #[arg(long, value_parser = str::parse::<Backend>, default_value = "flex")]
     pub backend: Backend,
     /// Samples per ray (default: the training setting stored in the model file).
     #[arg(long)]
@@ -42,17 +42,6 @@ pub fn parse_switch(s: &str) -> Result<bool, String> {
         "on" | "true" | "yes" | "1" => Ok(true),
         "off" | "false" | "no" | "0" => Ok(false),
         other => Err(format!("`{other}`: expected on or off")),
-    }
-}
-
-pub fn parse_backend(s: &str) -> Result<Backend, String> {
-    match s.to_ascii_lowercase().as_str() {
-        "ndarray" => Ok(Backend::Ndarray),
-        "flex" => Ok(Backend::Flex),
-        "wgpu" => Ok(Backend::Wgpu),
-        other => Err(format!(
-            "unknown backend `{other}` (expected ndarray, flex or wgpu)"
-        )),
     }
 }
 

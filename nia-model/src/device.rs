@@ -19,6 +19,22 @@ pub enum Backend {
 #[error("backend `{0}` is not available in this build (rebuild with `--features wgpu`)")]
 pub struct BackendUnavailable(pub &'static str);
 
+impl std::str::FromStr for Backend {
+    type Err = String;
+
+    /// `ndarray`, `flex` or `wgpu`, in any case.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "ndarray" => Ok(Backend::Ndarray),
+            "flex" => Ok(Backend::Flex),
+            "wgpu" => Ok(Backend::Wgpu),
+            other => Err(format!(
+                "unknown backend `{other}` (expected ndarray, flex or wgpu)"
+            )),
+        }
+    }
+}
+
 impl Backend {
     /// The name burn's `BURN_DEVICE` variable (and our configs) use for this backend.
     pub fn name(self) -> &'static str {

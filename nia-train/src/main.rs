@@ -41,7 +41,7 @@ struct TrainArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     /// Override `train.backend`: ndarray, flex or wgpu.
-    #[arg(long, value_parser = parse_backend)]
+    #[arg(long, value_parser = str::parse::<Backend>)]
     backend: Option<Backend>,
     /// Continue from the newest checkpoint in the output folder.
     #[arg(long)]
@@ -52,17 +52,6 @@ struct TrainArgs {
     /// Override `train.steps`.
     #[arg(long, allow_negative_numbers = true)]
     steps: Option<u64>,
-}
-
-fn parse_backend(s: &str) -> Result<Backend, String> {
-    match s.to_ascii_lowercase().as_str() {
-        "ndarray" => Ok(Backend::Ndarray),
-        "flex" => Ok(Backend::Flex),
-        "wgpu" => Ok(Backend::Wgpu),
-        other => Err(format!(
-            "unknown backend `{other}` (expected ndarray, flex or wgpu)"
-        )),
-    }
 }
 
 /// Makes burn's default device the training backend (unless the user set `BURN_DEVICE`):

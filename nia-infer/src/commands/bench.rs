@@ -24,8 +24,8 @@ use serde::Serialize;
 #[derive(Args, Debug)]
 pub struct BenchArgs {
     /// Backend: ndarray, flex or wgpu.
-    #[arg(long, default_value = "ndarray")]
-    pub backend: String,
+    #[arg(long, value_parser = str::parse::<Backend>, default_value = "ndarray")]
+    pub backend: Backend,
     /// Rays per batch.
     #[arg(long, default_value_t = 1024)]
     pub rays: usize,
@@ -61,15 +61,6 @@ struct Report {
     train_step_s: Option<f64>,
     train_rays_per_s: Option<f64>,
     stages_s: Vec<(String, f64)>,
-}
-
-fn parse_backend(name: &str) -> anyhow::Result<Backend> {
-    Ok(match name {
-        "ndarray" => Backend::Ndarray,
-        "flex" => Backend::Flex,
-        "wgpu" => Backend::Wgpu,
-        other => anyhow::bail!("--backend: expected ndarray, flex or wgpu, got `{other}`"),
-    })
 }
 
 /// The benchmark scene and `rays` rays of a target camera that hit the ray box.
@@ -138,7 +129,7 @@ fn bench_scene(
 }
 
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    let backend = parse_backend(&args.backend)?;
+    let backend = args.backend;
     let device = backend.device()?;
     let config = if args.tiny {
         ModelConfig::tiny()
@@ -217,7 +208,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     };
 
     let report = Report {
-        backend: args.backend.clone(),
+        backend: args.backend.name().to_string(),
         rays: rays.len(),
         samples: args.samples,
         views: args.views,
