@@ -140,16 +140,20 @@ impl ModelFile {
         })
     }
 
-    /// The file's bytes.
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let header = serde_json::to_vec_pretty(&self.header).unwrap_or_default();
+    /// The file's bytes; `path` only names the file in errors.
+    pub fn to_bytes(&self, path: &Path) -> Result<Vec<u8>, ModelFileError> {
+        let header =
+            serde_json::to_vec_pretty(&self.header).map_err(|e| ModelFileError::Header {
+                path: path.to_path_buf(),
+                message: format!("cannot serialise the header: {e}"),
+            })?;
         let mut out = Vec::with_capacity(PREAMBLE_BYTES + header.len() + self.weights.len());
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
         out.extend_from_slice(&(header.len() as u64).to_le_bytes());
         out.extend_from_slice(&header);
         out.extend_from_slice(&self.weights);
-        out
+        Ok(out)
     }
 
     /// Writes the file atomically: a temporary file beside `path`, synced, then renamed.
@@ -162,14 +166,20 @@ impl ModelFile {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "model.nia".into());
+        let bytes = self.to_bytes(path)?;
         let tmp = path.with_file_name(format!(".{name}.tmp"));
-        {
+        let written = (|| {
             use std::io::Write;
-            let mut file = std::fs::File::create(&tmp).map_err(io)?;
-            file.write_all(&self.to_bytes()).map_err(io)?;
-            file.sync_all().map_err(io)?;
+            let mut file = std::fs::File::create(&tmp)?;
+            file.write_all(&bytes)?;
+            file.sync_all()?;
+            std::fs::rename(&tmp, path)
+        })();
+        if written.is_err() {
+            // Nothing half-written is left behind; an existing file at `path` is untouched.
+            let _ = std::fs::remove_file(&tmp);
         }
-        std::fs::rename(&tmp, path).map_err(io)
+        written.map_err(io)
     }
 
     /// Reads and checks a model file.
