@@ -159,8 +159,12 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         );
     }
     let pictures = args.out.join("pictures");
-    std::fs::create_dir_all(&pictures)
-        .with_context(|| format!("creating {}", pictures.display()))?;
+    let folder = if args.no_pictures {
+        &args.out
+    } else {
+        &pictures
+    };
+    std::fs::create_dir_all(folder).with_context(|| format!("creating {}", folder.display()))?;
     let bar = progress_bar(items.len() as u64, "eval");
     let results = evaluate_images(
         &loaded.model,
