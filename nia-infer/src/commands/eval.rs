@@ -240,8 +240,6 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         .iter()
         .filter_map(|(k, v)| EvalSummary::of(v).map(|s| (k.clone(), s.into())))
         .collect();
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
     let metrics = Metrics {
         model: loaded.path.clone(),
         model_step: loaded.step,
