@@ -6,12 +6,12 @@
 use burn::prelude::*;
 use nia_data::body::BodyModel;
 use nia_data::dataset::{DatasetConfig, Subject};
+use nia_data::geometry::rays::{image_rays, mask_at_box, near_far, RayBundle};
+use nia_data::geometry::visibility::visibility;
 use nia_data::metrics::{psnr_masked, ImageView};
-use nia_data::rays::{image_rays, mask_at_box, near_far};
+use nia_data::scene::{SceneBody, SceneInput, SourceView};
 use nia_data::synth::{self, SynthSpec};
-use nia_data::visibility::visibility;
-use nia_model::scene::{SceneBody, SceneGeometry, SceneInput, SourceView};
-use nia_model::{ModelConfig, RayBatch};
+use nia_model::ModelConfig;
 
 /// Depth tolerance of vertex visibility, metres.
 const VIS_TOL_M: f32 = 0.02;
@@ -78,40 +78,32 @@ fn a_synthetic_subject_renders_through_reader_and_network() {
     device.seed(0);
     let config = ModelConfig::tiny();
     let model = config.init(&device);
-    let geometry = SceneGeometry::new(&input, &config).unwrap();
-    let scene = model
-        .encode_scene(&input, &geometry, None, &device)
-        .unwrap();
+    let scene = model.encode(&input, None, &device, None).unwrap();
+    let ray_box = scene.geometry.ray_box;
 
     // The whole target view: rays of mask_at_box only (the others are background, no network).
     let target = subject.load_view(0, 3).unwrap();
     let (w, h) = (target.camera.width as usize, target.camera.height as usize);
-    let in_box = mask_at_box(&target.camera, &geometry.ray_box);
-    let mut rays = RayBatch::default();
-    let mut pixels = Vec::new();
+    let in_box = mask_at_box(&target.camera, &ray_box);
+    let mut rays = RayBundle::default();
     for (p, ray) in image_rays(&target.camera).into_iter().enumerate() {
-        if let (true, Some((near, far))) = (in_box[p], near_far(&ray, &geometry.ray_box)) {
-            rays.origins.push(ray.origin);
-            rays.dirs.push(ray.dir);
-            rays.near.push(near);
-            rays.far.push(far);
-            pixels.push(p);
+        if let (true, Some((near, far))) = (in_box[p], near_far(&ray, &ray_box)) {
+            rays.push(ray, near, far, p as u32);
         }
     }
     assert!(
-        pixels.len() > 100,
+        rays.len() > 100,
         "the body box covers part of the target view"
     );
-    let rendered = model
-        .render(&scene, &geometry, &rays, 8, None, &device)
-        .unwrap();
+    let rendered = model.render(&scene, &rays, 8, None, None).unwrap();
     let rgb = rendered.rgb.into_data().try_to_vec::<f32>().unwrap();
     assert!(rgb
         .iter()
         .all(|c| c.is_finite() && (0.0..=1.0 + 1e-5).contains(c)));
 
     let mut image = vec![0.0f32; w * h * 3];
-    for (k, &p) in pixels.iter().enumerate() {
+    for (k, &p) in rays.pixels.iter().enumerate() {
+        let p = p as usize;
         image[p * 3..p * 3 + 3].copy_from_slice(&rgb[k * 3..k * 3 + 3]);
     }
     let pred = ImageView::new("prediction", &image, w, h, 3).unwrap();

@@ -7,12 +7,12 @@
 //! repetitions.
 
 use glam::Vec3;
-use nia_data::camera::Camera;
-use nia_data::raster::{rasterize, rasterize_into};
-use nia_data::rays::{mask_at_box, Aabb};
+use nia_data::geometry::camera::Camera;
+use nia_data::geometry::raster::{rasterize, rasterize_into};
+use nia_data::geometry::rays::{mask_at_box, Aabb};
+use nia_data::geometry::surface::SurfaceIndex;
+use nia_data::geometry::visibility::{vertex_visibility, visibility, DEFAULT_DEPTH_TOL_M};
 use nia_data::rng::Rng;
-use nia_data::surface::SurfaceIndex;
-use nia_data::visibility::{vertex_visibility, visibility, DEFAULT_DEPTH_TOL_M};
 use std::time::Instant;
 
 const WARMUP: usize = 3;

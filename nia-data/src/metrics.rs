@@ -1,4 +1,4 @@
-//! Image quality metrics as the NHP / NIA evaluation computes them (DESIGN.md section 4).
+//! Image quality metrics as the NHP / NIA evaluation computes them (docs/method.md "Protocol").
 //!
 //! - **PSNR** over the pixels inside `mask_at_box` (the projection of the enlarged SMPL box):
 //!   `-10 log10(mean squared error)` over those pixels and all channels, colours in [0, 1].

@@ -6,18 +6,18 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use nia_data::body::BodyModel;
-use nia_data::dataset::vis_cache::{self, VisibilityCache};
-use nia_data::dataset::{DatasetConfig, Subject};
-use nia_data::loader::{
+use nia_data::dataset::loader::{
     eval_requests, load_scene, train_requests, LoaderConfig, SceneLoader, SceneSource, SceneTarget,
     TargetKind,
 };
-use nia_data::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
-use nia_data::rays::mask_at_box;
+use nia_data::dataset::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
+use nia_data::dataset::sampling::{border_band, sample_rays, BoxPadding, RaySamplingConfig};
+use nia_data::dataset::vis_cache::{self, VisibilityCache};
+use nia_data::dataset::{DatasetConfig, Subject};
+use nia_data::geometry::rays::mask_at_box;
+use nia_data::geometry::visibility::DEFAULT_DEPTH_TOL_M;
 use nia_data::rng::Rng;
-use nia_data::sampling::{border_band, sample_rays, BoxPadding, RaySamplingConfig};
 use nia_data::synth::{generate, SynthSpec};
-use nia_data::visibility::DEFAULT_DEPTH_TOL_M;
 
 /// Stored synthetic vertices are float32 LBS of the written model.
 const SYNTH_LBS_TOL_M: f32 = 1e-5;
@@ -68,11 +68,11 @@ fn training_rays_follow_nhp_rules_and_are_deterministic() {
     let in_box = mask_at_box(&view.camera, &body_box);
     let band = border_band(&view.mask, w, h, config.border_px);
     assert!(band.iter().any(|b| *b), "the fixture has a mask border");
-    for (k, &p) in rays.pixels.iter().enumerate() {
+    for (k, &p) in rays.rays.pixels.iter().enumerate() {
         let p = p as usize;
         assert!(in_box[p], "ray {k} misses the box");
         assert!(!band[p], "ray {k} in the border band");
-        assert!(rays.near[k] < rays.far[k] && rays.near[k] > 0.0);
+        assert!(rays.rays.near[k] < rays.rays.far[k] && rays.rays.near[k] > 0.0);
         if k < 128 {
             assert!(
                 view.mask[p] && rays.on_body[k],
@@ -89,7 +89,10 @@ fn training_rays_follow_nhp_rules_and_are_deterministic() {
             ]
         );
         let (x, y) = ((p % w) as f32, (p / w) as f32);
-        let (uv, _) = view.camera.project(rays.origins[k] + rays.dirs[k]).unwrap();
+        let (uv, _) = view
+            .camera
+            .project(rays.rays.origins[k] + rays.rays.dirs[k])
+            .unwrap();
         assert!((uv.x - x).abs() < 1e-3 && (uv.y - y).abs() < 1e-3);
     }
     // The second half also reaches the background inside the box.
@@ -113,7 +116,7 @@ fn training_rays_follow_nhp_rules_and_are_deterministic() {
         &mut Rng::new(6),
     )
     .unwrap();
-    assert_ne!(rays.pixels, other.pixels);
+    assert_ne!(rays.rays.pixels, other.rays.pixels);
 }
 
 #[test]

@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use nia_data::body::BodyModel;
+use nia_data::dataset::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
 use nia_data::dataset::{inspect, DatasetConfig, DatasetError, Subject};
 use nia_data::formats::npy;
-use nia_data::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
 
 /// Stored vertices are float32 LBS (float64) of the float64 model; the .npz model is float32.
 /// Both roundings are ~1e-7 relative on coordinates of ~1 m.

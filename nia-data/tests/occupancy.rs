@@ -3,9 +3,9 @@
 
 use glam::Vec3;
 use nia_data::body::{ProceduralBody, ProceduralSpec};
-use nia_data::occupancy::{OccupancyError, OccupancyGrid};
+use nia_data::geometry::occupancy::{OccupancyError, OccupancyGrid};
+use nia_data::geometry::surface::SurfaceIndex;
 use nia_data::rng::Rng;
-use nia_data::surface::SurfaceIndex;
 
 /// A UV sphere of radius `r` centred at `c`.
 fn sphere(c: Vec3, r: f32, rings: usize, segments: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {

@@ -8,8 +8,8 @@ use std::sync::OnceLock;
 
 use glam::{Mat3, Vec3};
 use nia_data::body::{BodyModel, SmplParams};
-use nia_data::camera::Camera;
 use nia_data::formats::{load_any, PyValue};
+use nia_data::geometry::camera::Camera;
 use nia_data::synth::{
     generate, SynthEvent, SynthSpec, SynthSummary, BODY_MODEL_FILE, DESCRIPTION_FILE,
 };

@@ -1,11 +1,11 @@
 //! nia-infer: export, render, animate, evaluate, sweep, bench, inspect, metrics.
 //!
 //! A thin binary: each subcommand parses its arguments and calls the libraries; all data
-//! and model logic lives in `nia-data` and `nia-model`.
+//! and model logic lives in `nia-data` and `nia-model`, evaluation in this crate's library.
 
 mod commands;
 mod model_load;
-mod pictures;
+mod output;
 mod plot;
 mod subject_scene;
 

@@ -7,11 +7,13 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use burn::prelude::Device;
 use clap::Args;
-use nia_model::adaptive::AdaptiveConfig;
+use nia_data::dataset::protocol::EvalSplit;
+use nia_data::dataset::{DataConfig, OpenedDataset};
+use nia_infer::run_settings::RunSettings;
 use nia_model::device::Backend;
-use nia_model::model_file::ModelFile;
-use nia_model::{ModelConfig, NiaModel};
-use nia_train::config::TrainConfig;
+use nia_model::sampler::AdaptiveConfig;
+use nia_model::store::model_file::ModelFile;
+use nia_model::NiaModel;
 
 /// The model and how to run it (shared by render, animate and eval).
 #[derive(Args, Debug, Clone)]
@@ -49,9 +51,8 @@ pub fn parse_switch(s: &str) -> Result<bool, String> {
 pub struct LoadedModel {
     pub path: PathBuf,
     pub model: NiaModel,
-    pub config: ModelConfig,
-    /// The run config the model was trained with.
-    pub run: TrainConfig,
+    /// The settings of the run the model was trained with.
+    pub run: RunSettings,
     /// Training steps taken.
     pub step: u64,
     pub device: Device,
@@ -74,19 +75,17 @@ impl LoadedModel {
         }
         let path = &args.model;
         let file = ModelFile::read(path)?;
-        let run: TrainConfig =
-            serde_json::from_value(file.header.run.clone()).with_context(|| {
-                format!(
-                    "{}: header field `run`: not a nia-train run config",
-                    path.display()
-                )
-            })?;
+        let run = RunSettings::from_json(&file.header.run).with_context(|| {
+            format!(
+                "{}: header field `run`: not a nia-train run config",
+                path.display()
+            )
+        })?;
         let device = args.backend.device()?;
         let model = file.load(path, &device)?;
         Ok(LoadedModel {
             path: path.clone(),
             model,
-            config: file.header.model.clone(),
             run,
             step: file.header.step,
             device,
@@ -109,13 +108,35 @@ impl LoadedModel {
     pub fn samples(&self, args: &ModelArgs) -> usize {
         args.samples.unwrap_or(self.run.train.samples)
     }
+
+    /// The run's `[data]` section, at `root` and with the SMPL model `smpl` when given.
+    pub fn data_config(&self, root: Option<&Path>, smpl: Option<&Path>) -> DataConfig {
+        let mut data = self.run.data.clone();
+        if let Some(root) = root {
+            data.root = root.to_path_buf();
+        }
+        if let Some(smpl) = smpl {
+            data.smpl_model = Some(smpl.to_path_buf());
+        }
+        data
+    }
+
+    /// Opens the subjects of `split` of `data` with the run's split protocol.
+    pub fn open_split(&self, data: &DataConfig, split: EvalSplit) -> anyhow::Result<OpenedDataset> {
+        let spec = self.run.synth.as_ref().map(|s| s.spec());
+        let open = || -> anyhow::Result<OpenedDataset> {
+            let protocol = data.protocol(spec.as_ref())?;
+            Ok(OpenedDataset::open_split(data, protocol, split)?)
+        };
+        open().with_context(|| format!("opening the `{}` split", split.name()))
+    }
 }
 
 /// The SMPL model for a dataset at `root`: `--smpl` if given, else the run config's
 /// `data.smpl_model`, else `body_model.npz` of the synthetic layout (at `root` or its parent).
 pub fn smpl_path(
     explicit: Option<&Path>,
-    run: &TrainConfig,
+    run: &RunSettings,
     root: &Path,
 ) -> anyhow::Result<PathBuf> {
     if let Some(p) = explicit {

@@ -3,9 +3,10 @@
 
 use std::path::Path;
 
-use anyhow::Context;
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::{Delay, Frame, Rgb, RgbImage, RgbaImage};
+
+use crate::eval::{EvaluatedImage, ImageResult};
 
 /// Mean absolute error (over RGB, in [0, 1]) that maps to the top of the error colour scale.
 pub const ERROR_MAP_MAX: f32 = 0.5;
@@ -88,20 +89,36 @@ pub fn row(images: &[RgbImage]) -> RgbImage {
     out
 }
 
+/// A picture could not be written; names the file.
+#[derive(Debug, thiserror::Error)]
+#[error("writing {}: {message}", path.display())]
+pub struct PictureError {
+    pub path: std::path::PathBuf,
+    pub message: String,
+}
+
+fn picture_error(path: &Path) -> impl Fn(image::ImageError) -> PictureError + '_ {
+    move |e| PictureError {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
 /// Writes a PNG, naming the file on failure.
-pub fn save_png(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
-    img.save(path)
-        .with_context(|| format!("writing {}", path.display()))
+pub fn save_png(path: &Path, img: &RgbImage) -> Result<(), PictureError> {
+    img.save(path).map_err(picture_error(path))
 }
 
 /// Writes an endlessly looping animated GIF, `delay_ms` per frame.
-pub fn save_gif(path: &Path, frames: &[RgbImage], delay_ms: u32) -> anyhow::Result<()> {
-    let file =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+pub fn save_gif(path: &Path, frames: &[RgbImage], delay_ms: u32) -> Result<(), PictureError> {
+    let file = std::fs::File::create(path).map_err(|e| PictureError {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
     let mut encoder = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
     encoder
         .set_repeat(Repeat::Infinite)
-        .with_context(|| format!("writing {}", path.display()))?;
+        .map_err(picture_error(path))?;
     for f in frames {
         let rgba: RgbaImage = image::DynamicImage::ImageRgb8(f.clone()).into_rgba8();
         encoder
@@ -111,7 +128,54 @@ pub fn save_gif(path: &Path, frames: &[RgbImage], delay_ms: u32) -> anyhow::Resu
                 0,
                 Delay::from_numer_denom_ms(delay_ms, 1),
             ))
-            .with_context(|| format!("writing {}", path.display()))?;
+            .map_err(picture_error(path))?;
     }
     Ok(())
+}
+
+/// The comparison grid of one evaluated image: sources | prediction | ground truth | error map.
+pub fn comparison_grid(e: &EvaluatedImage<'_>) -> RgbImage {
+    let (w, h) = (e.rendered.width, e.rendered.height);
+    let mut tiles: Vec<RgbImage> = e
+        .sources
+        .sources
+        .iter()
+        .map(|s| {
+            rgb8(
+                &s.image.image,
+                s.image.width() as usize,
+                s.image.height() as usize,
+            )
+        })
+        .collect();
+    tiles.push(rgb8(&e.rendered.rgb, w, h));
+    tiles.push(rgb8(&e.ground_truth.image, w, h));
+    tiles.push(error_map(
+        &e.rendered.rgb,
+        &e.ground_truth.image,
+        e.mask_at_box,
+        w,
+        h,
+    ));
+    row(&tiles)
+}
+
+/// The file stem of an evaluated image: `SUBJECT_frameFFFF_viewVV`.
+pub fn image_stem(r: &ImageResult) -> String {
+    format!("{}_frame{:04}_view{:02}", r.subject, r.frame, r.target_view)
+}
+
+/// Writes `STEM_grid.png` ([`comparison_grid`]) and `STEM_blend.png` (blend weights, NeRF
+/// colour first) of an evaluated image into `folder`.
+pub fn save_evaluated(folder: &Path, e: &EvaluatedImage<'_>) -> Result<(), PictureError> {
+    let stem = image_stem(e.result);
+    let (w, h) = (e.rendered.width, e.rendered.height);
+    save_png(
+        &folder.join(format!("{stem}_grid.png")),
+        &comparison_grid(e),
+    )?;
+    save_png(
+        &folder.join(format!("{stem}_blend.png")),
+        &blend_weight_maps(&e.rendered.blend_weights, e.rendered.blend_channels, w, h),
+    )
 }

@@ -6,11 +6,13 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use nia_data::body::BodyModel;
-use nia_data::camera::Camera;
+use nia_data::dataset::loader::{
+    load_scene, LoaderConfig, Scene, SceneRequest, SceneSource, TargetKind,
+};
+use nia_data::dataset::sampling::BoxPadding;
 use nia_data::dataset::{DatasetConfig, Subject};
-use nia_data::loader::{load_scene, LoaderConfig, Scene, SceneRequest, SceneSource, TargetKind};
-use nia_data::sampling::BoxPadding;
-use nia_train::config::TrainConfig;
+use nia_data::geometry::camera::Camera;
+use nia_infer::run_settings::RunSettings;
 
 use crate::model_load::smpl_path;
 
@@ -51,7 +53,7 @@ pub struct OpenedSubject {
 }
 
 impl OpenedSubject {
-    pub fn open(args: &SubjectArgs, run: &TrainConfig) -> anyhow::Result<Self> {
+    pub fn open(args: &SubjectArgs, run: &RunSettings) -> anyhow::Result<Self> {
         let smpl = smpl_path(args.smpl.as_deref(), run, &args.data)?;
         let body =
             BodyModel::load(&smpl).with_context(|| format!("{}: SMPL model", smpl.display()))?;

@@ -5,24 +5,24 @@
 //! reposed rendering count their work.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use burn::prelude::*;
+use nia_data::body::reposing::Reposer;
 use nia_data::body::BodyModel;
-use nia_data::dataset::{DatasetConfig, Subject};
-use nia_data::loader::{
+use nia_data::dataset::loader::{
     load_scene, LoaderConfig, SceneRequest, SceneSource, SceneTarget, TargetKind,
 };
+use nia_data::dataset::sampling::BoxPadding;
+use nia_data::dataset::{DatasetConfig, Subject};
+use nia_data::geometry::rays::RayBundle;
 use nia_data::metrics::{evaluate, ImageView, SsimOptions};
-use nia_data::sampling::BoxPadding;
+use nia_data::scene::SceneInput;
 use nia_data::synth::{self, SynthSpec, BODY_MODEL_FILE};
-use nia_model::adaptive::AdaptiveConfig;
-use nia_model::image_render::{render_image, ImageRays, ImageRenderOptions, RenderedImage};
-use nia_model::model_file::ModelFile;
-use nia_model::query::PointInputs;
-use nia_model::renderer::{render_rays, stratified_t};
-use nia_model::reposing::Reposer;
-use nia_model::scene::SceneGeometry;
-use nia_train::train_loop::scene_input;
+use nia_model::image::{render_image, ImageRenderOptions, RenderedImage};
+use nia_model::renderer::render_rays;
+use nia_model::sampler::{stratified_t, AdaptiveConfig};
+use nia_model::store::model_file::ModelFile;
 
 // What the skipped samples carried in the full computation. The trained tiny network leaves
 // faint density ("floaters") in empty space; at the default 3 cm it measured: mean opacity
@@ -129,12 +129,11 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
     let SceneTarget::Image { image, mask_at_box } = &scene.target else {
         unreachable!()
     };
-    let input = scene_input(&scene, &c.source.faces);
-    let geometry = SceneGeometry::new(&input, &file.header.model).unwrap();
-    let full_encoding = model
-        .encode_scene(&input, &geometry, None, &device)
-        .unwrap();
-    let rays = ImageRays::new(&image.camera, &scene.body_box, Some(mask_at_box));
+    let input = SceneInput::from_loaded(&scene, &c.source.faces);
+    let full_encoding = model.encode(&input, None, &device, None).unwrap();
+    let rays = RayBundle::through_pixels(&image.camera, &scene.body_box, Some(mask_at_box));
+    let size = [image.width() as usize, image.height() as usize];
+    let pixels: Vec<usize> = rays.pixels.iter().map(|&p| p as usize).collect();
     let render = |adaptive: AdaptiveConfig| -> RenderedImage {
         let grid = adaptive
             .occupancy(&scene.vertices, &c.source.faces)
@@ -143,28 +142,26 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
         render_image(
             &model,
             &encoding,
-            &geometry,
-            None,
             &rays,
+            size,
             ImageRenderOptions {
                 samples: 32,
                 chunk: 512,
                 timed: false,
             },
-            &device,
             &mut |_, _| {},
         )
         .unwrap()
     };
     let full = render(AdaptiveConfig::exhaustive());
     let skip = render(AdaptiveConfig::default());
-    assert_eq!(full.point_evaluations, (rays.pixels.len() * 32) as u64);
+    assert_eq!(full.point_evaluations, (rays.len() * 32) as u64);
     let ratio = full.point_evaluations as f64 / skip.point_evaluations as f64;
     assert!(ratio > 2.0, "skipping evaluates {ratio:.2}x fewer points");
 
-    let n = rays.pixels.len() as f32;
+    let n = rays.len() as f32;
     let (mut max_change, mut sum_change, mut sum_acc) = (0.0f32, 0.0f32, 0.0f32);
-    for &p in &rays.pixels {
+    for &p in &pixels {
         let d = (0..3)
             .map(|k| (full.rgb[3 * p + k] - skip.rgb[3 * p + k]).abs())
             .fold(0.0f32, f32::max);
@@ -182,27 +179,17 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
         .occupancy(&scene.vertices, &c.source.faces)
         .unwrap()
         .unwrap();
-    let r = EXACT_CHECK_RAYS.min(rays.pixels.len());
-    let t = stratified_t(&rays.rays.near[..r], &rays.rays.far[..r], 32, None).unwrap();
+    let r = EXACT_CHECK_RAYS.min(rays.len());
+    let t = stratified_t(&rays.near[..r], &rays.far[..r], 32, None).unwrap();
     let mut points = Vec::with_capacity(r * 32);
     let mut dirs = Vec::with_capacity(r * 32);
     for i in 0..r {
         for k in 0..32 {
-            points.push(rays.rays.origins[i] + rays.rays.dirs[i] * t[i * 32 + k]);
-            dirs.push(rays.rays.dirs[i]);
+            points.push(rays.origins[i] + rays.dirs[i] * t[i * 32 + k]);
+            dirs.push(rays.dirs[i]);
         }
     }
-    let smpl: Vec<[f32; 3]> = points.iter().map(|&p| geometry.to_smpl(p)).collect();
-    let volume = full_encoding
-        .volume
-        .as_ref()
-        .map(|(vg, _)| (vg, smpl.as_slice()));
-    let fields = model
-        .query(
-            &full_encoding,
-            &PointInputs::compute(&geometry, &points, &dirs, volume).to_tensors(&device),
-        )
-        .unwrap();
+    let fields = model.field(&full_encoding, &points, &dirs, None).unwrap();
     let keep: Vec<f32> = points
         .iter()
         .map(|&p| grid.occupied(p) as u8 as f32)
@@ -215,7 +202,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
         fields.colour.reshape([r, 32, 3]),
         fields.c0.reshape([r, 32, 3]),
         Tensor::<2>::from_data(TensorData::new(t, [r, 32]), &device),
-        Tensor::<1>::from_data(TensorData::new(rays.rays.far[..r].to_vec(), [r]), &device),
+        Tensor::<1>::from_data(TensorData::new(rays.far[..r].to_vec(), [r]), &device),
         Some(fields.blend_weights.reshape([r, 32, n1])),
     )
     .unwrap();
@@ -225,7 +212,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
         .convert::<f32>()
         .try_to_vec::<f32>()
         .unwrap();
-    for (i, &p) in rays.pixels[..r].iter().enumerate() {
+    for (i, &p) in pixels[..r].iter().enumerate() {
         for k in 0..3 {
             let diff = (masked_rgb[3 * i + k] - skip.rgb[3 * p + k]).abs();
             assert!(
@@ -256,7 +243,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
     eprintln!("PSNR full {p_full:.3} dB, skipping {p_skip:.3} dB");
     assert!(p_skip >= p_full - MAX_PSNR_LOSS_DB, "{p_skip} vs {p_full}");
     // Pixels without a ray are black and empty in both.
-    let no_ray = (0..w * h).find(|p| !rays.pixels.contains(p)).unwrap();
+    let no_ray = (0..w * h).find(|p| !pixels.contains(p)).unwrap();
     assert_eq!(full.rgb[3 * no_ray..3 * no_ray + 3], [0.0; 3]);
     assert_eq!(skip.acc[no_ray], 0.0);
     let _ = std::fs::remove_dir_all(&c.root);
@@ -278,23 +265,17 @@ fn reposed_rendering_skips_and_counts_like_novel_views() {
     };
     let scene = load_scene(&c.source, &request, 0, &loader()).unwrap();
     let target_params = c.source.subjects[0].load_params(1).unwrap();
-    let reposer = Reposer::new(&c.body, &scene.params, &target_params).unwrap();
+    let reposer = Arc::new(Reposer::new(&c.body, &scene.params, &target_params).unwrap());
     assert!(!reposer.is_identity(), "frame 1 has another pose");
-    let input = scene_input(&scene, &c.source.faces);
-    let geometry = SceneGeometry::new(&input, &file.header.model).unwrap();
+    let input = SceneInput::from_loaded(&scene, &c.source.faces);
     let encoding = model
-        .encode_scene(
-            &input,
-            &geometry,
-            Some(&reposer.target_vertices_smpl()),
-            &device,
-        )
+        .encode(&input, Some(reposer.clone()), &device, None)
         .unwrap();
     let body_box = BoxPadding::nhp()
         .body_box(reposer.target_vertices())
         .unwrap();
     let camera = c.source.subjects[0].cameras[3];
-    let rays = ImageRays::new(&camera, &body_box, None);
+    let rays = RayBundle::through_pixels(&camera, &body_box, None);
     let render = |adaptive: AdaptiveConfig| {
         let grid = adaptive
             .occupancy(reposer.target_vertices(), &c.source.faces)
@@ -302,34 +283,33 @@ fn reposed_rendering_skips_and_counts_like_novel_views() {
         render_image(
             &model,
             &encoding.clone().with_occupancy(grid),
-            &geometry,
-            Some(&reposer),
             &rays,
+            [camera.width as usize, camera.height as usize],
             ImageRenderOptions {
                 samples: 16,
                 chunk: 512,
                 timed: false,
             },
-            &device,
             &mut |_, _| {},
         )
         .unwrap()
     };
     let full = render(AdaptiveConfig::exhaustive());
     let skip = render(AdaptiveConfig::default());
-    assert_eq!(full.point_evaluations, (rays.pixels.len() * 16) as u64);
+    assert_eq!(full.point_evaluations, (rays.len() * 16) as u64);
     assert!(skip.point_evaluations * 2 < full.point_evaluations);
     let mean_change = rays
         .pixels
         .iter()
         .map(|&p| {
+            let p = p as usize;
             (0..3)
                 .map(|k| (full.rgb[3 * p + k] - skip.rgb[3 * p + k]).abs())
                 .sum::<f32>()
                 / 3.0
         })
         .sum::<f32>()
-        / rays.pixels.len() as f32;
+        / rays.len() as f32;
     assert!(
         mean_change <= MEAN_PIXEL_CHANGE,
         "mean change {mean_change}"

@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::OnceLock;
 
-use nia_data::protocol::EvalSplit;
-use nia_model::model_file::{ModelFile, MAGIC};
-use nia_train::checkpoint::{self, SavedConfig, CONFIG_FILE};
+use nia_data::dataset::protocol::EvalSplit;
+use nia_data::dataset::OpenedDataset;
+use nia_infer::eval::{eval_items, evaluate_images, EvalOptions, EvalTask};
+use nia_model::store::checkpoint;
+use nia_model::store::model_file::{ModelFile, MAGIC};
 use nia_train::config::TrainConfig;
-use nia_train::data::{OpenFor, TrainData};
-use nia_train::evaluate::{eval_items, evaluate_images, EvalOptions, EvalTask};
 use nia_train::events::TrainEvent;
 use nia_train::train_loop::{train, RunOptions};
 
@@ -268,28 +268,28 @@ fn novel_pose_eval_reposes_from_the_reference_frame() {
 fn exported_file_renders_what_the_checkpoint_renders() {
     let t = trained();
     let (_, dir) = checkpoint::latest(&t.run).unwrap().unwrap();
-    let saved: SavedConfig =
-        serde_json::from_str(&std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap()).unwrap();
+    let saved = checkpoint::read_config(&dir).unwrap();
+    let run: TrainConfig = serde_json::from_value(saved.run.clone()).unwrap();
     #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
     let device = burn::prelude::Device::ndarray();
     let from_checkpoint = checkpoint::load_model(&dir, saved.model.init(&device)).unwrap();
     let file = ModelFile::read(&t.model).unwrap();
     let from_file = file.load(&t.model, &device).unwrap();
-    let data =
-        TrainData::open_for(&saved.run, OpenFor::Evaluation(EvalSplit::UnseenSubjects)).unwrap();
+    let spec = run.synth.as_ref().map(|s| s.spec());
+    let protocol = run.data.protocol(spec.as_ref()).unwrap();
+    let data = OpenedDataset::open_split(&run.data, protocol, EvalSplit::UnseenSubjects).unwrap();
     let items = eval_items(&data, EvalSplit::UnseenSubjects, Some(2)).unwrap();
     let options = EvalOptions {
         task: EvalTask::NovelView,
         samples: 8,
         chunk: 256,
         timed: false,
-        adaptive: saved.run.render,
+        adaptive: run.render,
     };
     let render = |model| {
         let mut images = Vec::new();
         evaluate_images(
             model,
-            &saved.model,
             &data,
             EvalSplit::UnseenSubjects,
             &items,

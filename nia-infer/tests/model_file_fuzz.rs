@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use nia_data::rng::Rng;
-use nia_model::model_file::{fnv1a64, ModelFile, MAGIC};
+use nia_model::store::model_file::{fnv1a64, ModelFile, MAGIC};
 
 const DEFAULT_CASES: usize = 3000;
 

@@ -2,17 +2,18 @@
 
 use burn::prelude::*;
 
-use crate::attention::ViewCrossAttentionConfig;
-use crate::blender::BlenderConfig;
-use crate::body_volume::BodyVolumeNetConfig;
-use crate::encoder::ImageEncoderConfig;
-use crate::encoding::PositionalEncodingConfig;
-use crate::heads::{ColourHeadConfig, DensityHeadConfig};
-use crate::ibr::{PixelFeatureConfig, DEFAULT_COSINE_TEMPERATURE};
+use crate::field::attention::ViewCrossAttentionConfig;
+use crate::field::blender::BlenderConfig;
+use crate::field::body_volume::BodyVolumeNetConfig;
+use crate::field::encoder::ImageEncoderConfig;
+use crate::field::heads::{ColourHeadConfig, DensityHeadConfig};
+use crate::field::ibr::{PixelFeatureConfig, DEFAULT_COSINE_TEMPERATURE};
+use crate::field::positional_encoding::PositionalEncodingConfig;
+use crate::sampler::RaySampler;
 use crate::variant::Variant;
 
 /// The whole network. `ModelConfig::new()` is the paper setting.
-#[derive(Config, Debug)]
+#[derive(Config, Debug, PartialEq)]
 pub struct ModelConfig {
     /// Ablation variant (paper Table 3.i): `no_body`, `no_ibr`, `simple_average`,
     /// `cosine_weighted`, `full`.
@@ -46,6 +47,13 @@ pub struct ModelConfig {
     /// Temperature tau of variant (d), the cosine-weighted average.
     #[config(default = "DEFAULT_COSINE_TEMPERATURE")]
     pub cosine_temperature: f32,
+    /// How rays are sampled (stratified over the box, as in the paper, or in the SMPL band).
+    #[config(default = "RaySampler::Stratified")]
+    pub ray_sampler: RaySampler,
+    /// F_B's tokens carry colours and across-view statistics (not in the paper; see
+    /// `field::blender`).
+    #[config(default = false)]
+    pub blend_view_statistics: bool,
 }
 
 /// Largest layer width [`ModelConfig::check`] accepts (the paper's widest is 512 channels).
@@ -100,6 +108,7 @@ impl ModelConfig {
                 self.box_enlarge
             ));
         }
+        self.ray_sampler.check()?;
         if !(bv.norm_epsilon.is_finite() && bv.norm_epsilon > 0.0) {
             return Err(format!(
                 "`body_volume.norm_epsilon` = {}, expected a finite value > 0",
@@ -154,6 +163,7 @@ impl ModelConfig {
             .with_d_pixel(self.d_model)
             .with_d_h(self.d_hidden)
             .with_d_hidden(self.d_blend)
+            .with_view_statistics(self.blend_view_statistics)
     }
 
     /// A small network for tests and quick CPU runs (same structure, narrow layers).

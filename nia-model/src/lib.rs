@@ -1,29 +1,33 @@
-//! nia-model: the NIA network as Burn modules (encoder, body volume with sparse convolution,
-//! view-wise cross-attention, heads, image-based rendering, blending, volume rendering,
-//! reposing). One code path for every backend; the `Device` picks it at run time.
+//! nia-model: the NIA network as Burn modules. One code path for every backend; the `Device`
+//! picks it at run time.
+//!
+//! The forward pass reads sampler -> field -> renderer ([`model`]):
+//!
+//! - [`scene_encoding`]: the per-scene pass (feature maps, body volume), done once;
+//! - [`sampler`]: stratified samples along each ray, empty-space skipping;
+//! - [`field`]: encoder, body volume, IBR inputs, attention, heads, blender;
+//! - [`renderer`]: NeRF quadrature;
+//! - [`image`]: whole target images in chunks of rays;
+//! - [`loss`]: the training loss (NIA eq. 6);
+//! - [`store`]: the `.nia` model file and training checkpoints.
 
-pub mod adaptive;
-pub mod attention;
-pub mod blender;
-pub mod body_volume;
 pub mod config;
 pub mod device;
-pub mod encoder;
-pub mod encoder_import;
-pub mod encoding;
-pub mod heads;
-pub mod ibr;
-pub mod image_render;
+pub mod field;
+pub mod image;
 pub mod loss;
 pub mod model;
-pub mod model_file;
-pub mod query;
 pub mod renderer;
-pub mod reposing;
-pub mod scene;
+pub mod sampler;
+pub mod scene_encoding;
+pub mod shape;
+pub mod softmax;
+pub mod store;
+pub mod timing;
 pub mod variant;
 
 pub use config::ModelConfig;
-pub use model::{NiaModel, PointOutput, RayBatch, SceneEncoding};
+pub use field::PointOutput;
+pub use model::{ModelError, NiaModel};
+pub use scene_encoding::SceneEncoding;
 pub use variant::Variant;
-pub mod timing;

@@ -5,7 +5,7 @@
 
 use burn::prelude::*;
 
-use crate::blender::ShapeError;
+use crate::shape::ShapeError;
 
 /// The loss and its two terms.
 #[derive(Debug, Clone)]
@@ -42,6 +42,23 @@ pub fn render_loss(
         mse,
         mse0,
     })
+}
+
+/// The mask loss (switchable, `train.mask_loss_weight`; not in the paper, whose "RGB only"
+/// means no 3D or depth supervision, while the masks are inputs the reader loads anyway):
+/// `mean (acc - m)^2`, with m = 1 on the person's mask and 0 off it. It pulls the opacity off the
+/// person to zero and onto it to one, so the density is where the person is.
+///
+/// # Shapes
+/// - `acc`: `[R]` accumulated opacity; `on_body` m: `[R]` in {0, 1}
+/// - output: `[1]`
+pub fn mask_loss(acc: Tensor<1>, on_body: Tensor<1>) -> Result<Tensor<1>, ShapeError> {
+    let [r] = on_body.dims();
+    ShapeError::check("mask loss `acc` [R]", &acc.dims(), &[Some(r)])?;
+    if r == 0 {
+        return Err(ShapeError::empty("mask loss rays R"));
+    }
+    Ok((acc - on_body).square().mean())
 }
 
 /// PSNR in dB of images with peak value 1: `-10 log10(mse)`. `mse = 0` gives `+inf`; a negative

@@ -1,5 +1,5 @@
-//! Volume rendering (NeRF quadrature) over R rays of S ordered samples, black background, and
-//! the stratified sampler of the ray parameters t.
+//! Volume rendering (NeRF quadrature), the last stage of the forward pass: R rays of S ordered
+//! samples composited over a black background.
 //!
 //! ```text
 //! delta_i = t_{i+1} - t_i            (i < S - 1),   delta_{S-1} = far - t_{S-1}   (both >= 0)
@@ -11,7 +11,7 @@
 //! blend_weights = sum_i w_i * softmax_i                          (per ray, [R, N + 1])
 //! ```
 //!
-//! Numerics (DESIGN.md section 5): the transmittance is `exp(-exclusive_cumsum(tau))`, never a
+//! Numerics (docs/method.md, "Numerics"): the transmittance is `exp(-exclusive_cumsum(tau))`, never a
 //! cumulative product of (1 - alpha), so an opaque sample does not turn later products into
 //! 0 * inf. The last interval ends at `far` (no 1e10 sentinel). The exponent arguments are
 //! always <= 0, so `exp` cannot overflow; tau is clamped to `[0, OPTICAL_DEPTH_MAX]`: the lower
@@ -23,108 +23,12 @@
 
 use burn::prelude::*;
 
-use crate::blender::ShapeError;
+use crate::shape::ShapeError;
 
 /// Upper clamp of one sample's optical depth sigma * delta. exp(-x) is exactly 0 in f32 beyond
 /// x ~ 104, so any bound above that changes no value; 1e6 also keeps the cumulative sum of
 /// S <= 1e3 samples (<= 1e9) far from f32 overflow.
 pub const OPTICAL_DEPTH_MAX: f32 = 1.0e6;
-
-/// Errors of the renderer and the sampler.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum RenderError {
-    /// A tensor argument has the wrong shape.
-    #[error(transparent)]
-    Shape(#[from] ShapeError),
-    /// Two per-ray slices of the sampler have different lengths.
-    #[error("stratified_t: `{field}` has {got} values, expected {expected}")]
-    Length {
-        /// The argument.
-        field: &'static str,
-        /// Its length.
-        got: usize,
-        /// The expected length.
-        expected: usize,
-    },
-    /// A ray interval is not finite or ends before it starts.
-    #[error("stratified_t: ray {ray}: expected finite near <= far, got near {near}, far {far}")]
-    Interval {
-        /// Ray index.
-        ray: usize,
-        /// Its near bound (metres).
-        near: f32,
-        /// Its far bound (metres).
-        far: f32,
-    },
-    /// A jitter value is outside [0, 1].
-    #[error("stratified_t: `jitter[{index}]` = {value}, expected a value in [0, 1]")]
-    Jitter {
-        /// Flat index [ray * S + sample].
-        index: usize,
-        /// The value.
-        value: f32,
-    },
-    /// Zero samples per ray were requested.
-    #[error("stratified_t: `samples` must be at least 1")]
-    NoSamples,
-}
-
-/// Stratified sample positions: S equal bins over [near, far] per ray, one sample per bin at
-/// `near + (i + u_i) (far - near) / S`. `jitter` holds the `u_i` in [0, 1] (row-major `[R, S]`,
-/// drawn by the caller, so runs are deterministic); `None` puts every sample at its bin's centre
-/// (u = 0.5, the test-time choice). The result is sorted per ray.
-///
-/// # Shapes
-/// - `near`, `far`: `[R]` metres
-/// - `jitter`: `[R * S]` or `None`
-/// - output t: `[R * S]` row-major `[R, S]`, metres
-pub fn stratified_t(
-    near: &[f32],
-    far: &[f32],
-    samples: usize,
-    jitter: Option<&[f32]>,
-) -> Result<Vec<f32>, RenderError> {
-    let rays = near.len();
-    if samples == 0 {
-        return Err(RenderError::NoSamples);
-    }
-    if far.len() != rays {
-        return Err(RenderError::Length {
-            field: "far",
-            got: far.len(),
-            expected: rays,
-        });
-    }
-    if let Some(jitter) = jitter {
-        if jitter.len() != rays * samples {
-            return Err(RenderError::Length {
-                field: "jitter",
-                got: jitter.len(),
-                expected: rays * samples,
-            });
-        }
-        if let Some((index, &value)) = jitter
-            .iter()
-            .enumerate()
-            .find(|(_, u)| !(0.0..=1.0).contains(*u))
-        {
-            return Err(RenderError::Jitter { index, value });
-        }
-    }
-    let mut t = Vec::with_capacity(rays * samples);
-    for (ray, (&near, &far)) in near.iter().zip(far).enumerate() {
-        if !(near.is_finite() && far.is_finite() && near <= far) {
-            return Err(RenderError::Interval { ray, near, far });
-        }
-        let bin = (far - near) / samples as f32;
-        for i in 0..samples {
-            let u = jitter.map_or(0.5, |j| j[ray * samples + i]);
-            // min(): rounding must not put a sample past `far` (the last delta would go < 0).
-            t.push((near + (i as f32 + u) * bin).min(far));
-        }
-    }
-    Ok(t)
-}
 
 /// Per-ray results of [`render_rays`].
 #[derive(Debug, Clone)]
@@ -139,6 +43,11 @@ pub struct RenderOutput {
     pub depth: Tensor<1>,
     /// Blend weights accumulated along the ray, `[R, N + 1]` (None when none were given).
     pub blend_weights: Option<Tensor<2>>,
+    /// `[R, S]` compositing weights w_i (to composite further per-sample quantities).
+    pub weights: Tensor<2>,
+    /// `[R, 3]` the IBR-only composite ([`crate::field::PointOutput::ibr_colour`]), filled
+    /// by [`crate::NiaModel::render`]; `None` from the quadrature alone.
+    pub rgb_ibr: Option<Tensor<2>>,
     /// Sample points the network evaluated (`R * S` unless empty space was skipped).
     pub point_evaluations: usize,
 }
@@ -155,6 +64,21 @@ pub fn sample_weights(
     t: Tensor<2>,
     far: Tensor<1>,
 ) -> Result<Tensor<2>, ShapeError> {
+    let delta = stratified_delta(&sigma, t, far)?;
+    sample_weights_delta(sigma, delta)
+}
+
+/// The quadrature intervals of stratified samples: `t_{i+1} - t_i` and `far - t_{S-1}`.
+///
+/// # Shapes
+/// - `sigma` (for its shape only): `[R, S]`
+/// - `t`: `[R, S]` metres; `far`: `[R]` metres
+/// - output delta: `[R, S]` metres (not yet clamped at 0)
+fn stratified_delta(
+    sigma: &Tensor<2>,
+    t: Tensor<2>,
+    far: Tensor<1>,
+) -> Result<Tensor<2>, ShapeError> {
     let [r, s] = sigma.dims();
     ShapeError::check("render `t` [R, S]", &t.dims(), &[Some(r), Some(s)])?;
     ShapeError::check("render `far` [R]", &far.dims(), &[Some(r)])?;
@@ -162,12 +86,27 @@ pub fn sample_weights(
         return Err(ShapeError::empty("render samples S"));
     }
     let last_delta = far.reshape([r, 1]) - t.clone().slice(s![.., s - 1..s]);
-    let delta = if s > 1 {
+    Ok(if s > 1 {
         let inner = t.clone().slice(s![.., 1..s]) - t.slice(s![.., 0..s - 1]);
         Tensor::cat(vec![inner, last_delta], 1)
     } else {
         last_delta
-    };
+    })
+}
+
+/// The compositing weights w_i = T_i alpha_i from explicit quadrature intervals (band samples,
+/// whose intervals are not the gaps between their positions).
+///
+/// # Shapes
+/// - `sigma`: `[R, S]` per metre
+/// - `delta`: `[R, S]` metres (negative values count as 0)
+/// - output w: `[R, S]`
+pub fn sample_weights_delta(sigma: Tensor<2>, delta: Tensor<2>) -> Result<Tensor<2>, ShapeError> {
+    let [r, s] = sigma.dims();
+    ShapeError::check("render `delta` [R, S]", &delta.dims(), &[Some(r), Some(s)])?;
+    if s == 0 {
+        return Err(ShapeError::empty("render samples S"));
+    }
     let delta = delta.clamp_min(0.0);
     let tau = (sigma * delta).clamp(0.0, OPTICAL_DEPTH_MAX);
     let device = tau.device();
@@ -197,7 +136,21 @@ pub fn render_rays(
     t: Tensor<2>,
     far: Tensor<1>,
     blend: Option<Tensor<3>>,
-) -> Result<RenderOutput, RenderError> {
+) -> Result<RenderOutput, ShapeError> {
+    let delta = stratified_delta(&sigma, t.clone(), far)?;
+    render_rays_delta(sigma, colour, colour0, t, delta, blend)
+}
+
+/// [`render_rays`] with explicit quadrature intervals `delta` `[R, S]` (metres) in place of
+/// `far` (band samples, [`crate::sampler::RaySamples::delta`]).
+pub fn render_rays_delta(
+    sigma: Tensor<2>,
+    colour: Tensor<3>,
+    colour0: Tensor<3>,
+    t: Tensor<2>,
+    delta: Tensor<2>,
+    blend: Option<Tensor<3>>,
+) -> Result<RenderOutput, ShapeError> {
     let [r, s] = sigma.dims();
     ShapeError::check(
         "render `colour` [R, S, 3]",
@@ -216,7 +169,8 @@ pub fn render_rays(
             &[Some(r), Some(s), None],
         )?;
     }
-    let weights = sample_weights(sigma, t.clone(), far)?;
+    ShapeError::check("render `t` [R, S]", &t.dims(), &[Some(r), Some(s)])?;
+    let weights = sample_weights_delta(sigma, delta)?;
     let w3 = weights.clone().reshape([r, s, 1]);
     let composite = |x: Tensor<3>| {
         let k = x.dims()[2];
@@ -226,8 +180,10 @@ pub fn render_rays(
         rgb: composite(colour),
         rgb0: composite(colour0),
         acc: weights.clone().sum_dim(1).reshape([r]),
-        depth: (weights * t).sum_dim(1).reshape([r]),
+        depth: (weights.clone() * t).sum_dim(1).reshape([r]),
         blend_weights: blend.map(composite),
+        weights,
+        rgb_ibr: None,
         point_evaluations: r * s,
     })
 }

@@ -75,6 +75,15 @@ impl StageTimes {
         self.totals.iter().map(|(_, d)| *d).sum()
     }
 
+    /// Milliseconds per stage that took any time, by stage name.
+    pub fn milliseconds(&self) -> std::collections::BTreeMap<String, f64> {
+        Stage::ALL
+            .iter()
+            .map(|&s| (s.name().to_string(), self.get(s).as_secs_f64() * 1e3))
+            .filter(|(_, ms)| *ms > 0.0)
+            .collect()
+    }
+
     /// Merges another set of timings into this one.
     pub fn merge(&mut self, other: &StageTimes) {
         for (s, d) in &other.totals {

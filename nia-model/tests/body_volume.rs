@@ -8,14 +8,15 @@ use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::module::conv3d;
 use burn::tensor::ops::{ConvOptions, GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
+use nia_data::geometry::sparse::{
+    kernel_offset, strided_dim, voxelize, Rulebook, ScaleGeometry, SiteIndex, TrilinearCorners,
+    VoxelBox, CORNERS, KERNEL_VOLUME,
+};
 use nia_data::rng::Rng;
-use nia_model::body_volume::rulebook::kernel_offset;
-use nia_model::body_volume::trilinear::{sample, sample_in_chunks, CORNERS};
-use nia_model::body_volume::voxelize::strided_dim;
-use nia_model::body_volume::{
-    voxelize, BodyVolumeGeometry, BodyVolumeNetConfig, ConvMethod, Rulebook, RulebookTensors,
-    ScaleGeometry, SiteIndex, SiteNormConfig, SparseConv3d, SparseConv3dConfig, TrilinearCorners,
-    VoxelBox, KERNEL_VOLUME, NUM_SCALES,
+use nia_model::field::body_volume::trilinear::{sample, sample_in_chunks};
+use nia_model::field::body_volume::{
+    BodyVolumeGeometry, BodyVolumeNetConfig, ConvMethod, RulebookTensors, SiteNormConfig,
+    SparseConv3d, SparseConv3dConfig, TrilinearTensors, NUM_SCALES,
 };
 
 /// Sparse vs dense convolution: both sum at most 27 * C_in products of O(1) f32 values in a
@@ -482,7 +483,7 @@ fn trilinear_matches_dense_grid_sample() {
         points.push([f32::NAN, 0.3, 0.1]);
         let corners = TrilinearCorners::compute(&points, &scale);
         assert_eq!(corners.index.len(), points.len() * CORNERS);
-        let corner_tensors = corners.to_tensors(&dev);
+        let corner_tensors = TrilinearTensors::upload(&corners, &dev);
         let got =
             values(sample(tensor3(features.clone(), [n, p, c], &dev), &corner_tensors).unwrap());
         // Blocks of 7 points give the same values.
@@ -555,7 +556,7 @@ fn trilinear_on_a_centre_plane_matches_burn_grid_sample_2d() {
     let got = values(
         sample(
             tensor3(features.clone(), [1, p, c], &dev),
-            &corners.to_tensors(&dev),
+            &TrilinearTensors::upload(&corners, &dev),
         )
         .unwrap(),
     );
@@ -606,7 +607,7 @@ fn trilinear_gradients_reach_features_and_outside_points_are_zero() {
     let points = vec![scale.centre_of([2, 2, 2]), far, [0.0, 0.3, 0.2]];
     let corners = TrilinearCorners::compute(&points, &scale);
     let features = tensor3(normals(&mut rng, n * p * c), [n, p, c], &ad).require_grad();
-    let out = sample(features.clone(), &corners.to_tensors(&ad)).unwrap();
+    let out = sample(features.clone(), &TrilinearTensors::upload(&corners, &ad)).unwrap();
     let r = normals(&mut rng, n * points.len() * c);
     let loss = (out.clone() * tensor3(r.clone(), [n, points.len(), c], &ad)).sum();
     let grads = loss.backward();
@@ -804,7 +805,7 @@ fn network_forward_and_backward_are_finite() {
     let corners: Vec<_> = geometry
         .corners(&points)
         .iter()
-        .map(|c| c.to_tensors(&ad))
+        .map(|c| TrilinearTensors::upload(c, &ad))
         .collect();
     let sampled = volume.sample(&corners).unwrap();
     let m = points.len();
@@ -831,7 +832,7 @@ fn network_forward_and_backward_are_finite() {
     let none: Vec<_> = geometry
         .corners(&[])
         .iter()
-        .map(|c| c.to_tensors(&ad))
+        .map(|c| TrilinearTensors::upload(c, &ad))
         .collect();
     assert_eq!(volume.sample(&none).unwrap().dims(), [n, 0, c_total]);
 
@@ -934,7 +935,10 @@ fn timing_paper_size() {
         let t = Instant::now();
         let corners = geometry.corners(&points);
         let corner_time = ms(t);
-        let tensors: Vec<_> = corners.iter().map(|c| c.to_tensors(&dev)).collect();
+        let tensors: Vec<_> = corners
+            .iter()
+            .map(|c| TrilinearTensors::upload(c, &dev))
+            .collect();
         let t = Instant::now();
         let _ = values(volume.sample(&tensors).unwrap().sum());
         let sample_time = ms(t);
@@ -954,7 +958,10 @@ fn timing_paper_size() {
             &ad,
         )
         .require_grad();
-        let tensors: Vec<_> = corners.iter().map(|c| c.to_tensors(&ad)).collect();
+        let tensors: Vec<_> = corners
+            .iter()
+            .map(|c| TrilinearTensors::upload(c, &ad))
+            .collect();
         let t = Instant::now();
         let volume = net.forward(&geometry, features.clone()).unwrap();
         let sampled = volume.sample(&tensors).unwrap();

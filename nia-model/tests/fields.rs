@@ -1,23 +1,25 @@
 //! Per-point fields: positional encoding, view-wise cross-attention, F_sigma / F_c0, IBR
 //! sampling and colour rules, the blender F_B and the variants' colour rules.
 
-mod support;
+mod common;
 
 use burn::module::Param;
 use burn::nn::Linear;
 use burn::prelude::*;
+use common::{assert_close, device, tensor, values};
 use nia_data::rng::Rng;
-use nia_model::attention::ViewCrossAttentionConfig;
-use nia_model::blender::{blend, stable_softmax, BlendInputs, Blender, BlenderConfig, ShapeError};
-use nia_model::encoding::PositionalEncodingConfig;
-use nia_model::heads::{view_mean, ColourHeadConfig, DensityHead, DensityHeadConfig};
-use nia_model::ibr::{
+use nia_model::field::attention::ViewCrossAttentionConfig;
+use nia_model::field::blender::{blend, BlendInputs, Blender, BlenderConfig};
+use nia_model::field::heads::{view_mean, ColourHeadConfig, DensityHead, DensityHeadConfig};
+use nia_model::field::ibr::{
     cosine_weighted_colour, fetch_source_colours, sample_views, simple_average_colour,
-    view_direction_feature, view_direction_features, PixelFeatureConfig,
+    PixelFeatureConfig,
 };
+use nia_model::field::positional_encoding::PositionalEncodingConfig;
 use nia_model::renderer::render_rays;
+use nia_model::shape::ShapeError;
+use nia_model::softmax::stable_softmax;
 use nia_model::variant::Variant;
-use support::{assert_close, device, tensor, values};
 
 /// f32 forward values computed along two different paths (reordered sums, sin/cos of the
 /// same angles): a few ulps of O(1) values.
@@ -348,28 +350,6 @@ fn source_colours_and_pixel_features_layout() {
 }
 
 #[test]
-fn view_direction_features_values() {
-    let dev = device();
-    assert_eq!(
-        view_direction_feature([0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
-        [0.0, -1.0, 1.0, 0.0]
-    );
-    let h = std::f32::consts::FRAC_1_SQRT_2;
-    let cpu = view_direction_feature([0.0, 0.0, 1.0], [0.0, h, h]);
-    assert_close(&cpu, &[0.0, -h, 1.0 - h, h], VALUE_TOL, "d_hat CPU");
-    let target = tensor(vec![0.0, 0.0, 1.0], [1, 3], &dev);
-    let source = tensor(vec![0.0, 1.0, 0.0, 0.0, h, h], [2, 1, 3], &dev);
-    let d_hat = view_direction_features(target, source).unwrap();
-    assert_eq!(d_hat.dims(), [2, 1, 4]);
-    assert_close(
-        &values(d_hat),
-        &[0.0, -1.0, 1.0, 0.0, 0.0, -h, 1.0 - h, h],
-        VALUE_TOL,
-        "d_hat tensor",
-    );
-}
-
-#[test]
 fn fixed_colour_rules() {
     let dev = device();
     // N = 2 views, M = 1 point.
@@ -436,6 +416,7 @@ fn logits_of(blender: &Blender, x: &BlendInputs) -> Tensor<2> {
             x.visibility.clone(),
             x.h.clone(),
             x.confidence.clone(),
+            Some((x.c0.clone(), x.source_colours.clone())),
         )
         .unwrap()
 }

@@ -5,9 +5,10 @@
 
 mod common;
 
+use std::sync::Arc;
+
 use burn::prelude::*;
 use nia_model::loss::render_loss;
-use nia_model::scene::SceneGeometry;
 use nia_model::{ModelConfig, Variant};
 
 const SAMPLES: usize = 8;
@@ -28,19 +29,14 @@ fn forward_renders_finite_colours_of_the_right_shape() {
     let input = common::scene(3, 32);
     let config = ModelConfig::tiny();
     let model = config.init(&device);
-    let geometry = SceneGeometry::new(&input, &config).unwrap();
-    let scene = model
-        .encode_scene(&input, &geometry, None, &device)
-        .unwrap();
+    let scene = model.encode(&input, None, &device, None).unwrap();
     assert_eq!(
         scene.feature_maps.dims(),
         [3, config.image_channels(), 16, 16]
     );
-    let rays = common::target_rays(&input, &geometry, 4);
+    let rays = common::target_rays(&input, 4);
     assert!(rays.len() >= 8, "most test rays hit the body box");
-    let out = model
-        .render(&scene, &geometry, &rays, SAMPLES, None, &device)
-        .unwrap();
+    let out = model.render(&scene, &rays, SAMPLES, None, None).unwrap();
     let r = rays.len();
     assert_eq!(out.rgb.dims(), [r, 3]);
     assert_eq!(out.rgb0.dims(), [r, 3]);
@@ -69,15 +65,10 @@ fn variant_b_colour_is_the_nerf_colour_and_variant_a_has_no_body_volume() {
         device.seed(2);
         let config = ModelConfig::tiny().with_variant(variant);
         let model = config.init(&device);
-        let geometry = SceneGeometry::new(&input, &config).unwrap();
-        let scene = model
-            .encode_scene(&input, &geometry, None, &device)
-            .unwrap();
+        let scene = model.encode(&input, None, &device, None).unwrap();
         assert_eq!(scene.volume.is_some(), variant.uses_body());
-        let rays = common::target_rays(&input, &geometry, 3);
-        let out = model
-            .render(&scene, &geometry, &rays, SAMPLES, None, &device)
-            .unwrap();
+        let rays = common::target_rays(&input, 3);
+        let out = model.render(&scene, &rays, SAMPLES, None, None).unwrap();
         if variant == Variant::NoIbr {
             let diff = (out.rgb - out.rgb0).abs().max().into_scalar::<f32>();
             assert!(
@@ -98,14 +89,9 @@ fn any_number_of_source_views_runs_with_the_same_weights() {
     let model = config.init(&device);
     for n in [1, 2, 4] {
         let input = common::scene(n, 32);
-        let geometry = SceneGeometry::new(&input, &config).unwrap();
-        let scene = model
-            .encode_scene(&input, &geometry, None, &device)
-            .unwrap();
-        let rays = common::target_rays(&input, &geometry, 2);
-        let out = model
-            .render(&scene, &geometry, &rays, SAMPLES, None, &device)
-            .unwrap();
+        let scene = model.encode(&input, None, &device, None).unwrap();
+        let rays = common::target_rays(&input, 2);
+        let out = model.render(&scene, &rays, SAMPLES, None, None).unwrap();
         assert_eq!(out.blend_weights.unwrap().dims(), [rays.len(), n + 1]);
         assert!(finite(&out.rgb));
     }
@@ -118,16 +104,13 @@ fn a_training_step_has_finite_gradients_everywhere_it_should() {
     let config = ModelConfig::tiny();
     let model = config.init(&device);
     let input = common::scene(3, 32);
-    let geometry = SceneGeometry::new(&input, &config).unwrap();
-    let scene = model
-        .encode_scene(&input, &geometry, None, &device)
-        .unwrap();
-    let rays = common::target_rays(&input, &geometry, 3);
+    let scene = model.encode(&input, None, &device, None).unwrap();
+    let rays = common::target_rays(&input, 3);
     let jitter: Vec<f32> = (0..rays.len() * SAMPLES)
         .map(|i| ((i * 37) % 100) as f32 / 100.0)
         .collect();
     let out = model
-        .render(&scene, &geometry, &rays, SAMPLES, Some(&jitter), &device)
+        .render(&scene, &rays, SAMPLES, Some(&jitter), None)
         .unwrap();
     let gt = Tensor::<2>::ones([rays.len(), 3], &device).mul_scalar(0.5);
     let loss = render_loss(out.rgb, out.rgb0, gt).unwrap();
@@ -171,13 +154,10 @@ fn wgpu_matches_ndarray() {
     let model = config.init(&cpu);
     let model_gpu = model.clone().to_device(&gpu);
     let input = common::scene(3, 32);
-    let geometry = SceneGeometry::new(&input, &config).unwrap();
-    let rays = common::target_rays(&input, &geometry, 3);
+    let rays = common::target_rays(&input, 3);
     let run = |m: &nia_model::NiaModel, d: &Device| {
-        let scene = m.encode_scene(&input, &geometry, None, d).unwrap();
-        let out = m
-            .render(&scene, &geometry, &rays, SAMPLES, None, d)
-            .unwrap();
+        let scene = m.encode(&input, None, d, None).unwrap();
+        let out = m.render(&scene, &rays, SAMPLES, None, None).unwrap();
         (
             out.rgb.into_data().try_to_vec::<f32>().unwrap(),
             out.acc.into_data().try_to_vec::<f32>().unwrap(),
@@ -199,35 +179,35 @@ fn wgpu_matches_ndarray() {
 
 #[test]
 fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another() {
+    use nia_data::body::reposing::Reposer;
     use nia_data::body::{pose_for_motion, MotionKind, ProceduralBody, ProceduralSpec, SmplParams};
-    use nia_model::reposing::Reposer;
     let device = Device::ndarray();
     device.seed(6);
     let config = ModelConfig::tiny();
     let model = config.init(&device);
     let input = common::scene(3, 32);
-    let geometry = SceneGeometry::new(&input, &config).unwrap();
     let spec = ProceduralSpec {
         target_vertices: 1500,
         ..ProceduralSpec::default()
     };
     let body = ProceduralBody::generate(&spec).unwrap();
     let reference = SmplParams::default();
-    let rays = common::target_rays(&input, &geometry, 3);
+    let rays = common::target_rays(&input, 3);
 
     // Same pose: identical numbers to the novel-view path.
     let same = Reposer::new(&body, &reference, &reference).unwrap();
     assert!(same.is_identity() && !Reposer::needed(&reference, &reference));
-    let scene = model
-        .encode_scene(&input, &geometry, None, &device)
+    let scene = model.encode(&input, None, &device, None).unwrap();
+    let plain = model.render(&scene, &rays, SAMPLES, None, None).unwrap();
+    let same_scene = model
+        .encode(&input, Some(Arc::new(same)), &device, None)
         .unwrap();
-    let plain = model
-        .render(&scene, &geometry, &rays, SAMPLES, None, &device)
-        .unwrap();
+    assert!(
+        same_scene.reposer.is_none(),
+        "an identity reposer is dropped"
+    );
     let reposed = model
-        .render_reposed(
-            &scene, &geometry, &same, &rays, SAMPLES, None, &device, None,
-        )
+        .render(&same_scene, &rays, SAMPLES, None, None)
         .unwrap();
     let diff = (plain.rgb - reposed.rgb).abs().max().into_scalar::<f32>();
     assert_eq!(diff, 0.0, "the identity reposing must be the plain path");
@@ -238,16 +218,31 @@ fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another(
         ..SmplParams::default()
     };
     assert!(Reposer::needed(&reference, &target));
-    let reposer = Reposer::new(&body, &reference, &target).unwrap();
-    let target_smpl = reposer.target_vertices_smpl();
+    let reposer = Arc::new(Reposer::new(&body, &reference, &target).unwrap());
     let scene = model
-        .encode_scene(&input, &geometry, Some(&target_smpl), &device)
+        .encode(&input, Some(reposer.clone()), &device, None)
         .unwrap();
-    let out = model
-        .render_reposed(
-            &scene, &geometry, &reposer, &rays, SAMPLES, None, &device, None,
+    assert!(scene.reposer.is_some());
+    // The same pose reached from the plain encoding (animation's path) renders the same.
+    let from_plain = model
+        .encode_pose(
+            &model.encode(&input, None, &device, None).unwrap(),
+            reposer,
+            None,
         )
         .unwrap();
+    let out = model.render(&scene, &rays, SAMPLES, None, None).unwrap();
+    let again = model
+        .render(&from_plain, &rays, SAMPLES, None, None)
+        .unwrap();
+    let diff = (out.rgb.clone() - again.rgb)
+        .abs()
+        .max()
+        .into_scalar::<f32>();
+    assert_eq!(
+        diff, 0.0,
+        "encode with a reposer == encode_pose of the plain encoding"
+    );
     assert_eq!(out.rgb.dims(), [rays.len(), 3]);
     assert!(finite(&out.rgb) && finite(&out.rgb0));
 }

@@ -1,13 +1,14 @@
 //! Volume rendering, the stratified sampler and the loss: hand-computed cases, finite-difference
-//! gradients and the numerical hard cases of DESIGN.md section 5.
+//! gradients and the numerical hard cases of docs/method.md "Numerics".
 
-mod support;
+mod common;
 
 use burn::prelude::*;
+use common::{assert_close, device, tensor, values};
 use nia_data::rng::Rng;
 use nia_model::loss::{psnr_from_mse, render_loss};
-use nia_model::renderer::{render_rays, sample_weights, stratified_t, RenderError};
-use support::{assert_close, device, tensor, values};
+use nia_model::renderer::{render_rays, sample_weights};
+use nia_model::sampler::{stratified_t, SamplerError};
 
 /// f32 forward values along two different evaluation orders: a few ulps of O(1) values.
 const VALUE_TOL: f32 = 1e-5;
@@ -371,30 +372,30 @@ fn stratified_t_bins_and_errors() {
 
     assert!(matches!(
         stratified_t(&[0.0, 1.0], &[1.0], 4, None),
-        Err(RenderError::Length { field: "far", .. })
+        Err(SamplerError::Length { field: "far", .. })
     ));
     assert!(matches!(
         stratified_t(&[0.0], &[1.0], 2, Some(&[0.5])),
-        Err(RenderError::Length {
+        Err(SamplerError::Length {
             field: "jitter",
             ..
         })
     ));
     assert!(matches!(
         stratified_t(&[0.0], &[1.0], 2, Some(&[0.5, 1.5])),
-        Err(RenderError::Jitter { index: 1, .. })
+        Err(SamplerError::Jitter { index: 1, .. })
     ));
     assert!(matches!(
         stratified_t(&[2.0], &[1.0], 2, None),
-        Err(RenderError::Interval { ray: 0, .. })
+        Err(SamplerError::Interval { ray: 0, .. })
     ));
     assert!(matches!(
         stratified_t(&[f32::NAN], &[1.0], 2, None),
-        Err(RenderError::Interval { .. })
+        Err(SamplerError::Interval { .. })
     ));
     assert!(matches!(
         stratified_t(&[0.0], &[1.0], 0, None),
-        Err(RenderError::NoSamples)
+        Err(SamplerError::NoSamples)
     ));
     assert_eq!(stratified_t(&[], &[], 3, None).unwrap(), Vec::<f32>::new());
 }

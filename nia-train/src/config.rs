@@ -3,11 +3,12 @@
 
 use std::path::{Path, PathBuf};
 
-use nia_data::dataset::DatasetFormat;
-use nia_data::synth::SynthSpec;
-use nia_model::adaptive::AdaptiveConfig;
+use nia_data::dataset::{DataConfig, ProtocolName};
+use nia_data::synth::SynthSection;
 use nia_model::device::Backend;
-use nia_model::{ModelConfig, Variant};
+use nia_model::sampler::AdaptiveConfig;
+use nia_model::store::checkpoint;
+use nia_model::ModelConfig;
 use serde::{Deserialize, Serialize};
 
 /// A configuration error, naming the file and the key.
@@ -30,65 +31,7 @@ pub enum ConfigError {
     },
 }
 
-/// Which split protocol the data follows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ProtocolName {
-    /// The split written by `synth` (needs the `[synth]` section).
-    Synthetic,
-    /// NHP's ZJU-MoCap protocol.
-    Nhp,
-    /// MonoCap evaluation.
-    Monocap,
-}
-
-/// `[data]`: where the subjects are and how to read them.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DataConfig {
-    /// Folder holding the `CoreView_*` subjects (relative paths: to the working directory).
-    pub root: PathBuf,
-    #[serde(default = "default_format")]
-    pub format: DatasetFormat,
-    /// Image resize ratio in (0, 1]; default: the format's (ZJU 0.5).
-    #[serde(default)]
-    pub ratio: Option<f32>,
-    /// SMPL model (`.pkl`/`.npz`); default for synthetic data: `ROOT/body_model.npz`.
-    #[serde(default)]
-    pub smpl_model: Option<PathBuf>,
-    #[serde(default = "default_protocol")]
-    pub protocol: ProtocolName,
-    /// Visibility cache folder (default `ROOT/.visibility_cache`).
-    #[serde(default)]
-    pub visibility_cache: Option<PathBuf>,
-    /// Mask border band excluded from ray sampling, pixels (NHP 5 at 512 px).
-    #[serde(default = "default_border_px")]
-    pub border_px: usize,
-    /// Share of rays drawn on the body (NHP 0.5).
-    #[serde(default = "default_body_fraction")]
-    pub body_fraction: f32,
-    /// Loader worker threads.
-    #[serde(default = "default_threads")]
-    pub loader_threads: usize,
-}
-
-fn default_format() -> DatasetFormat {
-    DatasetFormat::Zju
-}
-fn default_protocol() -> ProtocolName {
-    ProtocolName::Synthetic
-}
-fn default_border_px() -> usize {
-    nia_data::sampling::NHP_BORDER_PX
-}
-fn default_body_fraction() -> f32 {
-    nia_data::sampling::NHP_BODY_FRACTION
-}
-fn default_threads() -> usize {
-    2
-}
-
-/// Network preset the `[model]` overrides start from.
+/// Network preset the `[model]` keys start from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ModelPreset {
@@ -98,90 +41,67 @@ pub enum ModelPreset {
     Tiny,
 }
 
-/// `[model]`: a preset and optional overrides of its scalar fields.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModelSection {
-    #[serde(default = "default_preset")]
-    pub preset: ModelPreset,
-    #[serde(default)]
-    pub variant: Option<Variant>,
-    #[serde(default)]
-    pub encoder_width: Option<usize>,
-    #[serde(default)]
-    pub d_model: Option<usize>,
-    #[serde(default)]
-    pub d_hidden: Option<usize>,
-    #[serde(default)]
-    pub d_blend: Option<usize>,
-    #[serde(default)]
-    pub dir_frequencies: Option<usize>,
-    /// Voxel edge, metres.
-    #[serde(default)]
-    pub voxel_size_m: Option<f32>,
-    #[serde(default)]
-    pub box_enlarge: Option<f32>,
-    #[serde(default)]
-    pub cosine_temperature: Option<f32>,
+/// `[model]`: the network config ([`ModelConfig`], nested as it is) given as a preset
+/// (`preset = "paper"` by default, or `"tiny"`) and any of its keys on top, nested sections
+/// included (`[model.body_volume]`). A key the network config does not have, or a value of the
+/// wrong type, is an error naming `model.<key>`. A saved run config holds the resolved network
+/// (every key), which reads back to the same network.
+fn model_from_preset<'de, D: serde::Deserializer<'de>>(d: D) -> Result<ModelConfig, D::Error> {
+    use serde::de::Error;
+    let mut keys = serde_json::Map::deserialize(d)?;
+    let preset = match keys.remove("preset") {
+        None => ModelPreset::Paper,
+        Some(value) => serde_json::from_value(value)
+            .map_err(|e| D::Error::custom(format!("key `model.preset`: {e}")))?,
+    };
+    let base = match preset {
+        ModelPreset::Paper => ModelConfig::new(),
+        ModelPreset::Tiny => ModelConfig::tiny(),
+    };
+    let base = serde_json::to_value(&base).map_err(D::Error::custom)?;
+    let mut merged = base.clone();
+    merge_keys(&mut merged, keys.clone(), "model").map_err(D::Error::custom)?;
+    serde_json::from_value(merged).map_err(|e| {
+        // Name the key: the first one that fails on its own over the preset.
+        let culprit = keys.into_iter().find_map(|(key, value)| {
+            let mut trial = base.clone();
+            let one = serde_json::Map::from_iter([(key.clone(), value)]);
+            merge_keys(&mut trial, one, "model").ok()?;
+            serde_json::from_value::<ModelConfig>(trial)
+                .err()
+                .map(|e| format!("key `model.{key}`: {e}"))
+        });
+        D::Error::custom(culprit.unwrap_or_else(|| format!("`model`: {e}")))
+    })
 }
 
-fn default_preset() -> ModelPreset {
-    ModelPreset::Paper
-}
-
-impl Default for ModelSection {
-    fn default() -> Self {
-        ModelSection {
-            preset: ModelPreset::Paper,
-            variant: None,
-            encoder_width: None,
-            d_model: None,
-            d_hidden: None,
-            d_blend: None,
-            dir_frequencies: None,
-            voxel_size_m: None,
-            box_enlarge: None,
-            cosine_temperature: None,
-        }
-    }
-}
-
-impl ModelSection {
-    /// The network configuration: the preset with the overrides applied.
-    pub fn build(&self) -> ModelConfig {
-        let mut c = match self.preset {
-            ModelPreset::Paper => ModelConfig::new(),
-            ModelPreset::Tiny => ModelConfig::tiny(),
+/// Writes `keys` over the object `base`, recursing into nested objects; every key must
+/// already exist in `base` (`path` names the section in the message).
+fn merge_keys(
+    base: &mut serde_json::Value,
+    keys: serde_json::Map<String, serde_json::Value>,
+    path: &str,
+) -> Result<(), String> {
+    let Some(object) = base.as_object_mut() else {
+        return Err(format!("`{path}` is not a section"));
+    };
+    for (key, value) in keys {
+        let Some(slot) = object.get_mut(&key) else {
+            let mut known: Vec<&str> = object.keys().map(String::as_str).collect();
+            known.sort_unstable();
+            return Err(format!(
+                "unknown key `{path}.{key}`, expected one of `preset`, `{}`",
+                known.join("`, `")
+            ));
         };
-        if let Some(v) = self.variant {
-            c.variant = v;
+        match value {
+            serde_json::Value::Object(inner) if slot.is_object() => {
+                merge_keys(slot, inner, &format!("{path}.{key}"))?
+            }
+            value => *slot = value,
         }
-        if let Some(v) = self.encoder_width {
-            c.encoder_width = v;
-        }
-        if let Some(v) = self.d_model {
-            c.d_model = v;
-        }
-        if let Some(v) = self.d_hidden {
-            c.d_hidden = v;
-        }
-        if let Some(v) = self.d_blend {
-            c.d_blend = v;
-        }
-        if let Some(v) = self.dir_frequencies {
-            c.dir_frequencies = v;
-        }
-        if let Some(v) = self.voxel_size_m {
-            c.voxel_size_m = v;
-        }
-        if let Some(v) = self.box_enlarge {
-            c.box_enlarge = v;
-        }
-        if let Some(v) = self.cosine_temperature {
-            c.cosine_temperature = v;
-        }
-        c
     }
+    Ok(())
 }
 
 /// `[optim]`: Adam with an exponentially decaying learning rate (NHP:
@@ -278,10 +198,14 @@ pub struct TrainSection {
     /// MonoCap with `steps = 0`); `--resume` from the run's own checkpoints takes precedence.
     #[serde(default)]
     pub init_from: Option<PathBuf>,
+    /// Weight of the mask loss `mean (acc - mask)^2` added to the paper's loss (0: the paper's
+    /// loss only; see `nia_model::loss::mask_loss`).
+    #[serde(default)]
+    pub mask_loss_weight: f32,
 }
 
 fn default_rays() -> usize {
-    nia_data::sampling::NHP_RAYS_PER_IMAGE
+    nia_data::dataset::sampling::NHP_RAYS_PER_IMAGE
 }
 fn default_samples() -> usize {
     64
@@ -300,58 +224,6 @@ fn default_validation_images() -> usize {
 }
 fn default_backend() -> Backend {
     Backend::Flex
-}
-
-/// `[synth]`: generate this synthetic dataset into `data.root` when it is missing.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SynthSection {
-    pub subjects: usize,
-    pub frames: usize,
-    pub cameras: usize,
-    pub size: u32,
-    #[serde(default)]
-    pub seed: u64,
-    #[serde(default = "default_supersample")]
-    pub supersample: u32,
-    #[serde(default = "default_test_fraction")]
-    pub test_fraction: f32,
-}
-
-fn default_supersample() -> u32 {
-    2
-}
-fn default_test_fraction() -> f32 {
-    SynthSpec::default().test_fraction
-}
-
-impl SynthSection {
-    pub fn spec(&self) -> SynthSpec {
-        SynthSpec {
-            subjects: self.subjects,
-            frames: self.frames,
-            cameras: self.cameras,
-            size: self.size,
-            seed: self.seed,
-            supersample: self.supersample,
-            test_fraction: self.test_fraction,
-            ..SynthSpec::default()
-        }
-    }
-}
-
-/// The `[synth]` key of a [`SynthSpec`] field name.
-fn synth_key(field: &'static str) -> &'static str {
-    match field {
-        "subjects" => "synth.subjects",
-        "frames" => "synth.frames",
-        "cameras" => "synth.cameras",
-        "size" => "synth.size",
-        "seed" => "synth.seed",
-        "supersample" => "synth.supersample",
-        "test_fraction" => "synth.test_fraction",
-        _ => "synth",
-    }
 }
 
 /// The dotted key (`section.key`) whose line holds byte `offset` of `text`, from the nearest
@@ -381,8 +253,8 @@ fn key_at(text: &str, offset: usize) -> Option<String> {
 #[serde(deny_unknown_fields)]
 pub struct TrainConfig {
     pub data: DataConfig,
-    #[serde(default)]
-    pub model: ModelSection,
+    #[serde(default = "ModelConfig::new", deserialize_with = "model_from_preset")]
+    pub model: ModelConfig,
     #[serde(default)]
     pub optim: OptimConfig,
     pub train: TrainSection,
@@ -437,6 +309,13 @@ impl TrainConfig {
         if t.source_views == 0 {
             return Err(bad("train.source_views", ">= 1", "0".into()));
         }
+        if !(t.mask_loss_weight.is_finite() && t.mask_loss_weight >= 0.0) {
+            return Err(bad(
+                "train.mask_loss_weight",
+                "a finite value >= 0",
+                t.mask_loss_weight.to_string(),
+            ));
+        }
         if t.checkpoint_every == 0 {
             return Err(bad("train.checkpoint_every", ">= 1", "0".into()));
         }
@@ -452,13 +331,13 @@ impl TrainConfig {
             {
                 return Err(ConfigError::Invalid {
                     path: path.to_path_buf(),
-                    key: synth_key(field),
+                    key: SynthSection::key(field),
                     expected,
                     got,
                 });
             }
         }
-        if let Err(message) = self.model.build().check() {
+        if let Err(message) = self.model.check() {
             return Err(bad("model", "a buildable network", message));
         }
         let d = &self.data;
@@ -532,7 +411,7 @@ impl TrainConfig {
             }
         }
         if let Some(dir) = &t.init_from {
-            if !dir.join(crate::checkpoint::MODEL_FILE).is_file() {
+            if !dir.join(checkpoint::MODEL_FILE).is_file() {
                 return Err(bad(
                     "train.init_from",
                     "a checkpoint folder holding model.bpk",

@@ -2,7 +2,7 @@
 //!
 //! Per step: the step's scene (a training frame, `source_views` random source cameras and one
 //! other target camera, [`TrainData::request_for_step`]), its training rays (NHP sampling),
-//! jittered stratified samples, the forward pass ([`NiaModel::encode_scene`] +
+//! jittered stratified samples, the forward pass ([`NiaModel::encode`] +
 //! [`NiaModel::render`]), the loss (NIA eq. 6), the backward pass, clipping of the gradient by
 //! its global L2 norm, and an Adam step at the scheduled learning rate. A step whose loss or
 //! gradient is not finite changes nothing and is reported as [`TrainEvent::Skipped`].
@@ -21,18 +21,17 @@ use std::time::Instant;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
-use nia_data::loader::{Scene, SceneLoader, SceneTarget};
-use nia_data::protocol::EvalSplit;
+use nia_data::dataset::loader::{Scene, SceneLoader, SceneTarget};
+use nia_data::dataset::protocol::EvalSplit;
 use nia_data::rng::Rng;
-use nia_model::loss::{psnr_from_mse, render_loss};
-use nia_model::model::ModelError;
-use nia_model::scene::{SceneBody, SceneGeometry, SceneInput, SourceView};
-use nia_model::{ModelConfig, NiaModel, RayBatch};
+use nia_data::scene::SceneInput;
+use nia_infer::eval::{eval_items, evaluate_items, EvalError};
+use nia_model::loss::{mask_loss, psnr_from_mse, render_loss};
+use nia_model::store::checkpoint::{self, CheckpointError};
+use nia_model::{ModelError, NiaModel};
 
-use crate::checkpoint::{self, CheckpointError};
 use crate::config::TrainConfig;
 use crate::data::{DataError, TrainData};
-use crate::evaluate::{eval_items, evaluate_items};
 use crate::events::TrainEvent;
 
 /// Label of the jitter stream forked from a step's RNG (the loader uses the request seed).
@@ -44,7 +43,7 @@ pub enum TrainError {
     #[error(transparent)]
     Data(#[from] DataError),
     #[error("loader: {0}")]
-    Loader(#[from] nia_data::loader::LoaderError),
+    Loader(#[from] nia_data::dataset::loader::LoaderError),
     #[error("{0}")]
     Backend(#[from] nia_model::device::BackendUnavailable),
     #[error("step {step} ({subject}, frame {frame}): {source}")]
@@ -54,13 +53,8 @@ pub enum TrainError {
         frame: usize,
         source: ModelError,
     },
-    #[error("evaluating {subject}, frame {frame}, view {view}: {message}")]
-    Eval {
-        subject: String,
-        frame: usize,
-        view: usize,
-        message: String,
-    },
+    #[error(transparent)]
+    Eval(#[from] EvalError),
     #[error("checkpoint: {0}")]
     Checkpoint(#[from] CheckpointError),
     #[error("{}: cannot create the output folder: {source}", path.display())]
@@ -68,8 +62,6 @@ pub enum TrainError {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("protocol: {0}")]
-    Protocol(#[from] nia_data::protocol::ProtocolError),
     #[error("the loader produced a scene without training rays at step {0}")]
     NoRays(u64),
 }
@@ -117,8 +109,7 @@ pub fn train(
     let t = &config.train;
     let device = t.backend.device()?.autodiff();
     device.seed(t.seed);
-    let model_config = config.model.build();
-    let mut model = model_config.init(&device);
+    let mut model = config.model.init(&device);
     let mut optimizer = adam(config).init();
     let mut first_step = 0;
     let mut last_checkpoint = None;
@@ -143,7 +134,7 @@ pub fn train(
     let requests = (first_step..t.steps)
         .map(|step| data.request_for_step(t.seed, step, t.source_views))
         .collect();
-    let loader = SceneLoader::new(data.source.clone(), requests, data.loader)?;
+    let loader = SceneLoader::new(data.dataset.source.clone(), requests, data.dataset.loader)?;
     let run_start = Instant::now();
     let mut summary = TrainSummary {
         steps: first_step,
@@ -158,9 +149,8 @@ pub fn train(
         let lr = config.optim.lr_at(step);
         let outcome = train_step(
             &model,
-            &model_config,
             &scene,
-            &data.source.faces,
+            &data.dataset.source.faces,
             config,
             step,
             &device,
@@ -195,12 +185,15 @@ pub fn train(
         summary.steps = done;
         summary.steps_run += 1;
         if t.validate_every > 0 && done % t.validate_every == 0 {
-            let items = eval_items(&data, EvalSplit::UnseenSubjects, Some(t.validation_images))?;
+            let items = eval_items(
+                &data.dataset,
+                EvalSplit::UnseenSubjects,
+                Some(t.validation_images),
+            )?;
             let chunk = t.rays_per_step;
             if let Some(m) = evaluate_items(
                 &model,
-                &model_config,
-                &data,
+                &data.dataset,
                 &items,
                 t.samples,
                 chunk,
@@ -222,7 +215,7 @@ pub fn train(
                 &model,
                 &optimizer,
                 config,
-                &model_config,
+                &config.model,
                 t.keep_last,
             )?;
             on_event(TrainEvent::Checkpoint {
@@ -234,11 +227,10 @@ pub fn train(
     }
     if t.evaluate_at_end {
         let split = EvalSplit::UnseenSubjects;
-        let items = eval_items(&data, split, None)?;
+        let items = eval_items(&data.dataset, split, None)?;
         if let Some(m) = evaluate_items(
             &model,
-            &model_config,
-            &data,
+            &data.dataset,
             &items,
             t.samples,
             t.rays_per_step,
@@ -280,41 +272,8 @@ enum StepOutcome {
     Skipped(String),
 }
 
-/// The network's view of a loaded scene.
-pub fn scene_input(scene: &Scene, faces: &[[u32; 3]]) -> SceneInput {
-    let views = scene
-        .sources
-        .iter()
-        .map(|s| {
-            let (w, h) = (s.image.width() as usize, s.image.height() as usize);
-            // [H * W * 3] interleaved -> [3, H, W] planar.
-            let mut planar = vec![0.0f32; 3 * w * h];
-            for (p, rgb) in s.image.image.chunks_exact(3).enumerate() {
-                for c in 0..3 {
-                    planar[c * w * h + p] = rgb[c];
-                }
-            }
-            SourceView {
-                camera: s.image.camera,
-                image: planar,
-                vertex_visibility: s.visibility.iter().map(|&v| v as f32).collect(),
-            }
-        })
-        .collect();
-    SceneInput {
-        views,
-        body: SceneBody {
-            vertices: scene.vertices.clone(),
-            faces: faces.to_vec(),
-            rh: scene.params.rh,
-            th: scene.params.th,
-        },
-    }
-}
-
 fn train_step(
     model: &NiaModel,
-    model_config: &ModelConfig,
     scene: &Scene,
     faces: &[[u32; 3]],
     config: &TrainConfig,
@@ -330,29 +289,29 @@ fn train_step(
         frame: scene.frame,
         source,
     };
-    let input = scene_input(scene, faces);
-    let geometry =
-        SceneGeometry::new(&input, model_config).map_err(|e| model_err(ModelError::Scene(e)))?;
+    let input = SceneInput::from_loaded(scene, faces);
     let encoded = model
-        .encode_scene(&input, &geometry, None, device)
+        .encode(&input, None, device, None)
         .map_err(model_err)?;
-    let batch = RayBatch {
-        origins: rays.origins.clone(),
-        dirs: rays.dirs.clone(),
-        near: rays.near.clone(),
-        far: rays.far.clone(),
-    };
     let samples = config.train.samples;
     let mut jitter_rng = Rng::new(config.train.seed).fork(step).fork(JITTER_STREAM);
-    let jitter: Vec<f32> = (0..batch.len() * samples)
+    let jitter: Vec<f32> = (0..rays.len() * samples)
         .map(|_| jitter_rng.uniform())
         .collect();
     let out = model
-        .render(&encoded, &geometry, &batch, samples, Some(&jitter), device)
+        .render(&encoded, &rays.rays, samples, Some(&jitter), None)
         .map_err(model_err)?;
     let gt: Vec<f32> = rays.rgb.iter().flatten().copied().collect();
-    let gt = Tensor::<2>::from_data(TensorData::new(gt, [batch.len(), 3]), device);
-    let loss = render_loss(out.rgb, out.rgb0, gt).map_err(|e| model_err(ModelError::Shape(e)))?;
+    let gt = Tensor::<2>::from_data(TensorData::new(gt, [rays.len(), 3]), device);
+    let acc = out.acc.clone();
+    let mut loss =
+        render_loss(out.rgb, out.rgb0, gt).map_err(|e| model_err(ModelError::Shape(e)))?;
+    if config.train.mask_loss_weight > 0.0 {
+        let on_body: Vec<f32> = rays.on_body.iter().map(|&b| b as u8 as f32).collect();
+        let on_body = Tensor::<1>::from_data(TensorData::new(on_body, [rays.len()]), device);
+        let mask = mask_loss(acc, on_body).map_err(|e| model_err(ModelError::Shape(e)))?;
+        loss.total = loss.total + mask.mul_scalar(config.train.mask_loss_weight);
+    }
     let values = Tensor::cat(
         vec![
             loss.total.clone().detach(),
@@ -387,7 +346,7 @@ fn train_step(
         loss: total,
         mse,
         mse0,
-        rays: batch.len(),
+        rays: rays.len(),
     })
 }
 

@@ -8,7 +8,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use nia_train::checkpoint::{self, SavedConfig, CONFIG_FILE, FAULT_PAUSE_ENV};
+use nia_model::store::checkpoint::{self, FAULT_PAUSE_ENV};
+use nia_train::config::TrainConfig;
 
 /// How long one tiny run may take before the test gives up waiting for a state.
 const WAIT_LIMIT: Duration = Duration::from_secs(300);
@@ -132,12 +133,12 @@ fn load_latest(out: &Path) -> u64 {
     let (step, dir) = checkpoint::latest(out)
         .unwrap()
         .expect("a complete checkpoint exists");
-    let text = std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap();
-    let saved: SavedConfig = serde_json::from_str(&text).unwrap();
+    let saved = checkpoint::read_config(&dir).unwrap();
+    let run: TrainConfig = serde_json::from_value(saved.run.clone()).unwrap();
     #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
     let device = burn::prelude::Device::ndarray().autodiff();
     let model = saved.model.init(&device);
-    let optimizer = nia_train::train_loop::adam(&saved.run).init();
+    let optimizer = nia_train::train_loop::adam(&run).init();
     let (_, _, loaded_step) = checkpoint::load(&dir, model, optimizer)
         .unwrap_or_else(|e| panic!("checkpoint {} does not load: {e}", dir.display()));
     assert_eq!(loaded_step, step);

@@ -23,7 +23,7 @@ use std::process::Command;
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
-use nia_train::checkpoint::{self, SavedConfig, CONFIG_FILE};
+use nia_model::store::checkpoint;
 
 /// Steps each run takes before its weights are compared.
 const STEPS: u64 = 3;
@@ -157,8 +157,7 @@ impl ModuleVisitor for Weights {
 
 /// The weights of a checkpoint folder, loaded the way `init_from` does.
 fn weights(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let text = std::fs::read_to_string(dir.join(CONFIG_FILE)).unwrap();
-    let saved: SavedConfig = serde_json::from_str(&text).unwrap();
+    let saved = checkpoint::read_config(dir).unwrap();
     #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
     let device = burn::prelude::Device::ndarray();
     let model = checkpoint::load_model(dir, saved.model.init(&device))

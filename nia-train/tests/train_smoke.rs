@@ -5,6 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use nia_model::store::checkpoint;
+
 /// The same weights rendering the same images: only reduction order may differ (ndarray).
 const EVAL_REPEAT_TOL_DB: f64 = 1e-3;
 
@@ -266,14 +268,11 @@ fn final_weights(out: &Path) -> Vec<Vec<u32>> {
             self.0.push(v.iter().map(|x| x.to_bits()).collect());
         }
     }
-    let (_, dir) = nia_train::checkpoint::latest(out).unwrap().unwrap();
-    let saved: nia_train::checkpoint::SavedConfig = serde_json::from_str(
-        &std::fs::read_to_string(dir.join(nia_train::checkpoint::CONFIG_FILE)).unwrap(),
-    )
-    .unwrap();
+    let (_, dir) = checkpoint::latest(out).unwrap().unwrap();
+    let saved = checkpoint::read_config(&dir).unwrap();
     #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
     let device = Device::ndarray();
-    let model = nia_train::checkpoint::load_model(&dir, saved.model.init(&device)).unwrap();
+    let model = checkpoint::load_model(&dir, saved.model.init(&device)).unwrap();
     let mut c = Collect(Vec::new());
     model.visit(&mut c);
     c.0
@@ -289,7 +288,7 @@ fn preset(name: &str) -> PathBuf {
 fn presets_parse() {
     let quick = nia_train::config::TrainConfig::load(&preset("quickstart.toml")).unwrap();
     assert!(quick.synth.is_some(), "quickstart generates its data");
-    assert_eq!(quick.model.build().d_model, 16, "tiny network");
+    assert_eq!(quick.model.d_model, 16, "tiny network");
     // zju.toml is complete but for the user's data: the only complaint is the missing folder.
     let err = nia_train::config::TrainConfig::load(&preset("zju.toml"));
     match err {

@@ -6,12 +6,14 @@
 //!   helpers reposing needs ([`rodrigues`], [`blend_transform`], [`inverse_lbs`]).
 //! - [`procedural`]: a watertight, rigged human of SMPL's skeleton from a [`ProceduralSpec`].
 //! - [`motion`]: walking and arm-swinging poses in SMPL axis-angle.
+//! - [`reposing`]: the reposing transform of pose animation (target pose -> reference pose).
 //! - [`topology`]: closed-manifold, orientation and Euler-characteristic checks of a mesh.
 
 pub mod error;
 pub mod lbs;
 pub mod motion;
 pub mod procedural;
+pub mod reposing;
 pub mod smpl;
 pub mod topology;
 
@@ -22,6 +24,7 @@ pub use lbs::{
 };
 pub use motion::{pose_for_motion, MotionKind};
 pub use procedural::{ProceduralBody, ProceduralSpec};
+pub use reposing::{Reposer, RepositionError, RepositionedPoints};
 pub use smpl::{
     BodyModel, JOINT_NAMES, KINTREE_ROOT, NUM_JOINTS, NUM_POSE_FEATURES, SMPL_KEYS, SMPL_PARENTS,
     WEIGHT_SUM_TOL,

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 
 use super::image_io::ImageIoError;
 use crate::body::BodyError;
-use crate::camera::CameraError;
 use crate::formats::FormatError;
-use crate::raster::MeshError;
+use crate::geometry::camera::CameraError;
+use crate::geometry::raster::MeshError;
 
 /// A dataset reading error.
 #[derive(Debug, thiserror::Error)]

@@ -9,7 +9,7 @@ use super::error::DatasetError;
 use super::subject::Subject;
 use super::DatasetConfig;
 use crate::body::BodyModel;
-use crate::rays::Aabb;
+use crate::geometry::rays::Aabb;
 
 /// One camera, row-major, as numpy would print it.
 #[derive(Debug, Clone, PartialEq, Serialize)]

@@ -1,6 +1,8 @@
 //! Dataset readers: ZJU-MoCap `CoreView_XXX` folders as they ship, MonoCap (the same layout
 //! plus `lbs/`), and the synthetic set (written in the ZJU layout), all through one reader,
-//! [`Subject`]. Plus the on-disk cache of per-view vertex visibility and the `inspect` summary.
+//! [`Subject`]. Plus the on-disk cache of per-view vertex visibility, the `inspect` summary, the
+//! evaluation protocol, training ray sampling, the prefetching scene loader, and a run's opened
+//! dataset ([`OpenedDataset`]).
 //!
 //! Typical use:
 //!
@@ -14,7 +16,11 @@
 pub mod error;
 pub mod image_io;
 pub mod inspect;
+pub mod loader;
 pub mod monocap;
+pub mod opened;
+pub mod protocol;
+pub mod sampling;
 pub mod subject;
 pub mod vis_cache;
 pub mod zju;
@@ -22,6 +28,7 @@ pub mod zju;
 pub use error::DatasetError;
 pub use inspect::{inspect, InspectReport};
 pub use monocap::MonoCapLbs;
+pub use opened::{DataConfig, OpenError, OpenedDataset, ProtocolName};
 pub use subject::{FrameFiles, Subject, ViewImage};
 pub use vis_cache::{VisibilityCache, VisibilityKey};
 

@@ -1,5 +1,5 @@
 //! One subject folder, opened: its cameras, frames and the files of each frame, and the
-//! loading of a view the way NHP prepares it (DESIGN.md section 3):
+//! loading of a view the way NHP prepares it (docs/method.md "Data"):
 //!
 //! 1. the RGB image, `u8 / 255` as float;
 //! 2. the foreground mask, the union of `mask/` and `mask_cihp/` (value != 0);
@@ -24,7 +24,7 @@ use super::monocap::MonoCapLbs;
 use super::zju::{self, Annots};
 use super::{DatasetConfig, DatasetFormat};
 use crate::body::{BodyModel, SmplParams};
-use crate::camera::{Camera, UndistortMap};
+use crate::geometry::camera::{Camera, UndistortMap};
 
 /// Undistorted masks are kept where the bilinear weight of foreground reaches this value:
 /// `cv2.undistort` of a 0/1 `uint8` mask rounds the interpolated value to the nearest integer.

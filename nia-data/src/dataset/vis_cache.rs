@@ -15,8 +15,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use glam::Vec3;
 
 use super::error::DatasetError;
-use crate::camera::Camera;
-use crate::visibility::visibility;
+use crate::geometry::camera::Camera;
+use crate::geometry::visibility::visibility;
 
 /// Bump when the visibility algorithm (or this file format) changes: every cached entry then
 /// misses and is recomputed.
@@ -176,7 +176,7 @@ impl VisibilityCache {
 
     /// The [V] 0/1 visibility of `vertices` in `camera` for `subject`'s `frame` and `view`:
     /// from the cache when its key matches, else computed with
-    /// [`crate::visibility::visibility`] and stored.
+    /// [`crate::geometry::visibility::visibility`] and stored.
     #[allow(clippy::too_many_arguments)]
     pub fn get_or_compute(
         &self,

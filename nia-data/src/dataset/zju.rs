@@ -1,4 +1,4 @@
-//! The ZJU-MoCap `CoreView_XXX` layout, read as the dataset ships it (DESIGN.md section 3):
+//! The ZJU-MoCap `CoreView_XXX` layout, read as the dataset ships it (docs/method.md "Data"):
 //!
 //! ```text
 //! annots.npy                   np.save of {'cams': {'K','D','R','T'}, 'ims': [{'ims': [...]}]}
@@ -25,8 +25,8 @@ use glam::Vec3;
 
 use super::error::DatasetError;
 use crate::body::SmplParams;
-use crate::camera::Camera;
 use crate::formats::{self, PyValue};
+use crate::geometry::camera::Camera;
 
 /// Millimetres per metre: `annots['cams']['T']` is stored in millimetres.
 pub const MM_PER_M: f64 = 1000.0;
@@ -56,7 +56,11 @@ pub struct AnnotCamera {
 
 impl AnnotCamera {
     /// The camera for images of `width x height` pixels (raw, distorted).
-    pub fn camera(&self, width: u32, height: u32) -> Result<Camera, crate::camera::CameraError> {
+    pub fn camera(
+        &self,
+        width: u32,
+        height: u32,
+    ) -> Result<Camera, crate::geometry::camera::CameraError> {
         Camera::from_rows(self.k, self.r, self.t, self.dist, width, height)
     }
 }

@@ -1,5 +1,5 @@
 //! The file formats the datasets and the SMPL model are written in: Python pickles (our own
-//! reader, DESIGN.md section 3), `.npy` (plain and object arrays), `.npz`, and the writers the
+//! reader, docs/method.md "Data"), `.npy` (plain and object arrays), `.npz`, and the writers the
 //! synthetic generator needs to produce files real numpy loads.
 
 pub mod npy;

@@ -1,4 +1,4 @@
-//! Our own Python pickle reader (protocols 0-5, the opcode set of DESIGN.md section 3 and a
+//! Our own Python pickle reader (protocols 0-5, the opcode set of docs/method.md "Data" and a
 //! few more), with numpy arrays, numpy scalars and dtypes decoded natively.
 //!
 //! Decoding runs the pickle machine over an arena of mutable nodes: the memo and the stack

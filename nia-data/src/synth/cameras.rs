@@ -1,6 +1,6 @@
 //! The capture rig: a ring of cameras around the subject, as in ZJU-MoCap (world z up).
 
-use crate::camera::{Camera, CameraError};
+use crate::geometry::camera::{Camera, CameraError};
 use crate::rng::Rng;
 use glam::Vec3;
 use std::f32::consts::TAU;

@@ -1,5 +1,5 @@
 //! The synthetic multi-view human generator: subjects written in the exact ZJU-MoCap layout
-//! (DESIGN.md section 3), so every reader, the protocol and the trainer run on them unchanged.
+//! (docs/method.md "Data"), so every reader, the protocol and the trainer run on them unchanged.
 //!
 //! Each subject is the procedural SMPL-compatible body with its own proportions (betas), skin
 //! tone and clothes: a shirt and trousers offset from the body surface (so the clothed surface
@@ -19,15 +19,18 @@
 
 pub mod cameras;
 pub mod clothing;
+pub mod config;
 pub mod render;
 pub mod subject;
 pub mod texture;
 pub mod writer;
 
+pub use config::SynthSection;
+
 use crate::body::{BodyError, BodyModel, ProceduralBody, ProceduralSpec, SmplParams};
-use crate::camera::{Camera, CameraError};
 use crate::formats::FormatError;
-use crate::raster::MeshError;
+use crate::geometry::camera::{Camera, CameraError};
+use crate::geometry::raster::MeshError;
 use crate::rng::Rng;
 use cameras::{camera_ring, RingSpec};
 use clothing::{clothe, vertex_normals};

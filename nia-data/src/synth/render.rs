@@ -5,8 +5,8 @@
 
 use super::clothing::{classify, BodyFrame, Cut, PART_COUNT};
 use super::texture::Look;
-use crate::camera::Camera;
-use crate::raster::{rasterize, MeshError, EMPTY_FACE};
+use crate::geometry::camera::Camera;
+use crate::geometry::raster::{rasterize, MeshError, EMPTY_FACE};
 use glam::Vec3;
 use rayon::prelude::*;
 

@@ -1,4 +1,4 @@
-//! Writing one subject in the ZJU-MoCap layout (DESIGN.md section 3):
+//! Writing one subject in the ZJU-MoCap layout (docs/method.md "Data"):
 //!
 //! ```text
 //! CoreView_<id>/annots.npy                 np.save of {'cams': {'K','D','R','T'}, 'ims': [...]}
@@ -11,8 +11,8 @@
 //! `T` in `annots.npy` is in millimetres, as in ZJU-MoCap; everything else is in metres.
 
 use super::SynthError;
-use crate::camera::Camera;
 use crate::formats::{npy, ArrayData, NdArray, PyValue};
+use crate::geometry::camera::Camera;
 use glam::Vec3;
 use image::codecs::jpeg::JpegEncoder;
 use image::codecs::png::PngEncoder;

@@ -3,27 +3,28 @@
 //! from one camera: PNG frames and an animated GIF.
 //!
 //! The source images' feature maps are computed once; each pose rebuilds only the body volume
-//! on the posed vertices ([`nia_model::NiaModel::encode_pose_timed`]). The subject keeps the
+//! on the posed vertices ([`nia_model::NiaModel::encode_pose`]). The subject keeps the
 //! reference frame's body shape (`shapes`): a pose's own shape coefficients are replaced by the
 //! reference's, since the images show one person.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::Context;
 use clap::Args;
+use nia_data::body::reposing::Reposer;
 use nia_data::body::SmplParams;
+use nia_data::dataset::sampling::BoxPadding;
 use nia_data::dataset::zju::read_params;
-use nia_data::sampling::BoxPadding;
-use nia_model::image_render::{render_image, ImageRays, ImageRenderOptions};
-use nia_model::reposing::Reposer;
-use nia_model::scene::SceneGeometry;
+use nia_data::geometry::rays::RayBundle;
+use nia_data::scene::SceneInput;
+use nia_infer::pictures::{rgb8, save_gif, save_png};
+use nia_model::image::{render_image, ImageRenderOptions};
 use nia_model::timing::StageTimes;
-use nia_train::train_loop::scene_input;
 use serde::Serialize;
 
-use crate::commands::render::{progress_bar, stage_ms};
 use crate::model_load::{LoadedModel, ModelArgs};
-use crate::pictures::{rgb8, save_gif, save_png};
+use crate::output::{progress_bar, write_json};
 use crate::subject_scene::{parse_views, OpenedSubject, SubjectArgs, ViewList};
 
 #[derive(Args, Debug)]
@@ -155,11 +156,8 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 
-    let input = scene_input(&scene, &opened.source.faces);
-    let geometry = SceneGeometry::new(&input, &loaded.config)?;
-    let base = loaded
-        .model
-        .encode_scene(&input, &geometry, None, &loaded.device)?;
+    let input = SceneInput::from_loaded(&scene, &opened.source.faces);
+    let base = loaded.model.encode(&input, None, &loaded.device, None)?;
     let camera = opened.camera(args.target);
     let bar = progress_bar(poses.len() as u64, "poses");
     let mut frames = Vec::new();
@@ -171,37 +169,29 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
             shapes: scene.params.shapes.clone(),
             ..params.clone()
         };
-        let reposer = Reposer::new(&opened.body, &scene.params, &target)
-            .with_context(|| format!("reposing to {label}"))?;
+        let reposer = Arc::new(
+            Reposer::new(&opened.body, &scene.params, &target)
+                .with_context(|| format!("reposing to {label}"))?,
+        );
         let body_box = BoxPadding::nhp()
             .body_box(reposer.target_vertices())
             .with_context(|| format!("{label}: the posed body has no finite vertices"))?;
         let occupancy = adaptive.occupancy(reposer.target_vertices(), &opened.source.faces)?;
-        let encoding = if reposer.is_identity() {
-            base.clone()
-        } else {
-            loaded.model.encode_pose_timed(
-                &base,
-                &geometry,
-                &reposer.target_vertices_smpl(),
-                &loaded.device,
-                Some(&mut times),
-            )?
-        }
-        .with_occupancy(occupancy);
-        let rays = ImageRays::new(&camera, &body_box, None);
+        let encoding = loaded
+            .model
+            .encode_pose(&base, reposer.clone(), Some(&mut times))?
+            .with_occupancy(occupancy);
+        let rays = RayBundle::through_pixels(&camera, &body_box, None);
         let img = render_image(
             &loaded.model,
             &encoding,
-            &geometry,
-            Some(&reposer),
             &rays,
+            [camera.width as usize, camera.height as usize],
             ImageRenderOptions {
                 samples,
                 chunk: args.model.chunk,
                 timed: true,
             },
-            &loaded.device,
             &mut |_, _| {},
         )
         .with_context(|| format!("rendering {label}"))?;
@@ -216,7 +206,7 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
             rays: img.rays,
             point_evaluations: img.point_evaluations,
             seconds: started.elapsed().as_secs_f64(),
-            stage_ms: stage_ms(&times),
+            stage_ms: times.milliseconds(),
         });
         bar.inc(1);
     }
@@ -236,9 +226,4 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
     write_json(&args.out.join("animate.json"), &report)?;
     println!("{}", serde_json::to_string_pretty(&report)?);
     Ok(())
-}
-
-pub fn write_json<T: Serialize>(path: &Path, value: &T) -> anyhow::Result<()> {
-    std::fs::write(path, serde_json::to_string_pretty(value)?)
-        .with_context(|| format!("writing {}", path.display()))
 }

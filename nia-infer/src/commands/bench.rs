@@ -10,15 +10,15 @@ use burn::prelude::*;
 use clap::Args;
 use glam::{Vec2, Vec3};
 use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
-use nia_data::camera::Camera;
-use nia_data::rays::{near_far, pixel_ray};
+use nia_data::geometry::camera::Camera;
+use nia_data::geometry::rays::{near_far, pixel_ray, Aabb, RayBundle};
+use nia_data::geometry::visibility::visibility;
 use nia_data::rng::Rng;
-use nia_data::visibility::visibility;
+use nia_data::scene::{SceneBody, SceneInput, SourceView, RAY_BOX_PADDING_M};
 use nia_model::device::Backend;
 use nia_model::loss::render_loss;
-use nia_model::scene::{SceneBody, SceneGeometry, SceneInput, SourceView};
 use nia_model::timing::{Stage, StageTimes};
-use nia_model::{ModelConfig, RayBatch};
+use nia_model::ModelConfig;
 use serde::Serialize;
 
 #[derive(Args, Debug)]
@@ -64,10 +64,7 @@ struct Report {
 }
 
 /// The benchmark scene and `rays` rays of a target camera that hit the ray box.
-fn bench_scene(
-    args: &BenchArgs,
-    config: &ModelConfig,
-) -> anyhow::Result<(SceneInput, SceneGeometry, RayBatch)> {
+fn bench_scene(args: &BenchArgs) -> anyhow::Result<(SceneInput, RayBundle)> {
     let model = ProceduralBody::generate(&ProceduralSpec::default())?;
     let vertices = model.lbs(&SmplParams::default()).vertices;
     let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
@@ -105,9 +102,11 @@ fn bench_scene(
             th: Vec3::ZERO,
         },
     };
-    let geometry = SceneGeometry::new(&input, config)?;
+    let ray_box = Aabb::from_points(&input.body.vertices)
+        .context("the procedural body has no finite vertices")?
+        .padded(RAY_BOX_PADDING_M);
     let target = camera_at(0.9)?;
-    let mut rays = RayBatch::default();
+    let mut rays = RayBundle::default();
     let mut tries = 0;
     while rays.len() < args.rays {
         tries += 1;
@@ -118,14 +117,12 @@ fn bench_scene(
         );
         let px = Vec2::new(rng.range(0.0, size as f32), rng.range(0.0, size as f32));
         let ray = pixel_ray(&target, px);
-        if let Some((near, far)) = near_far(&ray, &geometry.ray_box) {
-            rays.origins.push(ray.origin);
-            rays.dirs.push(ray.dir);
-            rays.near.push(near);
-            rays.far.push(far);
+        if let Some((near, far)) = near_far(&ray, &ray_box) {
+            let pixel = px.y as u32 * size + px.x as u32;
+            rays.push(ray, near, far, pixel);
         }
     }
-    Ok((input, geometry, rays))
+    Ok((input, rays))
 }
 
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
@@ -136,8 +133,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     } else {
         ModelConfig::new()
     };
-    let (input, geometry, rays) =
-        bench_scene(&args, &config).context("building the benchmark scene")?;
+    let (input, rays) = bench_scene(&args).context("building the benchmark scene")?;
     device.seed(0);
     let model = config.init(&device);
 
@@ -147,16 +143,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     for rep in 0..=args.reps {
         let mut times = StageTimes::default();
         let start = Instant::now();
-        let scene = model.encode_scene_timed(&input, &geometry, None, &device, Some(&mut times))?;
-        let out = model.render_timed(
-            &scene,
-            &geometry,
-            &rays,
-            args.samples,
-            None,
-            &device,
-            Some(&mut times),
-        )?;
+        let scene = model.encode(&input, None, &device, Some(&mut times))?;
+        let out = model.render(&scene, &rays, args.samples, None, Some(&mut times))?;
         let rgb = out
             .rgb
             .into_data()
@@ -191,8 +179,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 .map(|_| rng.uniform())
                 .collect();
             let start = Instant::now();
-            let scene = model.encode_scene(&input, &geometry, None, &ad)?;
-            let out = model.render(&scene, &geometry, &rays, args.samples, Some(&jitter), &ad)?;
+            let scene = model.encode(&input, None, &ad, None)?;
+            let out = model.render(&scene, &rays, args.samples, Some(&jitter), None)?;
             let loss = render_loss(out.rgb, out.rgb0, gt.clone())?;
             let grads = GradientsParams::from_grads(loss.total.backward(), &model);
             model = optim.step(5e-4, model, grads);

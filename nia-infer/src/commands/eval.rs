@@ -3,23 +3,23 @@
 //! `metrics.csv` and a `report.md` table; comparison grids (sources | prediction | ground
 //! truth | error map) and blend-weight maps (channel 0 = NeRF, 1..N = source views) as PNGs.
 
+use nia_infer::diagnostics::{diagnostics_table, BlendDiagnostics};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use nia_data::protocol::EvalSplit;
-use nia_train::data::{OpenFor, TrainData};
-use nia_train::evaluate::{
-    eval_items, evaluate_images, EvalOptions, EvalSummary, EvalTask, ImageResult,
+use nia_data::dataset::protocol::EvalSplit;
+use nia_infer::eval::{
+    eval_items, evaluate_images, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult,
 };
+use nia_infer::pictures::{save_evaluated, ERROR_MAP_MAX};
+use nia_model::sampler::AdaptiveConfig;
 use serde::Serialize;
 
-use crate::commands::animate::write_json;
-use crate::commands::render::{progress_bar, stage_ms};
 use crate::model_load::{LoadedModel, ModelArgs};
-use crate::pictures::{blend_weight_maps, error_map, rgb8, row, save_png, ERROR_MAP_MAX};
+use crate::output::{progress_bar, write_json};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 #[value(rename_all = "snake_case")]
@@ -84,6 +84,7 @@ struct Mean {
     images: usize,
     psnr: f64,
     ssim: f64,
+    diagnostics: BlendDiagnostics,
 }
 
 impl From<EvalSummary> for Mean {
@@ -92,6 +93,7 @@ impl From<EvalSummary> for Mean {
             images: s.images,
             psnr: s.psnr,
             ssim: s.ssim,
+            diagnostics: s.diagnostics,
         }
     }
 }
@@ -110,7 +112,7 @@ struct Metrics<'a> {
     data: PathBuf,
     split: &'static str,
     task: &'static str,
-    adaptive: nia_model::adaptive::AdaptiveConfig,
+    adaptive: AdaptiveConfig,
     /// Novel pose: the source frame given on the command line (`None`: each subject's first).
     reference_frame: Option<usize>,
     samples: usize,
@@ -126,10 +128,6 @@ fn task_name(task: TaskArg) -> &'static str {
     }
 }
 
-fn image_stem(r: &ImageResult) -> String {
-    format!("{}_frame{:04}_view{:02}", r.subject, r.frame, r.target_view)
-}
-
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let loaded = LoadedModel::open(&args.model)?;
     let samples = loaded.samples(&args.model);
@@ -141,20 +139,14 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             reference_frame: args.ref_frame,
         },
     };
-    let mut run = loaded.run.clone();
-    if let Some(root) = &args.data {
-        run.data.root = root.clone();
-    }
-    if let Some(smpl) = &args.smpl {
-        run.data.smpl_model = Some(smpl.clone());
-    }
-    let data = TrainData::open_for(&run, OpenFor::Evaluation(split))
-        .with_context(|| format!("opening the `{}` split", split.name()))?;
+    let data_config = loaded.data_config(args.data.as_deref(), args.smpl.as_deref());
+    let root = data_config.root.clone();
+    let data = loaded.open_split(&data_config, split)?;
     let items = eval_items(&data, split, args.limit)?;
     if items.is_empty() {
         anyhow::bail!(
             "{}: the `{}` split has no images to evaluate",
-            run.data.root.display(),
+            root.display(),
             split.name()
         );
     }
@@ -168,7 +160,6 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let bar = progress_bar(items.len() as u64, "eval");
     let results = evaluate_images(
         &loaded.model,
-        &loaded.config,
         &data,
         split,
         &items,
@@ -186,44 +177,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             if args.no_pictures {
                 return Ok(());
             }
-            let stem = image_stem(e.result);
-            let (w, h) = (e.rendered.width, e.rendered.height);
-            let mut tiles: Vec<_> = e
-                .sources
-                .sources
-                .iter()
-                .map(|s| {
-                    rgb8(
-                        &s.image.image,
-                        s.image.width() as usize,
-                        s.image.height() as usize,
-                    )
-                })
-                .collect();
-            tiles.push(rgb8(&e.rendered.rgb, w, h));
-            tiles.push(rgb8(&e.ground_truth.image, w, h));
-            tiles.push(error_map(
-                &e.rendered.rgb,
-                &e.ground_truth.image,
-                e.mask_at_box,
-                w,
-                h,
-            ));
-            let save = |name: String, img| {
-                save_png(&pictures.join(name), &img).map_err(|err| {
-                    nia_train::train_loop::TrainError::Eval {
-                        subject: e.result.subject.clone(),
-                        frame: e.result.frame,
-                        view: e.result.target_view,
-                        message: format!("{err:#}"),
-                    }
-                })
-            };
-            save(format!("{stem}_grid.png"), row(&tiles))?;
-            save(
-                format!("{stem}_blend.png"),
-                blend_weight_maps(&e.rendered.blend_weights, e.rendered.blend_channels, w, h),
-            )
+            save_evaluated(&pictures, &e).map_err(|err| EvalError::Output(err.to_string()))
         },
     )?;
     bar.finish_and_clear();
@@ -243,7 +197,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let metrics = Metrics {
         model: loaded.path.clone(),
         model_step: loaded.step,
-        data: run.data.root.clone(),
+        data: root.clone(),
         split: split.name(),
         task: task_name(args.task),
         adaptive,
@@ -255,7 +209,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             .iter()
             .map(|r| ImageRow {
                 result: r,
-                stage_ms: stage_ms(&r.times),
+                stage_ms: r.times.milliseconds(),
             })
             .collect(),
     };
@@ -293,7 +247,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         split.name(),
         loaded.path.display(),
         loaded.step,
-        run.data.root.display()
+        root.display()
     );
     for (name, v) in &by_subject {
         if let Some(s) = EvalSummary::of(v) {
@@ -309,6 +263,13 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         "| **all** | {} | **{:.2}** | **{:.4}** |\n\nPSNR over `mask_at_box`, SSIM on its bounding-rectangle crop (NHP/NIA protocol). Pictures: `pictures/*_grid.png` (sources | prediction | ground truth | error, black to white = 0 to {ERROR_MAP_MAX} mean absolute error) and `pictures/*_blend.png` (blend weights: NeRF colour, then source views).",
         overall.images, overall.psnr, overall.ssim
     );
+    let mut rows: Vec<(String, BlendDiagnostics)> = by_subject
+        .iter()
+        .filter_map(|(name, v)| EvalSummary::of(v).map(|s| (name.clone(), s.diagnostics)))
+        .collect();
+    rows.push(("**all**".into(), overall.diagnostics));
+    md.push('\n');
+    md.push_str(&diagnostics_table(&rows));
     let md_path = args.out.join("report.md");
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
     println!(
@@ -319,6 +280,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             "images": overall.images,
             "psnr": overall.psnr,
             "ssim": overall.ssim,
+            "diagnostics": overall.diagnostics,
             "out": args.out,
         })
     );

@@ -1,12 +1,12 @@
 //! `nia-infer export`: a training checkpoint (or the newest one of a run folder) to one
-//! self-describing `.nia` model file ([`nia_model::model_file`]).
+//! self-describing `.nia` model file ([`nia_model::store::model_file`]).
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use nia_model::model_file::ModelFile;
-use nia_train::checkpoint::{self, SavedConfig, CONFIG_FILE, STEP_FILE};
+use nia_model::store::checkpoint::{self, CONFIG_FILE, STEP_FILE};
+use nia_model::store::model_file::ModelFile;
 use serde::Serialize;
 
 #[derive(Args, Debug)]
@@ -30,27 +30,17 @@ struct Report<'a> {
     weights_fnv1a64: &'a str,
 }
 
-/// The checkpoint folder `path` names: itself, or the newest under a run folder.
-fn checkpoint_dir(path: &Path) -> anyhow::Result<PathBuf> {
-    if path.join(STEP_FILE).is_file() {
-        return Ok(path.to_path_buf());
-    }
-    if let Some((_, dir)) = checkpoint::latest(path)? {
-        return Ok(dir);
-    }
-    anyhow::bail!(
-        "{}: not a checkpoint (no {STEP_FILE}) and no complete checkpoint under {}",
-        path.display(),
-        path.join(checkpoint::CHECKPOINT_DIR).display()
-    )
-}
-
 pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
-    let dir = checkpoint_dir(&args.checkpoint)?;
+    let path = &args.checkpoint;
+    let dir = checkpoint::resolve(path)?.with_context(|| {
+        format!(
+            "{}: not a checkpoint (no {STEP_FILE}) and no complete checkpoint under {}",
+            path.display(),
+            path.join(checkpoint::CHECKPOINT_DIR).display()
+        )
+    })?;
     let config_path = dir.join(CONFIG_FILE);
-    let text = std::fs::read_to_string(&config_path)
-        .with_context(|| format!("reading {}", config_path.display()))?;
-    let saved: SavedConfig = serde_json::from_str(&text).with_context(|| {
+    let saved = checkpoint::read_config(&dir).with_context(|| {
         format!(
             "{}: not a nia-train checkpoint config",
             config_path.display()
@@ -60,12 +50,12 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
         .model
         .check()
         .map_err(|e| anyhow::anyhow!("{}: model config: {e}", config_path.display()))?;
-    let step_path = dir.join(STEP_FILE);
-    let step: checkpoint::StepInfo = serde_json::from_str(
-        &std::fs::read_to_string(&step_path)
-            .with_context(|| format!("reading {}", step_path.display()))?,
-    )
-    .with_context(|| format!("{}: expected {{\"step\": N}}", step_path.display()))?;
+    let step = checkpoint::read_step(&dir).with_context(|| {
+        format!(
+            "{}: expected {{\"step\": N}}",
+            dir.join(STEP_FILE).display()
+        )
+    })?;
     // Loading into a network of the saved config checks that the weights fit it.
     #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
     let device = burn::prelude::Device::ndarray();
@@ -76,8 +66,7 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
             CONFIG_FILE
         )
     })?;
-    let run = serde_json::to_value(&saved.run).context("serialising the run config")?;
-    let file = ModelFile::from_model(&model, &saved.model, run, step.step)
+    let file = ModelFile::from_model(&model, &saved.model, saved.run.clone(), step)
         .map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
     file.write(&args.out)?;
     let bytes = std::fs::metadata(&args.out)
@@ -86,7 +75,7 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
     let report = Report {
         model: &args.out,
         checkpoint: &dir,
-        step: step.step,
+        step,
         variant: saved.model.variant,
         bytes,
         weights_fnv1a64: &file.header.weights.fnv1a64,

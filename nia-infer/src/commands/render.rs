@@ -7,15 +7,16 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
-use nia_model::image_render::{render_image, ImageRays, ImageRenderOptions};
-use nia_model::scene::SceneGeometry;
+use nia_data::geometry::rays::RayBundle;
+use nia_data::scene::SceneInput;
+use nia_infer::pictures::{blend_weight_maps, grey8, rgb8, save_png};
+use nia_model::image::{render_image, ImageRenderOptions};
+use nia_model::sampler::AdaptiveConfig;
 use nia_model::timing::StageTimes;
-use nia_train::train_loop::scene_input;
 use serde::Serialize;
 
 use crate::model_load::{LoadedModel, ModelArgs};
-use crate::pictures::{blend_weight_maps, grey8, rgb8, save_png};
+use crate::output::{progress_bar, write_json};
 use crate::subject_scene::{parse_views, OpenedSubject, SubjectArgs, ViewList};
 
 #[derive(Args, Debug)]
@@ -61,31 +62,11 @@ struct Report {
     views: Vec<usize>,
     samples: usize,
     chunk: usize,
-    adaptive: nia_model::adaptive::AdaptiveConfig,
+    adaptive: AdaptiveConfig,
     /// Per-scene work (encoder, body volume), done once for all targets.
     encode_seconds: f64,
     encode_stage_ms: BTreeMap<String, f64>,
     images: Vec<ImageReport>,
-}
-
-/// Milliseconds per stage that took any time.
-pub fn stage_ms(times: &StageTimes) -> BTreeMap<String, f64> {
-    nia_model::timing::Stage::ALL
-        .iter()
-        .map(|&s| (s.name().to_string(), times.get(s).as_secs_f64() * 1e3))
-        .filter(|(_, ms)| *ms > 0.0)
-        .collect()
-}
-
-pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "{{spinner}} {what} [{{elapsed_precise}}] {{bar:30}} {{pos}}/{{len}} (eta {{eta}}) {{msg}}"
-        ))
-        .expect("static progress template"),
-    );
-    bar
 }
 
 pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
@@ -101,40 +82,31 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
 
     let started = std::time::Instant::now();
     let mut encode_times = StageTimes::default();
-    let input = scene_input(&scene, &opened.source.faces);
-    let geometry = SceneGeometry::new(&input, &loaded.config)?;
+    let input = SceneInput::from_loaded(&scene, &opened.source.faces);
     let adaptive = loaded.adaptive(&args.model);
     let occupancy = adaptive.occupancy(&scene.vertices, &opened.source.faces)?;
     let encoding = loaded
         .model
-        .encode_scene_timed(
-            &input,
-            &geometry,
-            None,
-            &loaded.device,
-            Some(&mut encode_times),
-        )?
+        .encode(&input, None, &loaded.device, Some(&mut encode_times))?
         .with_occupancy(occupancy);
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let mut images = Vec::new();
     for &target in &targets {
         let camera = opened.camera(target);
-        let rays = ImageRays::new(&camera, &scene.body_box, None);
-        let bar = progress_bar(rays.pixels.len() as u64, &format!("view {target:>2}"));
+        let rays = RayBundle::through_pixels(&camera, &scene.body_box, None);
+        let bar = progress_bar(rays.len() as u64, &format!("view {target:>2}"));
         let t0 = std::time::Instant::now();
         let img = render_image(
             &loaded.model,
             &encoding,
-            &geometry,
-            None,
             &rays,
+            [camera.width as usize, camera.height as usize],
             ImageRenderOptions {
                 samples,
                 chunk: args.model.chunk,
                 timed: true,
             },
-            &loaded.device,
             &mut |done, _| bar.set_position(done as u64),
         )?;
         bar.finish_and_clear();
@@ -166,7 +138,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             pixels: w * h,
             point_evaluations: img.point_evaluations,
             seconds,
-            stage_ms: stage_ms(&img.times),
+            stage_ms: img.times.milliseconds(),
         });
     }
     let report = Report {
@@ -178,12 +150,10 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         chunk: args.model.chunk,
         adaptive,
         encode_seconds,
-        encode_stage_ms: stage_ms(&encode_times),
+        encode_stage_ms: encode_times.milliseconds(),
         images,
     };
-    let path = args.out.join("render.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&report)?)
-        .with_context(|| format!("writing {}", path.display()))?;
+    write_json(&args.out.join("render.json"), &report)?;
     println!("{}", serde_json::to_string_pretty(&report)?);
     Ok(())
 }

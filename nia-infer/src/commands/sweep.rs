@@ -8,13 +8,13 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use nia_data::protocol::{EvalItem, EvalSplit};
-use nia_train::data::{OpenFor, TrainData};
-use nia_train::evaluate::{eval_items, evaluate_images, EvalOptions, EvalSummary, EvalTask};
+use nia_data::dataset::protocol::{EvalItem, EvalSplit};
+use nia_infer::eval::{eval_items, evaluate_images, EvalOptions, EvalSummary, EvalTask};
+use nia_model::sampler::AdaptiveConfig;
 use serde::Serialize;
 
-use crate::commands::render::progress_bar;
 use crate::model_load::{LoadedModel, ModelArgs};
+use crate::output::progress_bar;
 use crate::plot::{pareto_front, scatter_svg, Series};
 
 #[derive(Args, Debug)]
@@ -74,13 +74,11 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     let bar = progress_bar(total as u64, "sweep");
     let mut rows = Vec::new();
     for &ratio in &args.ratios {
-        let mut run = loaded.run.clone();
-        if let Some(root) = &args.data {
-            run.data.root = root.clone();
-        }
-        run.data.ratio = Some(ratio);
-        let data = TrainData::open_for(&run, OpenFor::Evaluation(split))
-            .with_context(|| format!("opening the unseen subjects at ratio {ratio}"))?;
+        let mut data_config = loaded.data_config(args.data.as_deref(), None);
+        data_config.ratio = Some(ratio);
+        let data = loaded
+            .open_split(&data_config, split)
+            .with_context(|| format!("at ratio {ratio}"))?;
         let items = eval_items(&data, split, Some(args.limit))?;
         for &views in &args.view_counts {
             if let Some(item) = items.iter().find(|i| i.input_views.len() < views) {
@@ -105,7 +103,6 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                     ));
                     let results = evaluate_images(
                         &loaded.model,
-                        &loaded.config,
                         &data,
                         split,
                         &items,
@@ -114,7 +111,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                             samples,
                             chunk: args.model.chunk,
                             timed: false,
-                            adaptive: nia_model::adaptive::AdaptiveConfig {
+                            adaptive: AdaptiveConfig {
                                 skip_empty_space: skip,
                                 ..base_adaptive
                             },

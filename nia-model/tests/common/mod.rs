@@ -1,14 +1,15 @@
-//! A small scene shared by the model tests: the procedural body, a ring of source cameras,
-//! patterned images and real rasterised vertex visibility.
+//! What nia-model's tests share: the reference device and tensor helpers, and a small scene
+//! (the procedural body, a ring of source cameras, patterned images and real rasterised vertex
+//! visibility) with target rays.
 #![allow(dead_code)]
 
+use burn::prelude::*;
 use glam::Vec3;
 use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
-use nia_data::camera::Camera;
-use nia_data::rays::{near_far, pixel_ray};
-use nia_data::visibility::visibility;
-use nia_model::scene::{SceneBody, SceneInput, SourceView};
-use nia_model::RayBatch;
+use nia_data::geometry::camera::Camera;
+use nia_data::geometry::rays::{near_far, pixel_ray, Aabb, RayBundle};
+use nia_data::geometry::visibility::visibility;
+use nia_data::scene::{SceneBody, SceneInput, SourceView, RAY_BOX_PADDING_M};
 
 /// Depth tolerance of the test visibility (2 cm, as NHP-style implementations use).
 pub const VIS_TOL_M: f32 = 0.02;
@@ -82,16 +83,15 @@ pub fn body_centre(vertices: &[Vec3]) -> Vec3 {
     (lo + hi) * 0.5
 }
 
-/// Rays of a target camera through a `k x k` grid of pixels around the image centre that hit
-/// the scene's ray box.
-pub fn target_rays(
-    input: &SceneInput,
-    geometry: &nia_model::scene::SceneGeometry,
-    k: usize,
-) -> RayBatch {
+/// Rays of a 64 x 64 target camera through a `k x k` grid of pixels around the image centre
+/// that hit the scene's ray box.
+pub fn target_rays(input: &SceneInput, k: usize) -> RayBundle {
     let centre = body_centre(&input.body.vertices);
     let camera = ring_camera(centre, 0.9, 64);
-    let mut rays = RayBatch::default();
+    let ray_box = Aabb::from_points(&input.body.vertices)
+        .unwrap()
+        .padded(RAY_BOX_PADDING_M);
+    let mut rays = RayBundle::default();
     for j in 0..k {
         for i in 0..k {
             let px = glam::Vec2::new(
@@ -99,11 +99,8 @@ pub fn target_rays(
                 12.0 + 40.0 * j as f32 / k as f32,
             );
             let ray = pixel_ray(&camera, px);
-            if let Some((near, far)) = near_far(&ray, &geometry.ray_box) {
-                rays.origins.push(ray.origin);
-                rays.dirs.push(ray.dir);
-                rays.near.push(near);
-                rays.far.push(far);
+            if let Some((near, far)) = near_far(&ray, &ray_box) {
+                rays.push(ray, near, far, px.y as u32 * 64 + px.x as u32);
             }
         }
     }
@@ -134,5 +131,29 @@ pub fn wgpu_device() -> Option<burn::tensor::Device> {
             eprintln!("skipped: no working wgpu adapter (install mesa-vulkan-drivers)");
             None
         }
+    }
+}
+
+/// The reference CPU backend (deprecated upstream in favour of flex; the project keeps it).
+#[allow(deprecated)]
+pub fn device() -> Device {
+    Device::ndarray()
+}
+
+pub fn tensor<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Tensor<D> {
+    Tensor::from_data(TensorData::new(values, shape), device)
+}
+
+pub fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().expect("f32 tensor")
+}
+
+pub fn assert_close(got: &[f32], expected: &[f32], tol: f32, what: &str) {
+    assert_eq!(got.len(), expected.len(), "{what}: length");
+    for (i, (g, e)) in got.iter().zip(expected).enumerate() {
+        assert!(
+            (g - e).abs() <= tol * (1.0 + e.abs()),
+            "{what}[{i}]: got {g}, expected {e} (tol {tol})"
+        );
     }
 }

@@ -1,0 +1,514 @@
+//! The prefetching scene loader: worker threads (`std::thread` + channels) decode, undistort
+//! and resize images, look up cached visibility and sample rays ahead of the training loop, so
+//! a step never waits on decoding.
+//!
+//! A *scene* is one frame of one subject seen from N input views plus a target: training rays
+//! of one target view, or the whole target image for evaluation. The loader takes a list of
+//! [`SceneRequest`]s (see [`train_requests`] and [`eval_requests`]) and yields their scenes
+//! **in request order**, whatever the thread timing; every random choice comes from the
+//! request's own seed, so a run is reproducible for any number of threads.
+//!
+//! Back-pressure: at most `prefetch` scenes are in flight or waiting; a worker takes the next
+//! request only when the consumer has released a slot.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::mpsc::{self, Receiver, SyncSender};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+use crate::body::SmplParams;
+use crate::dataset::protocol::{EvalItem, Protocol};
+use crate::dataset::sampling::{
+    sample_rays, BoxPadding, RaySamplingConfig, SamplingError, TrainRays,
+};
+use crate::dataset::vis_cache::{self, VisibilityCache};
+use crate::dataset::{DatasetError, Subject, ViewImage};
+use crate::geometry::rays::{mask_at_box, Aabb};
+use crate::geometry::visibility::DEFAULT_DEPTH_TOL_M;
+use crate::rng::Rng;
+
+/// A loader error.
+#[derive(Debug, thiserror::Error)]
+pub enum LoaderError {
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error("{subject}: frame {frame}, target view {view}: {source}")]
+    Sampling {
+        subject: String,
+        frame: usize,
+        view: usize,
+        source: SamplingError,
+    },
+    #[error("request {index}: {msg}")]
+    Request { index: usize, msg: String },
+    #[error(
+        "the protocol names subject `{subject}` but no such subject was opened (opened: {opened})"
+    )]
+    UnknownSubject { subject: String, opened: String },
+    #[error("loader setting `{field}`: expected {expected}, got {got}")]
+    Config {
+        field: &'static str,
+        expected: &'static str,
+        got: String,
+    },
+    #[error("the loader's worker threads stopped before producing request {index}")]
+    WorkersStopped { index: usize },
+    #[error("{}: {stored} vertices, but the SMPL model's faces use {expected} (the vertices come from another body model: check the SMPL model path)", vertices.display())]
+    VertexCount {
+        vertices: PathBuf,
+        stored: usize,
+        expected: usize,
+    },
+}
+
+/// Loader settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LoaderConfig {
+    /// Worker threads (>= 1).
+    pub threads: usize,
+    /// Scenes decoded ahead of the consumer (>= 1; at least `threads` keeps every worker busy).
+    pub prefetch: usize,
+    #[serde(default)]
+    pub sampling: RaySamplingConfig,
+    #[serde(default)]
+    pub box_padding: BoxPadding,
+    /// Visibility depth tolerance, metres.
+    #[serde(default = "default_tol")]
+    pub visibility_depth_tol_m: f32,
+}
+
+fn default_tol() -> f32 {
+    DEFAULT_DEPTH_TOL_M
+}
+
+impl Default for LoaderConfig {
+    fn default() -> Self {
+        LoaderConfig {
+            threads: 2,
+            prefetch: 4,
+            sampling: RaySamplingConfig::default(),
+            box_padding: BoxPadding::default(),
+            visibility_depth_tol_m: DEFAULT_DEPTH_TOL_M,
+        }
+    }
+}
+
+/// What a scene's target is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TargetKind {
+    /// Training rays ([`RaySamplingConfig::rays_per_image`]) of the target view.
+    Rays,
+    /// The whole target image and its `mask_at_box` (evaluation).
+    Image,
+}
+
+/// One scene to load.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SceneRequest {
+    /// Index into [`SceneSource::subjects`].
+    pub subject: usize,
+    /// Index into the subject's frames.
+    pub frame: usize,
+    pub input_views: Vec<usize>,
+    pub target_view: usize,
+    pub target: TargetKind,
+    /// Seed of the ray sampling.
+    pub seed: u64,
+}
+
+/// What the workers read from: the opened subjects, the body's faces (for visibility) and an
+/// optional visibility cache.
+#[derive(Debug)]
+pub struct SceneSource {
+    pub subjects: Vec<Subject>,
+    /// [F] SMPL triangles (from the user's model).
+    pub faces: Vec<[u32; 3]>,
+    pub cache: Option<VisibilityCache>,
+}
+
+/// An input view of a scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SourceView {
+    pub view: usize,
+    pub image: ViewImage,
+    /// [V] 0/1 visibility of each SMPL vertex in this view.
+    pub visibility: Vec<u8>,
+}
+
+/// A scene's target.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SceneTarget {
+    Rays(TrainRays),
+    Image {
+        image: ViewImage,
+        /// [H * W] pixels whose ray hits the body box (the metrics' region).
+        mask_at_box: Vec<bool>,
+    },
+}
+
+/// A loaded scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// Position in the request list.
+    pub index: usize,
+    pub subject: String,
+    pub frame: usize,
+    /// [V] world vertices, metres.
+    pub vertices: Vec<Vec3>,
+    pub params: SmplParams,
+    /// The padded SMPL box rays are clipped to.
+    pub body_box: Aabb,
+    pub sources: Vec<SourceView>,
+    pub target_view: usize,
+    pub target: SceneTarget,
+}
+
+/// Loads one scene on the calling thread.
+pub fn load_scene(
+    source: &SceneSource,
+    request: &SceneRequest,
+    index: usize,
+    config: &LoaderConfig,
+) -> Result<Scene, LoaderError> {
+    let subject = source
+        .subjects
+        .get(request.subject)
+        .ok_or_else(|| LoaderError::Request {
+            index,
+            msg: format!(
+                "subject {} out of range ({} subjects)",
+                request.subject,
+                source.subjects.len()
+            ),
+        })?;
+    let frame = request.frame;
+    let vertices = subject.load_vertices(frame)?;
+    let expected = source
+        .faces
+        .iter()
+        .flatten()
+        .max()
+        .map_or(0, |&m| m as usize + 1);
+    if vertices.len() != expected {
+        return Err(LoaderError::VertexCount {
+            vertices: subject.vertices_path(frame)?,
+            stored: vertices.len(),
+            expected,
+        });
+    }
+    let params = subject.load_params(frame)?;
+    let vertices_path = subject.vertices_path(frame)?;
+    let body_box = config.box_padding.body_box(&vertices).ok_or_else(|| {
+        DatasetError::field(
+            &vertices_path,
+            "<array>",
+            "a non-empty finite vertex set",
+            "none",
+        )
+    })?;
+    let mut sources = Vec::with_capacity(request.input_views.len());
+    for &view in &request.input_views {
+        let image = subject.load_view(frame, view)?;
+        let tol = config.visibility_depth_tol_m;
+        let visibility = match &source.cache {
+            Some(cache) => cache.get_or_compute(
+                &subject.name,
+                frame,
+                view,
+                &image.camera,
+                &vertices,
+                &source.faces,
+                tol,
+            )?,
+            None => vis_cache::compute(
+                &subject.name,
+                frame,
+                view,
+                &image.camera,
+                &vertices,
+                &source.faces,
+                tol,
+            )?,
+        };
+        sources.push(SourceView {
+            view,
+            image,
+            visibility,
+        });
+    }
+    let target_image = subject.load_view(frame, request.target_view)?;
+    let target = match request.target {
+        TargetKind::Rays => {
+            let mut rng = Rng::new(request.seed);
+            let rays = sample_rays(
+                &target_image.camera,
+                &target_image.image,
+                &target_image.mask,
+                &body_box,
+                &config.sampling,
+                &mut rng,
+            )
+            .map_err(|source| LoaderError::Sampling {
+                subject: subject.name.clone(),
+                frame,
+                view: request.target_view,
+                source,
+            })?;
+            SceneTarget::Rays(rays)
+        }
+        TargetKind::Image => SceneTarget::Image {
+            mask_at_box: mask_at_box(&target_image.camera, &body_box),
+            image: target_image,
+        },
+    };
+    Ok(Scene {
+        index,
+        subject: subject.name.clone(),
+        frame,
+        vertices,
+        params,
+        body_box,
+        sources,
+        target_view: request.target_view,
+        target,
+    })
+}
+
+fn subject_index(subjects: &[Subject], name: &str) -> Result<usize, LoaderError> {
+    subjects
+        .iter()
+        .position(|s| s.name == name)
+        .ok_or_else(|| LoaderError::UnknownSubject {
+            subject: name.to_string(),
+            opened: subjects
+                .iter()
+                .map(|s| s.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+        })
+}
+
+/// One epoch of training scenes: every training frame of every training subject once, in a
+/// shuffled order, each with `train_num_input_views` distinct random input views and a random
+/// target view (NHP). Deterministic in `(seed, epoch)`.
+pub fn train_requests(
+    protocol: &Protocol,
+    subjects: &[Subject],
+    epoch: u64,
+    seed: u64,
+) -> Result<Vec<SceneRequest>, LoaderError> {
+    let mut rng = Rng::new(seed).fork(epoch);
+    let mut out = Vec::new();
+    for entry in &protocol.train {
+        let si = subject_index(subjects, &entry.subject)?;
+        let s = &subjects[si];
+        let n = s.num_cameras();
+        let k = protocol.train_num_input_views;
+        if n < k || (!protocol.train_target_may_be_input && n <= k) {
+            return Err(LoaderError::Config {
+                field: "train_num_input_views",
+                expected: "fewer input views than the subject has cameras",
+                got: format!("{k} views for {} with {n} cameras", s.name),
+            });
+        }
+        for frame in entry.frames.frames(s.num_frames()) {
+            let mut views: Vec<usize> = (0..n).collect();
+            rng.shuffle(&mut views);
+            let input_views = views[..k].to_vec();
+            let target_view = if protocol.train_target_may_be_input {
+                rng.below(n)
+            } else {
+                views[k + rng.below(n - k)]
+            };
+            out.push(SceneRequest {
+                subject: si,
+                frame,
+                input_views,
+                target_view,
+                target: TargetKind::Rays,
+                seed: rng.next_u64(),
+            });
+        }
+    }
+    rng.shuffle(&mut out);
+    Ok(out)
+}
+
+/// Evaluation scenes for protocol items (whole target images).
+pub fn eval_requests(
+    items: &[EvalItem],
+    subjects: &[Subject],
+) -> Result<Vec<SceneRequest>, LoaderError> {
+    items
+        .iter()
+        .map(|item| {
+            Ok(SceneRequest {
+                subject: subject_index(subjects, &item.subject)?,
+                frame: item.frame,
+                input_views: item.input_views.clone(),
+                target_view: item.target_view,
+                target: TargetKind::Image,
+                seed: 0,
+            })
+        })
+        .collect()
+}
+
+struct Shared {
+    source: Arc<SceneSource>,
+    requests: Vec<SceneRequest>,
+    config: LoaderConfig,
+    /// Slot tickets and the next request index, taken together so requests are started in
+    /// order.
+    next: Mutex<(Receiver<()>, usize)>,
+}
+
+/// Iterator over the scenes of a request list, loaded ahead by worker threads.
+pub struct SceneLoader {
+    results: Option<Receiver<(usize, Result<Scene, LoaderError>)>>,
+    tickets: Option<SyncSender<()>>,
+    workers: Vec<JoinHandle<()>>,
+    buffer: BTreeMap<usize, Result<Scene, LoaderError>>,
+    next: usize,
+    total: usize,
+}
+
+impl SceneLoader {
+    /// Starts `config.threads` workers over `requests`.
+    pub fn new(
+        source: Arc<SceneSource>,
+        requests: Vec<SceneRequest>,
+        config: LoaderConfig,
+    ) -> Result<SceneLoader, LoaderError> {
+        if config.threads == 0 {
+            return Err(LoaderError::Config {
+                field: "threads",
+                expected: ">= 1",
+                got: "0".into(),
+            });
+        }
+        if config.prefetch == 0 {
+            return Err(LoaderError::Config {
+                field: "prefetch",
+                expected: ">= 1",
+                got: "0".into(),
+            });
+        }
+        let total = requests.len();
+        let (ticket_tx, ticket_rx) = mpsc::sync_channel::<()>(config.prefetch);
+        for _ in 0..config.prefetch {
+            // The channel has exactly `prefetch` slots, so these never block.
+            let _ = ticket_tx.send(());
+        }
+        let (result_tx, result_rx) = mpsc::sync_channel(config.prefetch);
+        let shared = Arc::new(Shared {
+            source,
+            requests,
+            config,
+            next: Mutex::new((ticket_rx, 0)),
+        });
+        let workers = (0..config.threads)
+            .map(|_| {
+                let shared = shared.clone();
+                let tx = result_tx.clone();
+                std::thread::spawn(move || worker(&shared, &tx))
+            })
+            .collect();
+        Ok(SceneLoader {
+            results: Some(result_rx),
+            tickets: Some(ticket_tx),
+            workers,
+            buffer: BTreeMap::new(),
+            next: 0,
+            total,
+        })
+    }
+
+    /// Number of scenes this loader yields in all.
+    pub fn len(&self) -> usize {
+        self.total
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.total == 0
+    }
+}
+
+fn worker(shared: &Shared, tx: &SyncSender<(usize, Result<Scene, LoaderError>)>) {
+    loop {
+        let index = {
+            let Ok(mut guard) = shared.next.lock() else {
+                return;
+            };
+            if guard.0.recv().is_err() {
+                return;
+            }
+            let index = guard.1;
+            if index >= shared.requests.len() {
+                return;
+            }
+            guard.1 += 1;
+            index
+        };
+        let result = load_scene(
+            &shared.source,
+            &shared.requests[index],
+            index,
+            &shared.config,
+        );
+        if tx.send((index, result)).is_err() {
+            return;
+        }
+    }
+}
+
+impl Iterator for SceneLoader {
+    type Item = Result<Scene, LoaderError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.next >= self.total {
+            return None;
+        }
+        loop {
+            if let Some(item) = self.buffer.remove(&self.next) {
+                self.next += 1;
+                if let Some(t) = &self.tickets {
+                    let _ = t.send(());
+                }
+                return Some(item);
+            }
+            let received = self.results.as_ref().map(|r| r.recv());
+            match received {
+                Some(Ok((index, item))) => {
+                    self.buffer.insert(index, item);
+                }
+                _ => {
+                    let index = self.next;
+                    self.next = self.total;
+                    return Some(Err(LoaderError::WorkersStopped { index }));
+                }
+            }
+        }
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let left = self.total - self.next;
+        (left, Some(left))
+    }
+}
+
+impl Drop for SceneLoader {
+    fn drop(&mut self) {
+        // Closing both channels wakes every worker: blocked on a ticket (sender gone) or on
+        // sending a result (receiver gone).
+        self.tickets.take();
+        self.results.take();
+        for w in self.workers.drain(..) {
+            let _ = w.join();
+        }
+    }
+}

@@ -1,0 +1,19 @@
+//! Tensor-free geometry: cameras and rays, the z-buffer rasteriser and per-vertex visibility,
+//! nearest-surface queries, the occupancy grid of empty-space skipping, and the sparse voxel
+//! grids (sites, rulebooks, trilinear corners) the body volume is built on.
+//!
+//! - [`camera`]: pinhole cameras with OpenCV distortion, projection and pixel conventions.
+//! - [`rays`]: single rays, ray bundles, ray/box clipping and `mask_at_box`.
+//! - [`raster`]: the z-buffer rasteriser.
+//! - [`visibility`]: per-vertex visibility in a view by rasterisation.
+//! - [`surface`]: nearest point on a triangle mesh (BVH) with barycentric weights.
+//! - [`occupancy`]: the occupancy grid of a posed mesh (which samples can be skipped).
+//! - [`sparse`]: voxel boxes, active sites, convolution rulebooks and trilinear corners.
+
+pub mod camera;
+pub mod occupancy;
+pub mod raster;
+pub mod rays;
+pub mod sparse;
+pub mod surface;
+pub mod visibility;

@@ -1,0 +1,135 @@
+//! Per-point inputs of the fields, computed on the CPU from the scene geometry (query points are
+//! data: no gradient flows through them): the projections into every source view, the
+//! view-direction features d_hat_n, the visibility o_n, the trilinear corners in the body
+//! volume, and the target directions. The model uploads them as a few tensors.
+
+use std::sync::Arc;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::SceneGeometry;
+use crate::geometry::sparse::{ScaleGeometry, TrilinearCorners};
+
+/// Width of d_hat_n: (d - d_n) (3 channels) and d . d_n (1 channel).
+pub const VIEW_DIR_FEATURE_DIM: usize = 4;
+
+/// Normalised grid coordinate of a point behind a camera: far outside [-1, 1], so
+/// `grid_sample` with zero padding returns zeros.
+const OUTSIDE_GRID: f32 = -4.0;
+
+/// Per-point inputs for M points and N views, plain arrays.
+#[derive(Debug, Clone)]
+pub struct PointInputs {
+    /// M.
+    pub num_points: usize,
+    /// N.
+    pub num_views: usize,
+    /// [N, M, 2] projections, normalised for `grid_sample` with `align_corners = false`
+    /// (OpenCV pixel centres at integer coordinates: x_norm = (2u + 1) / W - 1).
+    pub proj_grid: Vec<f32>,
+    /// [N, M, 4] d_hat_n = (d - d_n, d . d_n).
+    pub view_dir_features: Vec<f32>,
+    /// [N, M] o_n: visibility interpolated on the nearest body face.
+    pub visibility: Vec<f32>,
+    /// [M, 3] unit target directions d (input of gamma(d)).
+    pub dirs: Vec<f32>,
+    /// Per scale of the body volume, the trilinear corners of the points (empty without one).
+    pub corners: Vec<TrilinearCorners>,
+}
+
+/// [N, M, 2] projections of `points` ([M] world) into every source view, normalised for
+/// `grid_sample` with `align_corners = false`: `x_norm = (2u + 1) / W - 1` with OpenCV pixel
+/// centres at integer coordinates. Points behind a camera land far outside [-1, 1] (zeros).
+pub fn projection_grid(geometry: &SceneGeometry, points: &[Vec3]) -> Vec<f32> {
+    let m = points.len();
+    let [h, w] = geometry.image_hw;
+    let mut grid = vec![0.0f32; geometry.num_views() * m * 2];
+    for (view, camera) in geometry.cameras.iter().enumerate() {
+        grid[view * m * 2..(view + 1) * m * 2]
+            .par_chunks_mut(2)
+            .zip(points.par_iter())
+            .for_each(|(g, &x)| match camera.project(x) {
+                Some((uv, _depth)) => {
+                    g[0] = (2.0 * uv.x + 1.0) / w as f32 - 1.0;
+                    g[1] = (2.0 * uv.y + 1.0) / h as f32 - 1.0;
+                }
+                None => {
+                    g[0] = OUTSIDE_GRID;
+                    g[1] = OUTSIDE_GRID;
+                }
+            });
+    }
+    grid
+}
+
+impl PointInputs {
+    /// Inputs for `image_points` ([M] world points where the source views are read; x, or x'
+    /// after reposing) with target directions `dirs` ([M] unit), and, when the model uses the
+    /// body volume, its scales and the points where it is sampled ([M] SMPL frame of the
+    /// volume's body).
+    pub fn compute(
+        geometry: &SceneGeometry,
+        image_points: &[Vec3],
+        dirs: &[Vec3],
+        volume: Option<(&[Arc<ScaleGeometry>], &[[f32; 3]])>,
+    ) -> Self {
+        let m = image_points.len();
+        let n = geometry.num_views();
+        let proj_grid = projection_grid(geometry, image_points);
+        const D: usize = VIEW_DIR_FEATURE_DIM;
+        let mut view_dir_features = vec![0.0f32; n * m * D];
+        for (view, camera) in geometry.cameras.iter().enumerate() {
+            let centre = camera.centre();
+            let vdf = &mut view_dir_features[view * m * D..(view + 1) * m * D];
+            vdf.par_chunks_mut(D)
+                .zip(image_points.par_iter().zip(dirs.par_iter()))
+                .for_each(|(f, (&x, &d))| {
+                    let d_n = (x - centre).normalize_or_zero();
+                    f.copy_from_slice(&view_direction_feature(d, d_n));
+                });
+        }
+        // o_n: one nearest-face query per point serves every view.
+        let nearest = geometry.surface.nearest_batch(image_points);
+        let faces = geometry.surface.faces();
+        let mut visibility = vec![0.0f32; n * m];
+        for (view, vis) in geometry.vertex_visibility.iter().enumerate() {
+            let out = &mut visibility[view * m..(view + 1) * m];
+            out.par_iter_mut()
+                .zip(nearest.par_iter())
+                .for_each(|(o, near)| {
+                    *o = if near.is_hit() {
+                        let [i, j, k] = faces[near.face as usize];
+                        let b = near.bary;
+                        vis[i as usize] * b[0] + vis[j as usize] * b[1] + vis[k as usize] * b[2]
+                    } else {
+                        0.0
+                    };
+                });
+        }
+        let corners = match volume {
+            Some((scales, points)) => scales
+                .iter()
+                .map(|scale| TrilinearCorners::compute(points, scale))
+                .collect(),
+            None => Vec::new(),
+        };
+        PointInputs {
+            num_points: m,
+            num_views: n,
+            proj_grid,
+            view_dir_features,
+            visibility,
+            dirs: dirs.iter().flat_map(|d| d.to_array()).collect(),
+            corners,
+        }
+    }
+}
+
+/// d_hat_n for one point and view: `(d - d_n, d . d_n)`, with `target_dir` d the unit
+/// direction of the target ray and `source_dir` d_n the unit direction from source camera n's
+/// centre to the point (both in the same frame).
+pub fn view_direction_feature(target_dir: Vec3, source_dir: Vec3) -> [f32; VIEW_DIR_FEATURE_DIM] {
+    let diff = target_dir - source_dir;
+    [diff.x, diff.y, diff.z, target_dir.dot(source_dir)]
+}

@@ -1,0 +1,204 @@
+//! Instruments of the hybrid, per evaluated image: does the blend use the source views where
+//! they see the surface, what each half of the hybrid would render alone, and how sharp the
+//! density is. They go into `eval`'s metrics.json and report.md so every change to sampling,
+//! losses or the blender shows its effect there.
+//!
+//! - `c0_weight_seen` / `c0_weight_unseen`: the mean share of the NeRF colour c0 in the blend
+//!   (`w_0 / acc`) over person pixels whose surface some source view sees, and over those none
+//!   sees. The surface of a pixel is the posed SMPL mesh rasterised into the target view; it is
+//!   seen by view n when the face's nearest vertex (largest barycentric) is visible in n.
+//! - `psnr_nerf` / `psnr_ibr`: PSNR of the NeRF-only composite C0 and of the IBR-only composite
+//!   (the source colours under the blend weights renormalised over the views), on the same
+//!   `mask_at_box` region as the image's PSNR.
+//! - `depth_error_m`: mean |z(expected depth) - z(rasterised mesh)| over person pixels the mesh
+//!   covers and the render makes opaque (acc > 0.5); camera depth, metres.
+//! - `opacity_outside` / `opacity_inside`: mean accumulated opacity over scored pixels off the
+//!   person's mask and on it (ideally 0 and 1).
+
+use glam::Vec3;
+use nia_data::dataset::loader::Scene;
+use nia_data::geometry::camera::Camera;
+use nia_data::geometry::raster::{rasterize, EMPTY_FACE};
+use nia_data::geometry::rays::RayBundle;
+use nia_data::metrics::{evaluate, ImageView, MetricsError, SsimOptions};
+use nia_model::image::RenderedImage;
+use serde::Serialize;
+
+/// Opacity above which a pixel's expected depth is compared with the mesh.
+const OPAQUE: f32 = 0.5;
+
+/// The instruments of one image (module docs). `None` where the pixel set is empty.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct BlendDiagnostics {
+    pub c0_weight_seen: Option<f64>,
+    pub c0_weight_unseen: Option<f64>,
+    /// Share of the person's scored pixels whose surface some source view sees.
+    pub seen_fraction: Option<f64>,
+    pub psnr_nerf: f64,
+    pub psnr_ibr: f64,
+    pub depth_error_m: Option<f64>,
+    pub opacity_outside: Option<f64>,
+    pub opacity_inside: Option<f64>,
+}
+
+/// What [`BlendDiagnostics::measure`] reads.
+pub struct DiagnosticsInput<'a> {
+    pub rendered: &'a RenderedImage,
+    /// The rays of the render (their origins and directions give the expected depth's point).
+    pub rays: &'a RayBundle,
+    /// The target camera.
+    pub camera: &'a Camera,
+    /// [H * W * 3] ground truth.
+    pub ground_truth: &'a [f32],
+    /// [H * W] the person's mask in the target view.
+    pub person_mask: &'a [bool],
+    /// [H * W] the scored region.
+    pub mask_at_box: &'a [bool],
+    /// [V] the rendered pose's mesh (world metres) and the model's triangles.
+    pub posed_vertices: &'a [Vec3],
+    pub faces: &'a [[u32; 3]],
+    /// The scene of the source views (its per-view vertex visibility, same vertex indices).
+    pub sources: &'a Scene,
+}
+
+fn mean(sum: f64, count: usize) -> Option<f64> {
+    (count > 0).then(|| sum / count as f64)
+}
+
+impl BlendDiagnostics {
+    /// Measures one image (module docs).
+    pub fn measure(input: &DiagnosticsInput<'_>) -> Result<Self, MetricsError> {
+        let r = input.rendered;
+        let (w, h) = (r.width, r.height);
+        let k = r.blend_channels;
+        let psnr_of = |rgb: &[f32], name: &'static str| -> Result<f64, MetricsError> {
+            let pv = ImageView::new(name, rgb, w, h, 3)?;
+            let gv = ImageView::new("ground truth", input.ground_truth, w, h, 3)?;
+            Ok(evaluate(&pv, &gv, input.mask_at_box, SsimOptions::nhp())?.psnr)
+        };
+        let psnr_nerf = psnr_of(&r.rgb0, "NeRF-only composite")?;
+        let psnr_ibr = psnr_of(&r.rgb_ibr, "IBR-only composite")?;
+
+        // The mesh in the target view, and which source view sees each pixel's surface.
+        let frags = rasterize(input.camera, input.posed_vertices, input.faces).ok();
+        let seen_by_some = |p: usize| -> Option<bool> {
+            let frags = frags.as_ref()?;
+            let face = *frags.face.get(p)?;
+            if face == EMPTY_FACE {
+                return None;
+            }
+            let tri = input.faces.get(face as usize)?;
+            let b = frags.bary[p];
+            let corner = (0..3).fold(0, |best, i| if b[i] > b[best] { i } else { best });
+            let v = tri[corner] as usize;
+            Some(
+                input
+                    .sources
+                    .sources
+                    .iter()
+                    .any(|s| s.visibility.get(v).is_some_and(|&x| x > 0)),
+            )
+        };
+        let mut ray_of = vec![usize::MAX; w * h];
+        for (i, &p) in input.rays.pixels.iter().enumerate() {
+            ray_of[p as usize] = i;
+        }
+
+        let (mut seen_sum, mut seen_n, mut unseen_sum, mut unseen_n) = (0.0, 0, 0.0, 0);
+        let (mut depth_sum, mut depth_n) = (0.0, 0);
+        let (mut out_sum, mut out_n, mut in_sum, mut in_n) = (0.0, 0, 0.0, 0);
+        for p in 0..w * h {
+            if !input.mask_at_box[p] {
+                continue;
+            }
+            let acc = r.acc[p];
+            if !input.person_mask[p] {
+                out_sum += acc as f64;
+                out_n += 1;
+                continue;
+            }
+            in_sum += acc as f64;
+            in_n += 1;
+            let seen = seen_by_some(p);
+            if acc > 1e-3 {
+                let share = (r.blend_weights[k * p] / acc).clamp(0.0, 1.0) as f64;
+                match seen {
+                    Some(true) => {
+                        seen_sum += share;
+                        seen_n += 1;
+                    }
+                    Some(false) => {
+                        unseen_sum += share;
+                        unseen_n += 1;
+                    }
+                    None => {}
+                }
+            }
+            let ray = ray_of[p];
+            if let (Some(frags), true) = (frags.as_ref(), acc > OPAQUE && ray != usize::MAX) {
+                let z_mesh = frags.depth[p];
+                if z_mesh.is_finite() {
+                    let t = r.depth[p] / acc;
+                    let point = input.rays.origins[ray] + input.rays.dirs[ray] * t;
+                    let z = (input.camera.r * point + input.camera.t).z;
+                    depth_sum += (z - z_mesh).abs() as f64;
+                    depth_n += 1;
+                }
+            }
+        }
+        Ok(BlendDiagnostics {
+            c0_weight_seen: mean(seen_sum, seen_n),
+            c0_weight_unseen: mean(unseen_sum, unseen_n),
+            seen_fraction: mean(seen_n as f64, seen_n + unseen_n),
+            psnr_nerf,
+            psnr_ibr,
+            depth_error_m: mean(depth_sum, depth_n),
+            opacity_outside: mean(out_sum, out_n),
+            opacity_inside: mean(in_sum, in_n),
+        })
+    }
+
+    /// The mean of each instrument over `all` (over the images where it is defined).
+    pub fn mean_of<'a>(all: impl Iterator<Item = &'a BlendDiagnostics> + Clone) -> Self {
+        let avg = |f: &dyn Fn(&BlendDiagnostics) -> Option<f64>| {
+            let v: Vec<f64> = all.clone().filter_map(f).collect();
+            (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+        };
+        BlendDiagnostics {
+            c0_weight_seen: avg(&|d| d.c0_weight_seen),
+            c0_weight_unseen: avg(&|d| d.c0_weight_unseen),
+            seen_fraction: avg(&|d| d.seen_fraction),
+            psnr_nerf: avg(&|d| Some(d.psnr_nerf)).unwrap_or(f64::NAN),
+            psnr_ibr: avg(&|d| Some(d.psnr_ibr)).unwrap_or(f64::NAN),
+            depth_error_m: avg(&|d| d.depth_error_m),
+            opacity_outside: avg(&|d| d.opacity_outside),
+            opacity_inside: avg(&|d| d.opacity_inside),
+        }
+    }
+}
+
+/// A markdown table of the instruments, one row per `(name, means)`, with a legend.
+pub fn diagnostics_table(rows: &[(String, BlendDiagnostics)]) -> String {
+    let opt =
+        |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
+    let mut md = String::from(
+        "| subject | c0 share, seen | c0 share, unseen | seen | PSNR NeRF-only | PSNR IBR-only | depth error (cm) | opacity off person | opacity on person |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for (name, d) in rows {
+        md.push_str(&format!(
+            "| {name} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} |\n",
+            opt(d.c0_weight_seen, 3),
+            opt(d.c0_weight_unseen, 3),
+            opt(d.seen_fraction, 2),
+            d.psnr_nerf,
+            d.psnr_ibr,
+            opt(d.depth_error_m.map(|m| 100.0 * m), 2),
+            opt(d.opacity_outside, 3),
+            opt(d.opacity_inside, 3),
+        ));
+    }
+    md.push_str(
+        "\nInstruments of the hybrid (`nia_infer::diagnostics`): c0 share = mean NeRF-colour weight of the blend on person pixels whose surface some source view sees (seen) or none sees (unseen); seen = share of person pixels seen; PSNR of the NeRF-only and IBR-only composites on the scored region; depth error = mean |expected depth - rasterised SMPL depth| on opaque person pixels; mean opacity off and on the person's mask.\n",
+    );
+    md
+}

@@ -1,0 +1,379 @@
+//! Held-out evaluation, used by `nia-infer eval` and `sweep` and by the trainer (validation and
+//! the final evaluation): whole target images rendered without autodiff
+//! ([`nia_model::image`]), scored as NHP/NIA report them (PSNR over `mask_at_box`, SSIM on its
+//! bounding-rectangle crop, [`nia_data::metrics::evaluate`]). The data is an
+//! [`OpenedDataset`] (a run's `[data]` section, opened).
+//!
+//! Two tasks (the paper's):
+//! - [`EvalTask::NovelView`]: the source views and the target view are of the same frame.
+//! - [`EvalTask::NovelPose`]: the source views are of a reference frame (by default the first
+//!   frame of the subject's range in the split); the body is reposed to the evaluated frame's
+//!   SMPL parameters and rendered from the target camera, scored against that frame's image.
+
+use crate::diagnostics::{BlendDiagnostics, DiagnosticsInput};
+use std::sync::Arc;
+use std::time::Instant;
+
+use burn::module::Module;
+use burn::prelude::*;
+use nia_data::body::reposing::Reposer;
+use nia_data::dataset::loader::{
+    eval_requests, load_scene, LoaderError, Scene, SceneRequest, SceneTarget,
+};
+use nia_data::dataset::protocol::{EvalItem, EvalSplit, ProtocolError};
+use nia_data::dataset::OpenedDataset;
+use nia_data::geometry::rays::RayBundle;
+use nia_data::metrics::{evaluate, ImageMetrics, ImageView, MetricsError, SsimOptions};
+use nia_data::scene::SceneInput;
+use nia_model::image::{render_image, ImageRenderOptions, RenderedImage};
+use nia_model::sampler::AdaptiveConfig;
+use nia_model::timing::StageTimes;
+use nia_model::{ModelError, NiaModel};
+use serde::Serialize;
+
+/// An evaluation error, naming the image (subject, frame, target view) where there is one.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("loader: {0}")]
+    Loader(#[from] LoaderError),
+    #[error("protocol: {0}")]
+    Protocol(#[from] ProtocolError),
+    #[error("evaluating {subject}, frame {frame}, view {view}: {message}")]
+    Image {
+        subject: String,
+        frame: usize,
+        view: usize,
+        message: String,
+    },
+    /// A writer of results (pictures, tables) failed.
+    #[error("{0}")]
+    Output(String),
+}
+
+/// Mean metrics over a set of images.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EvalSummary {
+    pub images: usize,
+    /// Mean per-image PSNR, dB.
+    pub psnr: f64,
+    /// Mean per-image SSIM (NHP's data range 2).
+    pub ssim: f64,
+    /// Mean instruments.
+    pub diagnostics: BlendDiagnostics,
+}
+
+impl EvalSummary {
+    /// The mean of `results`; `None` when empty.
+    pub fn of(results: &[ImageResult]) -> Option<Self> {
+        if results.is_empty() {
+            return None;
+        }
+        let n = results.len() as f64;
+        Some(EvalSummary {
+            images: results.len(),
+            psnr: results.iter().map(|r| r.psnr).sum::<f64>() / n,
+            ssim: results.iter().map(|r| r.ssim).sum::<f64>() / n,
+            diagnostics: BlendDiagnostics::mean_of(results.iter().map(|r| &r.diagnostics)),
+        })
+    }
+}
+
+/// The paper's two evaluation tasks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EvalTask {
+    NovelView,
+    /// `reference_frame`: the frame whose images are the sources (`None`: the first frame of
+    /// the subject's range in the split). Items of the reference frame itself are skipped.
+    NovelPose {
+        reference_frame: Option<usize>,
+    },
+}
+
+/// How to evaluate.
+#[derive(Debug, Clone, Copy)]
+pub struct EvalOptions {
+    pub task: EvalTask,
+    /// Samples per ray.
+    pub samples: usize,
+    /// Rays per network call.
+    pub chunk: usize,
+    /// Collect per-stage timings (synchronises the device after each stage).
+    pub timed: bool,
+    /// Empty-space skipping.
+    pub adaptive: AdaptiveConfig,
+}
+
+/// The score and cost of one evaluated image.
+#[derive(Debug, Clone, Serialize)]
+pub struct ImageResult {
+    pub subject: String,
+    /// The frame whose image is the ground truth (and whose pose is rendered).
+    pub frame: usize,
+    /// The frame of the source images (equal to `frame` for novel views).
+    pub reference_frame: usize,
+    pub input_views: Vec<usize>,
+    pub target_view: usize,
+    pub psnr: f64,
+    pub ssim: f64,
+    /// Rays sent to the network.
+    pub rays: usize,
+    /// Points evaluated by the network.
+    pub point_evaluations: u64,
+    /// Wall time of the image (encoding, reposing set-up and rendering; not loading).
+    pub seconds: f64,
+    /// The hybrid's instruments ([`BlendDiagnostics`]).
+    pub diagnostics: BlendDiagnostics,
+    #[serde(skip)]
+    pub times: StageTimes,
+}
+
+/// Everything about one evaluated image, for writers of pictures.
+pub struct EvaluatedImage<'a> {
+    pub result: &'a ImageResult,
+    /// The scene the sources came from (the reference frame for novel poses).
+    pub sources: &'a Scene,
+    /// Ground-truth image of the target view.
+    pub ground_truth: &'a nia_data::dataset::ViewImage,
+    /// [H * W] the scored region.
+    pub mask_at_box: &'a [bool],
+    pub rendered: &'a RenderedImage,
+}
+
+/// The evaluation images of `split` among the opened subjects, at most `limit` of them.
+pub fn eval_items(
+    data: &OpenedDataset,
+    split: EvalSplit,
+    limit: Option<usize>,
+) -> Result<Vec<EvalItem>, EvalError> {
+    let subjects = &data.source.subjects;
+    let opened: Vec<_> = data
+        .protocol
+        .split(split)
+        .iter()
+        .filter(|s| subjects.iter().any(|o| o.name == s.subject))
+        .cloned()
+        .collect();
+    let mut protocol = data.protocol.clone();
+    match split {
+        EvalSplit::UnseenSubjects => protocol.unseen_subjects = opened,
+        EvalSplit::SeenSubjectsUnseenPoses => protocol.seen_subjects_unseen_poses = opened,
+        EvalSplit::SeenSubjectsSeenPoses => protocol.seen_subjects_seen_poses = opened,
+    }
+    let items = protocol.eval_items(split, |name| {
+        subjects
+            .iter()
+            .find(|s| s.name == name)
+            .map(|s| (s.num_cameras(), s.num_frames()))
+            .unwrap_or((0, 0))
+    })?;
+    Ok(match limit {
+        Some(n) => items.into_iter().take(n).collect(),
+        None => items,
+    })
+}
+
+/// The frame novel-pose items of `subject` take their sources from.
+fn reference_frame(data: &OpenedDataset, split: EvalSplit, subject: &str, task: EvalTask) -> usize {
+    match task {
+        EvalTask::NovelPose {
+            reference_frame: Some(f),
+        } => f,
+        _ => data
+            .protocol
+            .split(split)
+            .iter()
+            .find(|s| s.subject == subject)
+            .map_or(0, |s| s.frames.begin),
+    }
+}
+
+/// Renders and scores `items` of `split` on the plain (non-autodiff) version of `device`,
+/// calling `on_image` for each; returns the per-image results in item order.
+pub fn evaluate_images(
+    model: &NiaModel,
+    data: &OpenedDataset,
+    split: EvalSplit,
+    items: &[EvalItem],
+    options: EvalOptions,
+    device: &Device,
+    on_image: &mut dyn FnMut(EvaluatedImage<'_>) -> Result<(), EvalError>,
+) -> Result<Vec<ImageResult>, EvalError> {
+    let plain = device.clone().inner();
+    let model = model.valid();
+    let requests = eval_requests(items, &data.source.subjects)?;
+    let mut results = Vec::with_capacity(requests.len());
+    for (i, request) in requests.iter().enumerate() {
+        let task = options.task;
+        let reference = match task {
+            EvalTask::NovelView => request.frame,
+            EvalTask::NovelPose { .. } => {
+                let subject = &data.source.subjects[request.subject].name;
+                let r = reference_frame(data, split, subject, task);
+                if r == request.frame {
+                    continue;
+                }
+                r
+            }
+        };
+        // The target (ground truth, body box, pose) is always the evaluated frame; for a novel
+        // pose the sources come from the reference frame.
+        let target_scene = load_scene(
+            &data.source,
+            &SceneRequest {
+                input_views: if reference == request.frame {
+                    request.input_views.clone()
+                } else {
+                    Vec::new()
+                },
+                ..request.clone()
+            },
+            i,
+            &data.loader,
+        )?;
+        let source_scene = if reference == request.frame {
+            None
+        } else {
+            Some(load_scene(
+                &data.source,
+                &SceneRequest {
+                    frame: reference,
+                    ..request.clone()
+                },
+                i,
+                &data.loader,
+            )?)
+        };
+        let sources = source_scene.as_ref().unwrap_or(&target_scene);
+        let SceneTarget::Image { image, mask_at_box } = &target_scene.target else {
+            continue;
+        };
+        let eval_err = |message: String| EvalError::Image {
+            subject: target_scene.subject.clone(),
+            frame: target_scene.frame,
+            view: target_scene.target_view,
+            message,
+        };
+        let model_err = |e: ModelError| eval_err(e.to_string());
+        let started = Instant::now();
+        let mut times = StageTimes::default();
+        let input = SceneInput::from_loaded(sources, &data.source.faces);
+        let reposer = match &source_scene {
+            None => None,
+            Some(reference_scene) => Some(Arc::new(
+                Reposer::new(
+                    &data.body_model,
+                    &reference_scene.params,
+                    &target_scene.params,
+                )
+                .map_err(|e| eval_err(format!("reposing from frame {reference}: {e}")))?,
+            )),
+        };
+        // The occupancy grid of the rendered pose's mesh (per frame and pose).
+        let posed_vertices = match &reposer {
+            Some(r) => r.target_vertices(),
+            None => &target_scene.vertices[..],
+        };
+        let occupancy = options
+            .adaptive
+            .occupancy(posed_vertices, &data.source.faces)
+            .map_err(|e| eval_err(e.to_string()))?;
+        let encoding = model
+            .encode(
+                &input,
+                reposer.clone(),
+                &plain,
+                options.timed.then_some(&mut times),
+            )
+            .map_err(model_err)?
+            .with_occupancy(occupancy);
+        let rays =
+            RayBundle::through_pixels(&image.camera, &target_scene.body_box, Some(mask_at_box));
+        let mut rendered = render_image(
+            &model,
+            &encoding,
+            &rays,
+            [image.width() as usize, image.height() as usize],
+            ImageRenderOptions {
+                samples: options.samples,
+                chunk: options.chunk,
+                timed: options.timed,
+            },
+            &mut |_, _| {},
+        )
+        .map_err(model_err)?;
+        times.merge(&rendered.times);
+        rendered.times = times.clone();
+        let seconds = started.elapsed().as_secs_f64();
+        let (w, h) = (rendered.width, rendered.height);
+        let metrics_err = |e: MetricsError| eval_err(e.to_string());
+        let pv = ImageView::new("prediction", &rendered.rgb, w, h, 3).map_err(metrics_err)?;
+        let gv = ImageView::new("ground truth", &image.image, w, h, 3).map_err(metrics_err)?;
+        let ImageMetrics { psnr, ssim } =
+            evaluate(&pv, &gv, mask_at_box, SsimOptions::nhp()).map_err(metrics_err)?;
+        let diagnostics = BlendDiagnostics::measure(&DiagnosticsInput {
+            rendered: &rendered,
+            rays: &rays,
+            camera: &image.camera,
+            ground_truth: &image.image,
+            person_mask: &image.mask,
+            mask_at_box,
+            posed_vertices,
+            faces: &data.source.faces,
+            sources,
+        })
+        .map_err(metrics_err)?;
+        let result = ImageResult {
+            subject: target_scene.subject.clone(),
+            frame: target_scene.frame,
+            reference_frame: reference,
+            input_views: request.input_views.clone(),
+            target_view: request.target_view,
+            psnr,
+            ssim,
+            rays: rendered.rays,
+            point_evaluations: rendered.point_evaluations,
+            seconds,
+            diagnostics,
+            times,
+        };
+        on_image(EvaluatedImage {
+            result: &result,
+            sources,
+            ground_truth: image,
+            mask_at_box,
+            rendered: &rendered,
+        })?;
+        results.push(result);
+    }
+    Ok(results)
+}
+
+/// Novel-view evaluation of `items` of the unseen-subject split with `samples` samples per ray
+/// in chunks of `chunk` rays (what training reports); `None` when there is nothing to evaluate.
+pub fn evaluate_items(
+    model: &NiaModel,
+    data: &OpenedDataset,
+    items: &[EvalItem],
+    samples: usize,
+    chunk: usize,
+    adaptive: AdaptiveConfig,
+    device: &Device,
+) -> Result<Option<EvalSummary>, EvalError> {
+    let results = evaluate_images(
+        model,
+        data,
+        EvalSplit::UnseenSubjects,
+        items,
+        EvalOptions {
+            task: EvalTask::NovelView,
+            samples,
+            chunk,
+            timed: false,
+            adaptive,
+        },
+        device,
+        &mut |_| Ok(()),
+    )?;
+    Ok(EvalSummary::of(&results))
+}

@@ -1,0 +1,89 @@
+//! View-wise cross-attention between body features and pixel features (NIA appendix).
+//!
+//! For one query point x with N source views, S = [s_1..s_N] (body features) and
+//! L = [l_1..l_N] (reduced pixel-aligned features), both `[N, d]`:
+//!
+//! `Z = softmax(phi_k(S) phi_k(L)^T / sqrt(d)) phi_v(L) + S`
+//!
+//! The body feature of view n queries the pixel features of all views; the residual `+ S` keeps
+//! the body feature. As in the paper's equation, the same projection phi_k maps both the
+//! queries (S) and the keys (L). Weights are shared across views, so any N >= 1 works, and the
+//! output is equivariant to a permutation of the views. With N = 1 the softmax over a single key
+//! is 1 and `Z = phi_v(L) + S`.
+//!
+//! Variant (a) `NoBody` does not use this module: there Z = L (the glue in `model.rs`).
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+
+use crate::shape::ShapeError;
+use crate::softmax::stable_softmax;
+
+/// Configuration of [`ViewCrossAttention`].
+#[derive(Config, Debug)]
+pub struct ViewCrossAttentionConfig {
+    /// Feature width d of S, L and Z (the paper's reduced feature size).
+    #[config(default = 128)]
+    pub d_model: usize,
+}
+
+/// `Z = softmax(phi_k(S) phi_k(L)^T / sqrt(d)) phi_v(L) + S`, per point, over the N views.
+#[derive(Module, Debug)]
+pub struct ViewCrossAttention {
+    /// phi_k: the shared query/key projection, d -> d.
+    pub phi_k: Linear,
+    /// phi_v: the value projection, d -> d.
+    pub phi_v: Linear,
+    /// Feature width d.
+    pub d_model: usize,
+}
+
+impl ViewCrossAttentionConfig {
+    /// A freshly initialised attention block on `device`.
+    pub fn init(&self, device: &Device) -> ViewCrossAttention {
+        ViewCrossAttention {
+            phi_k: LinearConfig::new(self.d_model, self.d_model).init(device),
+            phi_v: LinearConfig::new(self.d_model, self.d_model).init(device),
+            d_model: self.d_model,
+        }
+    }
+}
+
+impl ViewCrossAttention {
+    /// Fuses body and pixel features across the views of each point.
+    ///
+    /// # Shapes
+    /// - `body_feature` S: `[M, N, d]`
+    /// - `pixel_feature` L: `[M, N, d]`
+    /// - output Z: `[M, N, d]`
+    pub fn forward(
+        &self,
+        body_feature: Tensor<3>,
+        pixel_feature: Tensor<3>,
+    ) -> Result<Tensor<3>, ShapeError> {
+        let [m, n, d] = body_feature.dims();
+        let d_model = Some(self.d_model);
+        ShapeError::check(
+            "attention `body_feature` S [M, N, d]",
+            &[m, n, d],
+            &[None, None, d_model],
+        )?;
+        ShapeError::check(
+            "attention `pixel_feature` L [M, N, d]",
+            &pixel_feature.dims(),
+            &[Some(m), Some(n), d_model],
+        )?;
+        if n == 0 {
+            return Err(ShapeError::empty("attention views N"));
+        }
+        let queries = self.phi_k.forward(body_feature.clone());
+        let keys = self.phi_k.forward(pixel_feature.clone());
+        let values = self.phi_v.forward(pixel_feature);
+        // [M, N, N]: row i = view i's body feature against every view's pixel feature.
+        let scores = queries
+            .matmul(keys.swap_dims(1, 2))
+            .div_scalar((self.d_model as f64).sqrt());
+        let attention = stable_softmax(scores, 2);
+        Ok(attention.matmul(values) + body_feature)
+    }
+}

@@ -1,0 +1,380 @@
+//! Appearance blending F_B (NIA section 3.2, "neural appearance blending").
+//!
+//! F_B is an 8-layer ReLU MLP applied to N + 1 tokens per point, with shared weights, so any
+//! number of views N >= 1 works:
+//!
+//! - token n = 1..N (source view n): `[p_n, d_hat_n, o_n, flag = 0 ; h, psi]`
+//! - token 0 (the NeRF colour c0): `[mean_n p_n, (0, 0, 0, 1), mean_n o_n, flag = 1 ; h, psi]`
+//!   (d_hat of a view looking exactly along the target ray is (0, 0, 0, 1); the flag channel
+//!   tells the two kinds of token apart)
+//!
+//! Each token gives one logit: `blend_logits = [w_0, w_1..w_N]`, and the point's colour is
+//! `c = softmax(w) . [c0, c_1..c_N]`. The softmax subtracts the (detached) maximum before `exp`,
+//! so logits of +-1e4 stay finite, and the denominator is >= 1 (the max term is exp(0)): there is
+//! no division by zero even when every view is invisible (o_n = 0). Visibility is an input of
+//! F_B, not a hard mask: token 0 always takes part, so a point seen by no view falls back on c0
+//! as far as F_B has learned to.
+//!
+//! The first layer is split in two linear maps that are summed, `W_t [p, d_hat, o, flag] + b +
+//! W_p [h, psi]`, which is exactly one linear layer on the concatenated token; the per-point part
+//! `W_p [h, psi]` is computed once per point instead of N + 1 times (h is the widest input).
+//! The paper gives the depth (8), not the width: `d_hidden` defaults to 128.
+//!
+//! View statistics (switchable, `ModelConfig::blend_view_statistics`; not in the paper): in the
+//! paper's F_B a view's token meets the other views only through h and psi, so F_B cannot tell
+//! a source colour that agrees with the other views (the point is where the views say it is)
+//! from one that does not (occlusion, misregistration). With statistics on, every token also
+//! carries its colour (c_n, or c0 for token 0), and the per-point part the across-view mean and
+//! variance of the pixel features and of the source colours, weighted by visibility (IBRNet's
+//! global context): `W_t [p, d_hat, o, flag, c] + b + W_p [h, psi, mean p, var p, mean c, var c]`.
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+use super::ibr::{cosine_weighted_colour, simple_average_colour};
+use crate::shape::ShapeError;
+use crate::softmax::stable_softmax;
+use crate::variant::Variant;
+use nia_data::scene::VIEW_DIR_FEATURE_DIM;
+
+/// Number of linear layers of F_B (paper).
+pub const BLENDER_LAYERS: usize = 8;
+
+/// Per-token channels besides p_n: d_hat (4), o (1), flag (1).
+const TOKEN_EXTRA_DIM: usize = VIEW_DIR_FEATURE_DIM + 2;
+
+/// Configuration of [`Blender`] (F_B).
+#[derive(Config, Debug)]
+pub struct BlenderConfig {
+    /// Width d of the pixel feature p_n.
+    #[config(default = 128)]
+    pub d_pixel: usize,
+    /// Width d_h of F_c0's hidden feature h.
+    #[config(default = 256)]
+    pub d_h: usize,
+    /// Hidden width of the MLP.
+    #[config(default = 128)]
+    pub d_hidden: usize,
+    /// Give the tokens their colours and the across-view statistics (module docs).
+    #[config(default = false)]
+    pub view_statistics: bool,
+}
+
+/// Weight of an invisible view in the across-view statistics, relative to a visible one's 1
+/// (so a point no view sees gets the plain mean, not 0/0).
+const STATISTICS_FLOOR: f32 = 0.01;
+
+/// F_B: N + 1 blend logits per point from per-view tokens and the NeRF token.
+#[derive(Module, Debug)]
+pub struct Blender {
+    /// First layer, token part: `[p, d_hat, o, flag] -> d_hidden` (with bias).
+    pub token_input: Linear,
+    /// First layer, per-point part: `[h, psi] -> d_hidden` (no bias).
+    pub point_input: Linear,
+    /// Layers 2..8; the last maps to one logit.
+    pub layers: Vec<Linear>,
+    /// Tokens carry colours and across-view statistics (module docs).
+    #[module(skip)]
+    pub view_statistics: bool,
+}
+
+impl BlenderConfig {
+    /// Input width of one full token: `d + 4 + 1 + 1 + d_h + 1`.
+    pub fn token_dim(&self) -> usize {
+        self.token_part_dim() + self.point_part_dim()
+    }
+
+    /// Width of the per-token part: `[p, d_hat, o, flag]` (+ `c` with statistics).
+    fn token_part_dim(&self) -> usize {
+        self.d_pixel + TOKEN_EXTRA_DIM + if self.view_statistics { 3 } else { 0 }
+    }
+
+    /// Width of the per-point part: `[h, psi]` (+ `mean p, var p, mean c, var c`).
+    fn point_part_dim(&self) -> usize {
+        self.d_h
+            + 1
+            + if self.view_statistics {
+                2 * self.d_pixel + 6
+            } else {
+                0
+            }
+    }
+
+    /// A freshly initialised F_B on `device`.
+    pub fn init(&self, device: &Device) -> Blender {
+        let mut layers = Vec::with_capacity(BLENDER_LAYERS - 1);
+        for _ in 1..BLENDER_LAYERS - 1 {
+            layers.push(LinearConfig::new(self.d_hidden, self.d_hidden).init(device));
+        }
+        layers.push(LinearConfig::new(self.d_hidden, 1).init(device));
+        Blender {
+            token_input: LinearConfig::new(self.token_part_dim(), self.d_hidden).init(device),
+            point_input: LinearConfig::new(self.point_part_dim(), self.d_hidden)
+                .with_bias(false)
+                .init(device),
+            layers,
+            view_statistics: self.view_statistics,
+        }
+    }
+}
+
+/// Everything the colour rules of the variants read, for M points and N views.
+#[derive(Debug, Clone)]
+pub struct BlendInputs {
+    /// NeRF colour c0, `[M, 3]`.
+    pub c0: Tensor<2>,
+    /// Confidence psi, `[M, 1]`.
+    pub confidence: Tensor<2>,
+    /// F_c0's hidden feature h, `[M, d_h]`.
+    pub h: Tensor<2>,
+    /// Source colours c_n, `[N, M, 3]`.
+    pub source_colours: Tensor<3>,
+    /// Pixel features p_n (= l_n), `[N, M, d]`.
+    pub pixel_feature: Tensor<3>,
+    /// View-direction features d_hat_n, `[N, M, 4]`.
+    pub view_dir_features: Tensor<3>,
+    /// Visibility o_n in [0, 1], `[N, M]`.
+    pub visibility: Tensor<2>,
+}
+
+/// The colour of M points and the weights that mixed it.
+#[derive(Debug, Clone)]
+pub struct PointColour {
+    /// c, `[M, 3]`.
+    pub colour: Tensor<2>,
+    /// Effective weights over `[c0, c_1..c_N]`, `[M, N + 1]`, rows sum to 1: F_B's softmax for
+    /// the blended variants, one-hot on c0 for `NoIbr`, `(0, 1/N, ..)` for `SimpleAverage`,
+    /// `(0, softmax_n(cos_n / tau))` for `CosineWeighted`.
+    pub blend_weights: Tensor<2>,
+}
+
+impl Blender {
+    /// The blend logits w_0..w_N (index 0 = the NeRF colour c0).
+    ///
+    /// # Shapes
+    /// - `pixel_feature` p_n: `[N, M, d]`
+    /// - `view_dir_features` d_hat_n: `[N, M, 4]`
+    /// - `visibility` o_n: `[N, M]`
+    /// - `h`: `[M, d_h]`
+    /// - `confidence` psi: `[M, 1]`
+    /// - `colours` (with view statistics, else ignored): c0 `[M, 3]` and c_n `[N, M, 3]`
+    /// - output `blend_logits`: `[M, N + 1]`
+    pub fn forward(
+        &self,
+        pixel_feature: Tensor<3>,
+        view_dir_features: Tensor<3>,
+        visibility: Tensor<2>,
+        h: Tensor<2>,
+        confidence: Tensor<2>,
+        colours: Option<(Tensor<2>, Tensor<3>)>,
+    ) -> Result<Tensor<2>, ShapeError> {
+        let [n, m, d] = pixel_feature.dims();
+        let colour_dim = if self.view_statistics { 3 } else { 0 };
+        let d_token = self.token_input.weight.dims()[0];
+        let d_point =
+            self.point_input.weight.dims()[0] - if self.view_statistics { 2 * d + 6 } else { 0 };
+        ShapeError::check(
+            "F_B `pixel_feature` [N, M, d]",
+            &[n, m, d],
+            &[None, None, Some(d_token - TOKEN_EXTRA_DIM - colour_dim)],
+        )?;
+        if n == 0 {
+            return Err(ShapeError::empty("F_B views N"));
+        }
+        ShapeError::check(
+            "F_B `view_dir_features` [N, M, 4]",
+            &view_dir_features.dims(),
+            &[Some(n), Some(m), Some(VIEW_DIR_FEATURE_DIM)],
+        )?;
+        ShapeError::check(
+            "F_B `visibility` [N, M]",
+            &visibility.dims(),
+            &[Some(n), Some(m)],
+        )?;
+        ShapeError::check("F_B `h` [M, d_h]", &h.dims(), &[Some(m), Some(d_point - 1)])?;
+        ShapeError::check(
+            "F_B `confidence` [M, 1]",
+            &confidence.dims(),
+            &[Some(m), Some(1)],
+        )?;
+        let device = pixel_feature.device();
+
+        let visibility = visibility.reshape([n, m, 1]);
+        let mut view_parts = vec![
+            pixel_feature.clone(),
+            view_dir_features,
+            visibility.clone(),
+            Tensor::zeros([n, m, 1], &device),
+        ];
+        let nerf_dir =
+            Tensor::<1>::from_data(TensorData::new(vec![0.0f32, 0.0, 0.0, 1.0], [4]), &device)
+                .reshape([1, 1, 4])
+                .expand([1, m, 4]);
+        let mut nerf_parts = vec![
+            pixel_feature.clone().mean_dim(0),
+            nerf_dir,
+            visibility.clone().mean_dim(0),
+            Tensor::ones([1, m, 1], &device),
+        ];
+        let mut point_parts = vec![h, confidence];
+        if self.view_statistics {
+            let Some((c0, source_colours)) = colours else {
+                return Err(ShapeError::value(
+                    "F_B `colours`",
+                    "c0 and c_n (view statistics are on)".into(),
+                ));
+            };
+            ShapeError::check("F_B `c0` [M, 3]", &c0.dims(), &[Some(m), Some(3)])?;
+            ShapeError::check(
+                "F_B `source_colours` [N, M, 3]",
+                &source_colours.dims(),
+                &[Some(n), Some(m), Some(3)],
+            )?;
+            // Visibility-weighted across-view statistics, [M, k] each.
+            let weight = visibility.clone().add_scalar(STATISTICS_FLOOR);
+            let weight = weight.clone() / weight.sum_dim(0); // [N, M, 1], sums to 1 over N
+            let statistics = |x: Tensor<3>| {
+                let k = x.dims()[2];
+                let mean = (x.clone() * weight.clone()).sum_dim(0); // [1, M, k]
+                let var = ((x - mean.clone()).square() * weight.clone()).sum_dim(0);
+                [mean.reshape([m, k]), var.reshape([m, k])]
+            };
+            point_parts.extend(statistics(pixel_feature));
+            point_parts.extend(statistics(source_colours.clone()));
+            view_parts.push(source_colours);
+            nerf_parts.push(c0.unsqueeze_dim::<3>(0));
+        }
+        let view_tokens = Tensor::cat(view_parts, 2);
+        let nerf_token = Tensor::cat(nerf_parts, 2);
+        let tokens = Tensor::cat(vec![nerf_token, view_tokens], 0); // [N + 1, M, d + 6 (+3)]
+        let point = self
+            .point_input
+            .forward(Tensor::cat(point_parts, 1))
+            .unsqueeze_dim::<3>(0); // [1, M, d_hidden]
+
+        let mut x = relu(self.token_input.forward(tokens) + point);
+        let last = self.layers.len() - 1;
+        for (i, layer) in self.layers.iter().enumerate() {
+            x = layer.forward(x);
+            if i < last {
+                x = relu(x);
+            }
+        }
+        // [N + 1, M, 1] -> [M, N + 1]
+        Ok(x.reshape([n + 1, m]).transpose())
+    }
+
+    /// The colour of each point under `variant` (see [`PointColour::blend_weights`]).
+    ///
+    /// `cosine_temperature` is tau of variant (d) (`ibr::DEFAULT_COSINE_TEMPERATURE`).
+    ///
+    /// # Shapes
+    /// - see [`BlendInputs`]; output colour `[M, 3]`, blend weights `[M, N + 1]`
+    pub fn colour(
+        &self,
+        variant: Variant,
+        inputs: BlendInputs,
+        cosine_temperature: f32,
+    ) -> Result<PointColour, ShapeError> {
+        let [n, m] = inputs.visibility.dims();
+        ShapeError::check("blend `c0` [M, 3]", &inputs.c0.dims(), &[Some(m), Some(3)])?;
+        if n == 0 {
+            return Err(ShapeError::empty("blend views N"));
+        }
+        if variant != Variant::NoIbr {
+            ShapeError::check(
+                "blend `source_colours` [N, M, 3]",
+                &inputs.source_colours.dims(),
+                &[Some(n), Some(m), Some(3)],
+            )?;
+        }
+        let device = inputs.c0.device();
+        // [M, N + 1] weights (0, w_1..w_N) from per-view weights [N, M].
+        let views_only =
+            |w: Tensor<2>| Tensor::cat(vec![Tensor::zeros([m, 1], &device), w.transpose()], 1);
+        match variant {
+            Variant::NoIbr => {
+                let one_hot = Tensor::cat(
+                    vec![
+                        Tensor::ones([m, 1], &device),
+                        Tensor::zeros([m, n], &device),
+                    ],
+                    1,
+                );
+                Ok(PointColour {
+                    colour: inputs.c0,
+                    blend_weights: one_hot,
+                })
+            }
+            Variant::SimpleAverage => Ok(PointColour {
+                colour: simple_average_colour(inputs.source_colours)?,
+                blend_weights: views_only(Tensor::full([n, m], 1.0 / n as f32, &device)),
+            }),
+            Variant::CosineWeighted => {
+                ShapeError::check(
+                    "blend `view_dir_features` [N, M, 4]",
+                    &inputs.view_dir_features.dims(),
+                    &[Some(n), Some(m), Some(VIEW_DIR_FEATURE_DIM)],
+                )?;
+                let cosine = inputs.view_dir_features.clone().slice(s![.., .., 3..4]);
+                let weights =
+                    stable_softmax(cosine.reshape([n, m]).div_scalar(cosine_temperature), 0);
+                Ok(PointColour {
+                    colour: cosine_weighted_colour(
+                        inputs.source_colours,
+                        inputs.view_dir_features,
+                        cosine_temperature,
+                    )?,
+                    blend_weights: views_only(weights),
+                })
+            }
+            Variant::NoBody | Variant::Full => {
+                let blend_logits = self.forward(
+                    inputs.pixel_feature,
+                    inputs.view_dir_features,
+                    inputs.visibility,
+                    inputs.h,
+                    inputs.confidence,
+                    Some((inputs.c0.clone(), inputs.source_colours.clone())),
+                )?;
+                blend(blend_logits, inputs.c0, inputs.source_colours)
+            }
+        }
+    }
+}
+
+/// `c = softmax(w) . [c0, c_1..c_N]`, max-subtracted.
+///
+/// # Shapes
+/// - `blend_logits` w: `[M, N + 1]` (index 0 = c0)
+/// - `c0`: `[M, 3]`
+/// - `source_colours` c_n: `[N, M, 3]`
+/// - output: colour `[M, 3]`, blend weights `[M, N + 1]`
+pub fn blend(
+    blend_logits: Tensor<2>,
+    c0: Tensor<2>,
+    source_colours: Tensor<3>,
+) -> Result<PointColour, ShapeError> {
+    let [n, m, three] = source_colours.dims();
+    ShapeError::check(
+        "blend `source_colours` [N, M, 3]",
+        &[n, m, three],
+        &[None, None, Some(3)],
+    )?;
+    ShapeError::check("blend `c0` [M, 3]", &c0.dims(), &[Some(m), Some(3)])?;
+    ShapeError::check(
+        "blend `blend_logits` [M, N + 1]",
+        &blend_logits.dims(),
+        &[Some(m), Some(n + 1)],
+    )?;
+    let blend_weights = stable_softmax(blend_logits, 1); // [M, N + 1]
+                                                         // [N + 1, M, 3] candidates, weighted by [N + 1, M, 1].
+    let candidates = Tensor::cat(vec![c0.unsqueeze_dim::<3>(0), source_colours], 0);
+    let weights = blend_weights.clone().transpose().reshape([n + 1, m, 1]);
+    let colour = (candidates * weights).sum_dim(0).reshape([m, 3]);
+    Ok(PointColour {
+        colour,
+        blend_weights,
+    })
+}

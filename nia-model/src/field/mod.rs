@@ -1,0 +1,240 @@
+//! The field, middle stage of the forward pass: everything NIA computes for a point x seen by N
+//! source views (paper section 3):
+//!
+//! - [`encoder`]: ResNet-18 feature maps of the source views (per scene, once);
+//! - [`body_volume`]: the sparse-convolution body volume, sampled trilinearly into s_n;
+//! - [`ibr`]: pixel-aligned features l_n = p_n and source colours c_n at the projections of x;
+//! - [`attention`]: the view-wise cross-attention `Z = softmax(phi_k(S) phi_k(L)^T / sqrt(d))
+//!   phi_v(L) + S`;
+//! - [`heads`]: `sigma = F_sigma(mean_n z_n)`, `(c0, psi, h) = F_c0([mean_n z_n ; gamma(d)])`
+//!   with [`positional_encoding`] gamma;
+//! - [`blender`]: F_B's blend weights over `[c0, c_1..c_N]` and the colour c.
+//!
+//! [`NiaModel::field`] takes world points (in the rendered pose), computes their CPU inputs
+//! ([`PointInputs`]: projections, d_hat_n, o_n, trilinear corners; reposed into the scene's pose
+//! first when the scene renders another pose) and runs [`NiaModel::query`], the network proper.
+
+pub mod attention;
+pub mod blender;
+pub mod body_volume;
+pub mod encoder;
+pub mod encoder_import;
+pub mod heads;
+pub mod ibr;
+pub mod positional_encoding;
+
+use burn::prelude::*;
+use glam::Vec3;
+use nia_data::scene::{PointInputs, VIEW_DIR_FEATURE_DIM};
+
+use self::blender::BlendInputs;
+use self::body_volume::TrilinearTensors;
+use self::heads::view_mean;
+use self::ibr::fetch_source_colours;
+use crate::model::{ModelError, NiaModel};
+use crate::scene_encoding::SceneEncoding;
+use crate::timing::{Stage, StageTimes, Stopwatch};
+
+/// The fields of M points.
+#[derive(Debug, Clone)]
+pub struct PointOutput {
+    /// [M] density sigma, per metre.
+    pub sigma: Tensor<1>,
+    /// [M, 3] blended colour c.
+    pub colour: Tensor<2>,
+    /// [M, 3] NeRF colour c0.
+    pub c0: Tensor<2>,
+    /// [M, N + 1] blend weights (index 0 = c0).
+    pub blend_weights: Tensor<2>,
+    /// [M, 3] the image-based part of the colour alone: the source colours under the blend
+    /// weights renormalised over the views (the plain mean where they are all ~0). An
+    /// instrument (what the source views say at the point), not used by the loss.
+    pub ibr_colour: Tensor<2>,
+}
+
+/// [`PointInputs`] on a device.
+#[derive(Debug, Clone)]
+pub struct PointTensors {
+    pub num_points: usize,
+    /// [N, M, 2]
+    pub proj_grid: Tensor<3>,
+    /// [N, M, 4]
+    pub view_dir_features: Tensor<3>,
+    /// [N, M]
+    pub visibility: Tensor<2>,
+    /// [M, 3]
+    pub dirs: Tensor<2>,
+    /// Per scale of the body volume (empty without one).
+    pub corners: Vec<TrilinearTensors>,
+}
+
+impl PointTensors {
+    /// Uploads `inputs` to `device`.
+    pub fn upload(inputs: &PointInputs, device: &Device) -> Self {
+        let (n, m) = (inputs.num_views, inputs.num_points);
+        let tensor3 = |values: &[f32], shape: [usize; 3]| {
+            Tensor::<3>::from_data(TensorData::new(values.to_vec(), shape), device)
+        };
+        PointTensors {
+            num_points: m,
+            proj_grid: tensor3(&inputs.proj_grid, [n, m, 2]),
+            view_dir_features: tensor3(&inputs.view_dir_features, [n, m, VIEW_DIR_FEATURE_DIM]),
+            visibility: Tensor::from_data(
+                TensorData::new(inputs.visibility.clone(), [n, m]),
+                device,
+            ),
+            dirs: Tensor::from_data(TensorData::new(inputs.dirs.clone(), [m, 3]), device),
+            corners: inputs
+                .corners
+                .iter()
+                .map(|c| TrilinearTensors::upload(c, device))
+                .collect(),
+        }
+    }
+}
+
+impl NiaModel {
+    /// The fields at `points` / `dirs` ([M] world, unit directions, in the pose `scene`
+    /// renders): the CPU point inputs (reposed into the scene's pose first when the scene was
+    /// encoded for another pose) and the network. `times` charges sampling, MLPs and blending.
+    pub fn field(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        times: Option<&mut StageTimes>,
+    ) -> Result<PointOutput, ModelError> {
+        let device = scene.images.device();
+        let mut watch = Stopwatch::new(times, &device);
+        self.field_with(scene, points, dirs, &mut watch)
+    }
+
+    pub(crate) fn field_with(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let geometry = &scene.geometry;
+        let scales = scene.volume.as_ref().map(|(vg, _)| &vg.levels[1..]);
+        let inputs = match &scene.reposer {
+            None => {
+                let volume_points: Option<Vec<[f32; 3]>> =
+                    scales.map(|_| points.iter().map(|&p| geometry.to_smpl(p)).collect());
+                let volume = scales.zip(volume_points.as_deref());
+                PointInputs::compute(geometry, points, dirs, volume)
+            }
+            Some(reposer) => {
+                // The body volume lives in the target pose (SMPL frame of the target); pixel
+                // features, colours and visibility are read at x' in the reference views.
+                let volume_points: Option<Vec<[f32; 3]>> = scales.map(|_| {
+                    points
+                        .iter()
+                        .map(|&p| reposer.target_to_smpl(p).to_array())
+                        .collect()
+                });
+                let mapped = reposer
+                    .map_points(points, dirs)
+                    .map_err(|e| ModelError::Input(format!("reposing: {e}")))?;
+                let volume = scales.zip(volume_points.as_deref());
+                PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume)
+            }
+        };
+        let inputs = PointTensors::upload(&inputs, &scene.images.device());
+        self.query_with(scene, &inputs, watch)
+    }
+
+    /// The network at M points whose inputs are already on the device: pixel features and
+    /// colours, body features, attention, F_sigma, F_c0 and the blend.
+    pub fn query(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+        times: Option<&mut StageTimes>,
+    ) -> Result<PointOutput, ModelError> {
+        let device = scene.images.device();
+        self.query_with(scene, points, &mut Stopwatch::new(times, &device))
+    }
+
+    fn query_with(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let l = self
+            .pixel_feature
+            .forward(scene.feature_maps.clone(), points.proj_grid.clone())?; // [N, M, d]
+        let source_colours = fetch_source_colours(scene.images.clone(), points.proj_grid.clone())?; // [N, M, 3]
+        let body = match (&scene.volume, self.variant.uses_body()) {
+            (Some((_, volume)), true) => Some(volume.sample(&points.corners)?),
+            _ => None,
+        };
+        watch.mark(Stage::Sampling);
+        let z = match (body, self.variant.uses_body()) {
+            (Some(body), true) => {
+                let s = self.body_reduce.forward(body); // [N, M, d]
+                self.attention
+                    .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))? // [M, N, d]
+            }
+            (None, true) => {
+                return Err(ModelError::Input(
+                    "the scene was encoded without a body volume".into(),
+                ))
+            }
+            (_, false) => l.clone().swap_dims(0, 1),
+        };
+        let mean_z = view_mean(z); // [M, d]
+        let sigma = self.density.forward(mean_z.clone())?;
+        let gamma = self.direction_encoding.forward(points.dirs.clone())?;
+        let heads = self.colour.forward(mean_z, gamma)?;
+        let c0 = heads.c0.clone();
+        watch.mark(Stage::Mlps);
+        let blended = self.blender.colour(
+            self.variant,
+            BlendInputs {
+                c0: heads.c0,
+                confidence: heads.confidence,
+                h: heads.h,
+                source_colours: source_colours.clone(),
+                pixel_feature: l,
+                view_dir_features: points.view_dir_features.clone(),
+                visibility: points.visibility.clone(),
+            },
+            self.cosine_temperature,
+        )?;
+        let ibr_colour = ibr_only_colour(
+            blended.blend_weights.clone().detach(),
+            source_colours.detach(),
+        );
+        watch.mark(Stage::Blending);
+        Ok(PointOutput {
+            sigma,
+            colour: blended.colour,
+            c0,
+            blend_weights: blended.blend_weights,
+            ibr_colour,
+        })
+    }
+}
+
+/// Weight a view keeps in [`ibr_only_colour`] whatever its blend weight, so a point that puts all
+/// weight on c0 gets the plain mean of the source colours instead of 0/0.
+const IBR_ONLY_FLOOR: f32 = 1e-6;
+
+/// The source colours under the blend weights of the views, renormalised over the views.
+///
+/// # Shapes
+/// - `blend_weights`: `[M, N + 1]` (index 0 = c0); `source_colours`: `[N, M, 3]`
+/// - output: `[M, 3]`
+fn ibr_only_colour(blend_weights: Tensor<2>, source_colours: Tensor<3>) -> Tensor<2> {
+    let [n, m, _] = source_colours.dims();
+    let views = blend_weights
+        .slice(s![.., 1..n + 1])
+        .add_scalar(IBR_ONLY_FLOOR)
+        .transpose()
+        .reshape([n, m, 1]);
+    let total = views.clone().sum_dim(0);
+    ((source_colours * views).sum_dim(0) / total).reshape([m, 3])
+}

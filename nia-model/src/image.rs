@@ -1,0 +1,160 @@
+//! Whole target images: the pixels of a camera whose rays cross the body's ray box
+//! ([`RayBundle::through_pixels`]), rendered in chunks of rays with bounded memory, reusing one
+//! [`SceneEncoding`] for every chunk.
+//!
+//! Pixels whose ray misses the box never reach the network: they keep the black background
+//! (NHP/NIA's convention) with zero opacity and zero blend weights.
+
+use burn::prelude::*;
+use nia_data::geometry::rays::RayBundle;
+
+use crate::model::{ModelError, NiaModel};
+use crate::renderer::RenderOutput;
+use crate::scene_encoding::SceneEncoding;
+use crate::timing::StageTimes;
+
+/// A rendered image and what it cost.
+#[derive(Debug, Clone)]
+pub struct RenderedImage {
+    pub width: usize,
+    pub height: usize,
+    /// [H * W * 3] interleaved blended colour C in [0, 1] (black background).
+    pub rgb: Vec<f32>,
+    /// [H * W * 3] interleaved NeRF colour C0.
+    pub rgb0: Vec<f32>,
+    /// [H * W * 3] interleaved IBR-only composite (the source colours under the blend weights
+    /// renormalised over the views; an instrument, see `field::PointOutput::ibr_colour`).
+    pub rgb_ibr: Vec<f32>,
+    /// [H * W] accumulated opacity.
+    pub acc: Vec<f32>,
+    /// [H * W] expected depth, metres (0 where no ray was cast).
+    pub depth: Vec<f32>,
+    /// Blend channels K = N + 1 (channel 0 = NeRF colour c0, 1..=N = source views).
+    pub blend_channels: usize,
+    /// [H * W * K] blend weights accumulated along each ray (zero where no ray was cast).
+    pub blend_weights: Vec<f32>,
+    /// Rays sent to the network.
+    pub rays: usize,
+    /// Points the network evaluated (rays x samples, less the samples skipped as empty space).
+    pub point_evaluations: u64,
+    /// Time per stage (only filled when timing was asked for).
+    pub times: StageTimes,
+}
+
+/// How to render an image.
+#[derive(Debug, Clone, Copy)]
+pub struct ImageRenderOptions {
+    /// Stratified samples per ray (bin centres, no jitter).
+    pub samples: usize,
+    /// Rays per network call: bounds memory (about `chunk * samples` points in flight).
+    pub chunk: usize,
+    /// Charge the time of every stage to [`RenderedImage::times`] (synchronises the device).
+    pub timed: bool,
+}
+
+fn readback(name: &str, tensor: Tensor<2>) -> Result<Vec<f32>, ModelError> {
+    tensor
+        .into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .map_err(|e| ModelError::Input(format!("reading back {name}: {e:?}")))
+}
+
+/// Renders `rays` (pixels of a `width x height` image) of `scene` in chunks of
+/// `options.chunk` rays. A scene encoded with a reposer renders its target pose.
+/// `progress(done, total)` is called after every chunk.
+pub fn render_image(
+    model: &NiaModel,
+    scene: &SceneEncoding,
+    rays: &RayBundle,
+    [w, h]: [usize; 2],
+    options: ImageRenderOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<RenderedImage, ModelError> {
+    let k = scene.num_views() + 1;
+    if let Some(&p) = rays.pixels.iter().find(|&&p| p as usize >= w * h) {
+        return Err(ModelError::Rays(format!(
+            "pixel index {p} outside the {w}x{h} image"
+        )));
+    }
+    let mut out = RenderedImage {
+        width: w,
+        height: h,
+        rgb: vec![0.0; w * h * 3],
+        rgb0: vec![0.0; w * h * 3],
+        rgb_ibr: vec![0.0; w * h * 3],
+        acc: vec![0.0; w * h],
+        depth: vec![0.0; w * h],
+        blend_channels: k,
+        blend_weights: vec![0.0; w * h * k],
+        rays: 0,
+        point_evaluations: 0,
+        times: StageTimes::default(),
+    };
+    let total = rays.len();
+    let chunk = options.chunk.max(1);
+    let mut times = StageTimes::default();
+    for start in (0..total).step_by(chunk) {
+        let end = (start + chunk).min(total);
+        let batch = rays.slice(start..end);
+        let RenderOutput {
+            rgb,
+            rgb0,
+            acc,
+            depth,
+            blend_weights,
+            rgb_ibr,
+            point_evaluations,
+            ..
+        } = model.render(
+            scene,
+            &batch,
+            options.samples,
+            None,
+            options.timed.then_some(&mut times),
+        )?;
+        let n = end - start;
+        let rgb = readback("colours", rgb)?;
+        let rgb0 = readback("NeRF colours", rgb0)?;
+        let rgb_ibr = match rgb_ibr {
+            Some(c) => readback("IBR-only colours", c)?,
+            None => vec![0.0; 3 * n],
+        };
+        let acc = readback("opacity", acc.reshape([n, 1]))?;
+        let depth = readback("depth", depth.reshape([n, 1]))?;
+        let weights = match blend_weights {
+            Some(wts) => readback("blend weights", wts)?,
+            None => vec![0.0; n * k],
+        };
+        if rgb.len() != 3 * n || weights.len() != k * n {
+            return Err(ModelError::Input(format!(
+                "the renderer returned {} colours and {} blend weights for {n} rays of {k} channels",
+                rgb.len(),
+                weights.len()
+            )));
+        }
+        for (i, &p) in batch.pixels.iter().enumerate() {
+            let p = p as usize;
+            out.rgb[3 * p..3 * p + 3].copy_from_slice(&rgb[3 * i..3 * i + 3]);
+            out.rgb0[3 * p..3 * p + 3].copy_from_slice(&rgb0[3 * i..3 * i + 3]);
+            out.rgb_ibr[3 * p..3 * p + 3].copy_from_slice(&rgb_ibr[3 * i..3 * i + 3]);
+            out.acc[p] = acc[i];
+            out.depth[p] = depth[i];
+            out.blend_weights[k * p..k * p + k].copy_from_slice(&weights[k * i..k * i + k]);
+        }
+        out.rays += n;
+        out.point_evaluations += point_evaluations as u64;
+        progress(end, total);
+    }
+    if let Some(bad) = out.rgb.iter().position(|v| !v.is_finite()) {
+        let p = bad / 3;
+        return Err(ModelError::Input(format!(
+            "non-finite colour at pixel ({}, {}): the network produced {}",
+            p % w,
+            p / w,
+            out.rgb[bad]
+        )));
+    }
+    out.times = times;
+    Ok(out)
+}

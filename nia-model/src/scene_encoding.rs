@@ -1,0 +1,192 @@
+//! The per-scene pass, done once and reused by every target view and ray chunk: the scene's
+//! CPU geometry, the ResNet-18 feature maps of the N source views, the per-vertex
+//! pixel-aligned features (zero where the vertex is invisible) and the sparse-convolution body
+//! volume. For pose animation the body volume is built on the target pose's vertices and the
+//! encoding carries the [`Reposer`] that maps query points back to the scene's pose.
+
+use std::sync::Arc;
+
+use burn::prelude::*;
+use nia_data::body::reposing::Reposer;
+use nia_data::geometry::occupancy::OccupancyGrid;
+use nia_data::scene::{projection_grid, SceneGeometry, SceneInput};
+
+use crate::field::body_volume::{BodyVolume, BodyVolumeGeometry};
+use crate::field::ibr::sample_views;
+use crate::model::{ModelError, NiaModel};
+use crate::timing::{Stage, StageTimes, Stopwatch};
+
+/// Per-scene tensors and geometry.
+#[derive(Debug, Clone)]
+pub struct SceneEncoding {
+    /// The scene's CPU geometry (cameras, SMPL frame, ray box, surface index, visibility).
+    pub geometry: Arc<SceneGeometry>,
+    /// [N, 3, H, W] source images in [0, 1].
+    pub images: Tensor<4>,
+    /// [N, C_img, H/2, W/2] encoder features.
+    pub feature_maps: Tensor<4>,
+    /// The body volume and its geometry (`None` for variant (a), which has no body).
+    pub volume: Option<(BodyVolumeGeometry, BodyVolume)>,
+    /// Pose animation: maps query points of the rendered (target) pose to the scene's pose.
+    /// `None` renders the scene's own pose, with no reposing work at all.
+    pub reposer: Option<Arc<Reposer>>,
+    /// Empty-space skipping: the occupancy grid of the rendered pose's mesh (world frame).
+    /// `None` (the default) evaluates every sample.
+    pub occupancy: Option<Arc<OccupancyGrid>>,
+    /// Band sampling (`ModelConfig::ray_sampler`): the band's occupancy grid of the rendered
+    /// pose's mesh; `None` for stratified sampling.
+    pub band: Option<Arc<OccupancyGrid>>,
+}
+
+impl SceneEncoding {
+    /// This encoding with empty-space skipping by `grid` (built on the mesh of the pose that
+    /// will be rendered: the scene's own for a novel view, the target pose's when reposing).
+    pub fn with_occupancy(mut self, grid: Option<Arc<OccupancyGrid>>) -> Self {
+        self.occupancy = grid;
+        self
+    }
+
+    /// Number of source views N.
+    pub fn num_views(&self) -> usize {
+        self.images.dims()[0]
+    }
+}
+
+impl NiaModel {
+    /// The per-scene pass on `device`: geometry, feature maps and the body volume. With
+    /// `reposer` (pose animation) the body volume is built on the target pose's vertices and
+    /// renders show the body in that pose; an identity reposer is dropped (no reposing work).
+    /// `times` charges the encoder and body-volume stages.
+    pub fn encode(
+        &self,
+        input: &SceneInput,
+        reposer: Option<Arc<Reposer>>,
+        device: &Device,
+        times: Option<&mut StageTimes>,
+    ) -> Result<SceneEncoding, ModelError> {
+        let mut watch = Stopwatch::new(times, device);
+        let geometry = Arc::new(SceneGeometry::new(input, self.voxel_grid())?);
+        let n = input.views.len();
+        let [h, w] = geometry.image_hw;
+        let mut pixels = Vec::with_capacity(n * 3 * h * w);
+        for view in &input.views {
+            pixels.extend_from_slice(&view.image);
+        }
+        let images = Tensor::<4>::from_data(TensorData::new(pixels, [n, 3, h, w]), device);
+        let feature_maps = self.encoder.forward(images.clone());
+        watch.mark(Stage::Encoder);
+        let reposer = reposer.filter(|r| !r.is_identity());
+        let volume = self.body_volume_of(&feature_maps, &geometry, reposer.as_deref(), device)?;
+        if volume.is_some() {
+            watch.mark(Stage::BodyVolume);
+        }
+        let band = self.band_of(&geometry, reposer.as_deref())?;
+        Ok(SceneEncoding {
+            geometry,
+            images,
+            feature_maps,
+            volume,
+            reposer,
+            occupancy: None,
+            band,
+        })
+    }
+
+    /// The same scene rendered in another pose: the body volume rebuilt on `reposer`'s target
+    /// vertices, reusing the source images' feature maps (per-pose work only, for animating one
+    /// scene through many poses). The occupancy grid is not carried over (it belongs to a pose).
+    pub fn encode_pose(
+        &self,
+        scene: &SceneEncoding,
+        reposer: Arc<Reposer>,
+        times: Option<&mut StageTimes>,
+    ) -> Result<SceneEncoding, ModelError> {
+        let reposer = Some(reposer).filter(|r| !r.is_identity());
+        if reposer.is_none() && scene.reposer.is_none() {
+            // The scene's own pose: its body volume serves as it is.
+            return Ok(scene.clone().with_occupancy(None));
+        }
+        let device = scene.images.device();
+        let mut watch = Stopwatch::new(times, &device);
+        let volume = self.body_volume_of(
+            &scene.feature_maps,
+            &scene.geometry,
+            reposer.as_deref(),
+            &device,
+        )?;
+        if volume.is_some() {
+            watch.mark(Stage::BodyVolume);
+        }
+        let band = self.band_of(&scene.geometry, reposer.as_deref())?;
+        Ok(SceneEncoding {
+            geometry: scene.geometry.clone(),
+            images: scene.images.clone(),
+            feature_maps: scene.feature_maps.clone(),
+            volume,
+            reposer,
+            occupancy: None,
+            band,
+        })
+    }
+
+    /// The band sampler's grid on the mesh of the rendered pose: the scene's own, or
+    /// `reposer`'s target vertices; `None` for stratified sampling.
+    fn band_of(
+        &self,
+        geometry: &SceneGeometry,
+        reposer: Option<&Reposer>,
+    ) -> Result<Option<Arc<OccupancyGrid>>, ModelError> {
+        let vertices = match reposer {
+            None => &geometry.vertices_world,
+            Some(reposer) => reposer.target_vertices(),
+        };
+        Ok(self.ray_sampler.band(vertices, &geometry.faces)?)
+    }
+
+    /// Vertex features from the feature maps and the sparse-convolution body volume, built on
+    /// the scene's own vertices or, with `reposer`, on the target pose's (with the features of
+    /// the scene's vertices of the same index); `None` for variant (a).
+    fn body_volume_of(
+        &self,
+        feature_maps: &Tensor<4>,
+        geometry: &SceneGeometry,
+        reposer: Option<&Reposer>,
+        device: &Device,
+    ) -> Result<Option<(BodyVolumeGeometry, BodyVolume)>, ModelError> {
+        if !self.variant.uses_body() {
+            return Ok(None);
+        }
+        let n = feature_maps.dims()[0];
+        let v = geometry.vertices_world.len();
+        // Vertex projections: the same projection rule as the query points.
+        let grid = projection_grid(geometry, &geometry.vertices_world);
+        let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, v, 2]), device);
+        let raw = sample_views(feature_maps.clone(), grid)?; // [N, V, C_img]
+        let vis: Vec<f32> = geometry
+            .vertex_visibility
+            .iter()
+            .flatten()
+            .copied()
+            .collect();
+        let vis = Tensor::<3>::from_data(TensorData::new(vis, [n, v, 1]), device);
+        // Zero where the vertex is invisible in that view (after the bias).
+        let vertex_features = self.vertex_reduce.forward(raw) * vis;
+        let (at, voxel_box) = match reposer {
+            None => (geometry.vertices_smpl.clone(), geometry.voxel_box),
+            Some(reposer) => {
+                let at = reposer.target_vertices_smpl();
+                if at.len() != v {
+                    return Err(ModelError::Input(format!(
+                        "reposing target vertices: expected {v} (one per scene vertex), got {}",
+                        at.len()
+                    )));
+                }
+                let voxel_box = self.voxel_grid().enclosing(&at)?;
+                (at, voxel_box)
+            }
+        };
+        let vg = BodyVolumeGeometry::build(&at, &voxel_box, device)?;
+        let volume = self.body_volume.forward(&vg, vertex_features)?;
+        Ok(Some((vg, volume)))
+    }
+}
