@@ -107,6 +107,7 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         .expect("static progress template"),
     );
     let mut write_error: Option<std::io::Error> = None;
+    let mut final_evaluation: Option<String> = None;
     let summary = train(
         &config,
         &RunOptions {
@@ -168,9 +169,13 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     psnr,
                     ssim,
                     ..
-                } => bar.println(format!(
-                    "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}"
-                )),
+                } => {
+                    let line = format!(
+                        "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}"
+                    );
+                    bar.println(&line);
+                    final_evaluation = Some(line);
+                }
                 TrainEvent::Finished { .. } => {}
             }
         },
@@ -191,8 +196,17 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
             .unwrap_or_else(|| "-".into()),
         metrics_path.display()
     );
-    if let Some(c) = summary.last_checkpoint {
+    if let Some(c) = &summary.last_checkpoint {
         println!("checkpoint: {}", c.display());
+    }
+    if let Some(line) = final_evaluation {
+        println!("{line}");
+        if let Some(c) = &summary.last_checkpoint {
+            println!(
+                "grids, blend maps and the hybrid's instruments: nia-infer export --checkpoint {} --out model.nia && nia-infer eval --model model.nia --out eval",
+                c.display()
+            );
+        }
     }
     Ok(())
 }
