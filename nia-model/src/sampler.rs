@@ -84,6 +84,27 @@ pub fn stratified_t(
     samples: usize,
     jitter: Option<&[f32]>,
 ) -> Result<Vec<f32>, SamplerError> {
+    check_sampler_inputs(near, far, samples, jitter)?;
+    let mut t = Vec::with_capacity(near.len() * samples);
+    for (ray, (&near, &far)) in near.iter().zip(far).enumerate() {
+        let bin = (far - near) / samples as f32;
+        for i in 0..samples {
+            let u = jitter.map_or(0.5, |j| j[ray * samples + i]);
+            // min(): rounding must not put a sample past `far` (the last delta would go < 0).
+            t.push((near + (i as f32 + u) * bin).min(far));
+        }
+    }
+    Ok(t)
+}
+
+/// The checks both samplers make: S >= 1, `far` and `jitter` of the right lengths, jitter in
+/// [0, 1], every interval finite with near <= far.
+fn check_sampler_inputs(
+    near: &[f32],
+    far: &[f32],
+    samples: usize,
+    jitter: Option<&[f32]>,
+) -> Result<(), SamplerError> {
     let rays = near.len();
     if samples == 0 {
         return Err(SamplerError::NoSamples);
@@ -111,19 +132,12 @@ pub fn stratified_t(
             return Err(SamplerError::Jitter { index, value });
         }
     }
-    let mut t = Vec::with_capacity(rays * samples);
     for (ray, (&near, &far)) in near.iter().zip(far).enumerate() {
         if !(near.is_finite() && far.is_finite() && near <= far) {
             return Err(SamplerError::Interval { ray, near, far });
         }
-        let bin = (far - near) / samples as f32;
-        for i in 0..samples {
-            let u = jitter.map_or(0.5, |j| j[ray * samples + i]);
-            // min(): rounding must not put a sample past `far` (the last delta would go < 0).
-            t.push((near + (i as f32 + u) * bin).min(far));
-        }
     }
-    Ok(t)
+    Ok(())
 }
 
 /// The samples of R rays, S per ray, and which of them the field evaluates.
@@ -181,8 +195,7 @@ impl RaySamples {
         band: &OccupancyGrid,
         occupancy: Option<&OccupancyGrid>,
     ) -> Result<Self, SamplerError> {
-        // Validates the arguments exactly as stratified sampling does.
-        stratified_t(&rays.near, &rays.far, samples, jitter)?;
+        check_sampler_inputs(&rays.near, &rays.far, samples, jitter)?;
         let step = band.cell_m() * 0.25;
         let mut t = Vec::with_capacity(rays.len() * samples);
         let mut delta = Vec::with_capacity(rays.len() * samples);
