@@ -165,8 +165,21 @@ pub fn image_stem(r: &ImageResult) -> String {
     format!("{}_frame{:04}_view{:02}", r.subject, r.frame, r.target_view)
 }
 
-/// Writes `STEM_grid.png` ([`comparison_grid`]) and `STEM_blend.png` (blend weights, NeRF
-/// colour first) of an evaluated image into `folder`.
+/// The hybrid's parts of one evaluated image: NeRF colour C0 | IBR-only composite | blended
+/// prediction C | ground truth | opacity (black = 0, white = 1).
+pub fn parts_grid(e: &EvaluatedImage<'_>) -> RgbImage {
+    let (w, h) = (e.rendered.width, e.rendered.height);
+    row(&[
+        rgb8(&e.rendered.rgb0, w, h),
+        rgb8(&e.rendered.rgb_ibr, w, h),
+        rgb8(&e.rendered.rgb, w, h),
+        rgb8(&e.ground_truth.image, w, h),
+        grey8(&e.rendered.acc, w, h),
+    ])
+}
+
+/// Writes `STEM_grid.png` ([`comparison_grid`]), `STEM_parts.png` ([`parts_grid`]) and
+/// `STEM_blend.png` (blend weights, NeRF colour first) of an evaluated image into `folder`.
 pub fn save_evaluated(folder: &Path, e: &EvaluatedImage<'_>) -> Result<(), PictureError> {
     let stem = image_stem(e.result);
     let (w, h) = (e.rendered.width, e.rendered.height);
@@ -174,6 +187,7 @@ pub fn save_evaluated(folder: &Path, e: &EvaluatedImage<'_>) -> Result<(), Pictu
         &folder.join(format!("{stem}_grid.png")),
         &comparison_grid(e),
     )?;
+    save_png(&folder.join(format!("{stem}_parts.png")), &parts_grid(e))?;
     save_png(
         &folder.join(format!("{stem}_blend.png")),
         &blend_weight_maps(&e.rendered.blend_weights, e.rendered.blend_channels, w, h),

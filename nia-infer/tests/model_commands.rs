@@ -216,6 +216,11 @@ fn eval_reproduces_the_numbers_training_printed() {
             .to_rgb8();
         // 3 sources + prediction + ground truth + error map, 40 px each, 2 px gaps.
         assert_eq!((grid.width(), grid.height()), (6 * 40 + 5 * 2, 40));
+        let parts = image::open(out_dir.join("pictures").join(format!("{stem}_parts.png")))
+            .unwrap()
+            .to_rgb8();
+        // C0 + IBR-only + prediction + ground truth + opacity.
+        assert_eq!((parts.width(), parts.height()), (5 * 40 + 4 * 2, 40));
         let blend = image::open(out_dir.join("pictures").join(format!("{stem}_blend.png")))
             .unwrap()
             .to_rgb8();

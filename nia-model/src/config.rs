@@ -7,7 +7,7 @@ use crate::field::blender::BlenderConfig;
 use crate::field::body_volume::BodyVolumeNetConfig;
 use crate::field::encoder::ImageEncoderConfig;
 use crate::field::heads::{ColourHeadConfig, DensityHeadConfig};
-use crate::field::ibr::{PixelFeatureConfig, DEFAULT_COSINE_TEMPERATURE};
+use crate::field::ibr::PixelFeatureConfig;
 use crate::field::positional_encoding::PositionalEncodingConfig;
 use crate::sampler::RaySampler;
 use crate::variant::Variant;
@@ -44,9 +44,6 @@ pub struct ModelConfig {
     /// The voxel box is the SMPL bounds grown by this fraction (2.5 % in the paper).
     #[config(default = 0.025)]
     pub box_enlarge: f32,
-    /// Temperature tau of variant (d), the cosine-weighted average.
-    #[config(default = "DEFAULT_COSINE_TEMPERATURE")]
-    pub cosine_temperature: f32,
     /// How rays are sampled (stratified over the box, as in the paper, or in the SMPL band).
     #[config(default = "RaySampler::Stratified")]
     pub ray_sampler: RaySampler,
@@ -62,7 +59,7 @@ const MAX_WIDTH: usize = 1 << 14;
 impl ModelConfig {
     /// Checks that the config describes a buildable network: every width in 1..=16384, at
     /// least one convolution per stage where one is required, and finite positive voxel size,
-    /// box growth and temperature. Model files are checked with it before any allocation.
+    /// and box growth. Model files are checked with it before any allocation.
     pub fn check(&self) -> Result<(), String> {
         let bv = &self.body_volume;
         let widths = [
@@ -93,14 +90,11 @@ impl ModelConfig {
         if bv.full_convs > 64 || bv.scale_convs.iter().any(|&n| n > 64) {
             return Err("`body_volume` convolution counts must be at most 64".into());
         }
-        let positive = [
-            ("voxel_size_m", self.voxel_size_m),
-            ("cosine_temperature", self.cosine_temperature),
-        ];
-        for (name, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(format!("`{name}` = {value}, expected a finite value > 0"));
-            }
+        if !(self.voxel_size_m.is_finite() && self.voxel_size_m > 0.0) {
+            return Err(format!(
+                "`voxel_size_m` = {}, expected a finite value > 0",
+                self.voxel_size_m
+            ));
         }
         if !(self.box_enlarge.is_finite() && self.box_enlarge >= 0.0) {
             return Err(format!(

@@ -85,8 +85,6 @@ pub struct NiaModel {
     pub blender: Blender,
     #[module(skip)]
     pub variant: Variant,
-    #[module(skip)]
-    pub cosine_temperature: f32,
     /// Voxel edge of the body volume, metres.
     #[module(skip)]
     pub voxel_size_m: f32,
@@ -115,7 +113,6 @@ impl ModelConfig {
             colour: self.colour().init(device),
             blender: self.blender().init(device),
             variant: self.variant,
-            cosine_temperature: self.cosine_temperature,
             voxel_size_m: self.voxel_size_m,
             box_enlarge: self.box_enlarge,
             ray_sampler: self.ray_sampler,

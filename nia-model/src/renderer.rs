@@ -45,6 +45,10 @@ pub struct RenderOutput {
     pub blend_weights: Option<Tensor<2>>,
     /// `[R, S]` compositing weights w_i (to composite further per-sample quantities).
     pub weights: Tensor<2>,
+    /// `[R, S]` sample positions t_i along the ray, metres.
+    pub t: Tensor<2>,
+    /// `[R, S]` quadrature intervals delta_i, metres (clamped at 0).
+    pub delta: Tensor<2>,
     /// `[R, 3]` the IBR-only composite ([`crate::field::PointOutput::ibr_colour`]), filled
     /// by [`crate::NiaModel::render`]; `None` from the quadrature alone.
     pub rgb_ibr: Option<Tensor<2>>,
@@ -170,7 +174,8 @@ pub fn render_rays_delta(
         )?;
     }
     ShapeError::check("render `t` [R, S]", &t.dims(), &[Some(r), Some(s)])?;
-    let weights = sample_weights_delta(sigma, delta)?;
+    let delta = delta.clamp_min(0.0);
+    let weights = sample_weights_delta(sigma, delta.clone())?;
     let w3 = weights.clone().reshape([r, s, 1]);
     let composite = |x: Tensor<3>| {
         let k = x.dims()[2];
@@ -180,9 +185,11 @@ pub fn render_rays_delta(
         rgb: composite(colour),
         rgb0: composite(colour0),
         acc: weights.clone().sum_dim(1).reshape([r]),
-        depth: (weights.clone() * t).sum_dim(1).reshape([r]),
+        depth: (weights.clone() * t.clone()).sum_dim(1).reshape([r]),
         blend_weights: blend.map(composite),
         weights,
+        t,
+        delta,
         rgb_ibr: None,
         point_evaluations: r * s,
     })

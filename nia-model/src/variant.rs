@@ -11,8 +11,8 @@ use serde::{Deserialize, Serialize};
 /// |---|---|---|
 /// | (a) [`Variant::NoBody`] | no (Z = L) | F_B blend |
 /// | (b) [`Variant::NoIbr`] | yes | c = c0 (F_B unused) |
-/// | (c) [`Variant::SimpleAverage`] | yes | c = mean_n c_n |
-/// | (d) [`Variant::CosineWeighted`] | yes | c = sum_n softmax_n(cos_n / tau) c_n |
+/// | (c) [`Variant::SimpleAverage`] | yes | c = mean of [c0, c_1..c_N] |
+/// | (d) [`Variant::CosineWeighted`] | yes | c = [c0, c_n] weighted ∝ [1, max(cos_n, 0)] |
 /// | (e) [`Variant::Full`] | yes | F_B blend of [c0, c_1..c_N] |
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -21,9 +21,10 @@ pub enum Variant {
     NoBody,
     /// (b) No image-based rendering: the colour is the NeRF colour c0.
     NoIbr,
-    /// (c) The colour is the simple average of the source colours c_n.
+    /// (c) The colour is the simple average of the colour predictions c0 and c_n.
     SimpleAverage,
-    /// (d) The colour is a softmax-of-cosine weighted average of the source colours.
+    /// (d) The colour is the average of c0 and c_n weighted by the cosine between the target
+    /// ray and each prediction's view direction (1 for c0, negative cosines count 0).
     CosineWeighted,
     /// (e) The full model.
     #[default]

@@ -12,8 +12,7 @@ use nia_model::field::attention::ViewCrossAttentionConfig;
 use nia_model::field::blender::{blend, BlendInputs, Blender, BlenderConfig};
 use nia_model::field::heads::{view_mean, ColourHeadConfig, DensityHead, DensityHeadConfig};
 use nia_model::field::ibr::{
-    cosine_weighted_colour, fetch_source_colours, sample_views, simple_average_colour,
-    PixelFeatureConfig,
+    cosine_weights, fetch_source_colours, sample_views, simple_average_weights, PixelFeatureConfig,
 };
 use nia_model::field::positional_encoding::PositionalEncodingConfig;
 use nia_model::renderer::render_rays;
@@ -352,27 +351,38 @@ fn source_colours_and_pixel_features_layout() {
 #[test]
 fn fixed_colour_rules() {
     let dev = device();
-    // N = 2 views, M = 1 point.
-    let colours = tensor(vec![1.0, 0.0, 0.0, 0.0, 0.0, 1.0], [2, 1, 3], &dev);
-    let mean = simple_average_colour(colours.clone()).unwrap();
-    assert_close(&values(mean), &[0.5, 0.0, 0.5], VALUE_TOL, "simple average");
-    // cos = (1, 0), tau = 0.1: weights (e^10, 1) / (e^10 + 1).
+    // N = 2 views, M = 1 point: (c) weighs c0 and both views 1/3 each.
+    let average = simple_average_weights(1, 2, &dev).unwrap();
+    assert_close(
+        &values(average),
+        &[1.0 / 3.0; 3],
+        VALUE_TOL,
+        "simple average",
+    );
+    assert!(simple_average_weights(1, 0, &dev).is_err());
+    // (d): cos = (1, 0.5) -> raw (1, 1, 0.5) / 2.5; a view facing away (cos -1) weighs 0.
     let d_hat = tensor(
-        vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+        vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.5],
         [2, 1, 4],
         &dev,
     );
-    let w0 = 10f32.exp() / (10f32.exp() + 1.0);
-    let weighted = cosine_weighted_colour(colours.clone(), d_hat.clone(), 0.1).unwrap();
+    let weights = cosine_weights(d_hat).unwrap();
     assert_close(
-        &values(weighted),
-        &[w0, 0.0, 1.0 - w0],
+        &values(weights),
+        &[0.4, 0.4, 0.2],
         VALUE_TOL,
         "cosine weighted",
     );
+    let away = tensor(vec![0.0, 0.0, 0.0, -1.0], [1, 1, 4], &dev);
+    assert_close(
+        &values(cosine_weights(away).unwrap()),
+        &[1.0, 0.0],
+        VALUE_TOL,
+        "facing away",
+    );
     assert!(matches!(
-        cosine_weighted_colour(colours, d_hat, 0.0),
-        Err(ShapeError::InvalidArgument { .. })
+        cosine_weights(Tensor::zeros([2, 1, 3], &dev)),
+        Err(ShapeError::Mismatch { .. })
     ));
 }
 
@@ -610,7 +620,7 @@ fn blender_gradient_wrt_inputs_matches_finite_differences() {
             confidence: psi,
             ..x.clone()
         };
-        let out = blender.colour(Variant::Full, inputs, 0.1).unwrap();
+        let out = blender.colour(Variant::Full, inputs).unwrap();
         (out.colour * probe.clone()).sum()
     };
     let vis = tensor(vis_vals.clone(), [n, m], &dev).require_grad();
@@ -662,7 +672,7 @@ fn invisible_views_stay_finite() {
             h: h.clone(),
             ..x.clone()
         };
-        let out = blender.colour(Variant::Full, inputs, 0.1).unwrap();
+        let out = blender.colour(Variant::Full, inputs).unwrap();
         let w = values(out.blend_weights.clone());
         assert_finite(&w, case);
         for row in w.chunks(n + 1) {
@@ -713,7 +723,7 @@ fn variant_colour_rules() {
     let x = blend_inputs(&mut rng, m, n, &dev);
 
     // (b) NoIbr: c = c0, weights one-hot on token 0.
-    let no_ibr = blender.colour(Variant::NoIbr, x.clone(), 0.1).unwrap();
+    let no_ibr = blender.colour(Variant::NoIbr, x.clone()).unwrap();
     assert_close(
         &values(no_ibr.colour.clone()),
         &values(x.c0.clone()),
@@ -728,36 +738,34 @@ fn variant_colour_rules() {
         "NoIbr weights",
     );
 
-    // (c) SimpleAverage: the mean of the source colours.
-    let avg = blender
-        .colour(Variant::SimpleAverage, x.clone(), 0.1)
-        .unwrap();
+    // (c) SimpleAverage: the mean of c0 and the source colours.
+    let avg = blender.colour(Variant::SimpleAverage, x.clone()).unwrap();
     let c = values(x.source_colours.clone());
+    let c0 = values(x.c0.clone());
     let mean: Vec<f32> = (0..m * 3)
-        .map(|i| (0..n).map(|v| c[v * m * 3 + i]).sum::<f32>() / n as f32)
+        .map(|i| (c0[i] + (0..n).map(|v| c[v * m * 3 + i]).sum::<f32>()) / (n + 1) as f32)
         .collect();
     assert_close(&values(avg.colour), &mean, VALUE_TOL, "SimpleAverage");
-    let thirds: Vec<f32> = (0..m)
-        .flat_map(|_| [0.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0])
-        .collect();
     assert_close(
         &values(avg.blend_weights),
-        &thirds,
+        &vec![0.25; m * (n + 1)],
         VALUE_TOL,
         "SimpleAverage weights",
     );
 
-    // (d) CosineWeighted: softmax of cos / tau over the views.
+    // (d) CosineWeighted: weights ∝ (1, max(cos_n, 0)) over [c0, c_n].
     let cos = values(x.view_dir_features.clone().slice(s![.., .., 3..4]));
-    let weighted = blender
-        .colour(Variant::CosineWeighted, x.clone(), 0.5)
-        .unwrap();
+    let weighted = blender.colour(Variant::CosineWeighted, x.clone()).unwrap();
     let mut expected = vec![0.0f32; m * 3];
     for p in 0..m {
-        let e: Vec<f32> = (0..n).map(|v| (cos[v * m + p] / 0.5).exp()).collect();
-        let s: f32 = e.iter().sum();
+        let raw: Vec<f32> = (0..n).map(|v| cos[v * m + p].max(0.0)).collect();
+        let total = 1.0 + raw.iter().sum::<f32>();
         for ch in 0..3 {
-            expected[p * 3 + ch] = (0..n).map(|v| e[v] / s * c[(v * m + p) * 3 + ch]).sum();
+            expected[p * 3 + ch] = (c0[p * 3 + ch]
+                + (0..n)
+                    .map(|v| raw[v] * c[(v * m + p) * 3 + ch])
+                    .sum::<f32>())
+                / total;
         }
     }
     assert_close(
@@ -771,7 +779,7 @@ fn variant_colour_rules() {
     let logits = logits_of(&blender, &x);
     let expected = blend(logits, x.c0.clone(), x.source_colours.clone()).unwrap();
     for variant in [Variant::NoBody, Variant::Full] {
-        let got = blender.colour(variant, x.clone(), 0.1).unwrap();
+        let got = blender.colour(variant, x.clone()).unwrap();
         assert_close(
             &values(got.colour),
             &values(expected.colour.clone()),

@@ -6,7 +6,7 @@ mod common;
 use burn::prelude::*;
 use common::{assert_close, device, tensor, values};
 use nia_data::rng::Rng;
-use nia_model::loss::{psnr_from_mse, render_loss};
+use nia_model::loss::{distortion_loss, psnr_from_mse, render_loss};
 use nia_model::renderer::{render_rays, sample_weights};
 use nia_model::sampler::{stratified_t, SamplerError};
 
@@ -426,4 +426,48 @@ fn loss_and_psnr_hand_values() {
     assert!((psnr_from_mse(0.01) - 20.0).abs() < 1e-12);
     assert!((psnr_from_mse(1.0)).abs() < 1e-12);
     assert_eq!(psnr_from_mse(0.0), f64::INFINITY);
+}
+
+/// mip-NeRF 360's distortion loss by hand: all weight on one sample costs only its own interval
+/// (w^2 delta / 3), weight split between two samples 0.5 m apart costs 2 * 0.25 * 0.5 more; a
+/// compact ray costs less than a spread one, and empty rays cost nothing.
+#[test]
+fn distortion_loss_hand_values() {
+    let dev = device();
+    let t = tensor(
+        vec![1.0, 1.5, 2.0, 1.0, 1.5, 2.0, 1.0, 1.5, 2.0],
+        [3, 3],
+        &dev,
+    );
+    let delta = tensor(
+        vec![0.1, 0.2, 0.3, 0.1, 0.2, 0.3, 0.1, 0.2, 0.3],
+        [3, 3],
+        &dev,
+    );
+    // ray 0: one opaque sample; ray 1: split over the first two; ray 2: empty.
+    let w = tensor(
+        vec![0.0, 1.0, 0.0, 0.5, 0.5, 0.0, 0.0, 0.0, 0.0],
+        [3, 3],
+        &dev,
+    );
+    let ray0 = 0.2 / 3.0;
+    let ray1 = 2.0 * 0.25 * 0.5 + (0.25 * 0.1 + 0.25 * 0.2) / 3.0;
+    let loss = distortion_loss(w, t.clone(), delta.clone()).unwrap();
+    assert_close(
+        &values(loss),
+        &[(ray0 + ray1) / 3.0],
+        VALUE_TOL,
+        "distortion",
+    );
+    // Weights in [0, 1] with a huge gap stay finite.
+    let far = tensor(vec![0.0, 1e3, 2e3], [1, 3], &dev);
+    let w = tensor(vec![0.5, 0.0, 0.5], [1, 3], &dev);
+    let d = tensor(vec![0.0, 0.0, 0.0], [1, 3], &dev);
+    assert_close(
+        &values(distortion_loss(w, far, d).unwrap()),
+        &[1000.0],
+        1e-3,
+        "far gap",
+    );
+    assert!(distortion_loss(Tensor::zeros([3, 2], &dev), t, delta).is_err());
 }

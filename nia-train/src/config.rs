@@ -202,6 +202,11 @@ pub struct TrainSection {
     /// loss only; see `nia_model::loss::mask_loss`).
     #[serde(default)]
     pub mask_loss_weight: f32,
+    /// Weight of the distortion loss (mip-NeRF 360) that pulls each ray's compositing weights
+    /// into one compact interval (0: the paper's loss only; see
+    /// `nia_model::loss::distortion_loss`).
+    #[serde(default)]
+    pub distortion_loss_weight: f32,
 }
 
 fn default_rays() -> usize {
@@ -314,6 +319,13 @@ impl TrainConfig {
                 "train.mask_loss_weight",
                 "a finite value >= 0",
                 t.mask_loss_weight.to_string(),
+            ));
+        }
+        if !(t.distortion_loss_weight.is_finite() && t.distortion_loss_weight >= 0.0) {
+            return Err(bad(
+                "train.distortion_loss_weight",
+                "a finite value >= 0",
+                t.distortion_loss_weight.to_string(),
             ));
         }
         if t.checkpoint_every == 0 {

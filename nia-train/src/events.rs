@@ -47,6 +47,13 @@ pub enum TrainEvent {
         images: usize,
         psnr: f64,
         ssim: f64,
+        /// Mean blend weight of the NeRF colour c0 on person pixels some source view sees.
+        c0_share_seen: Option<f64>,
+        /// PSNR of the IBR-only and NeRF-only composites (`nia_infer::diagnostics`).
+        psnr_ibr: f64,
+        psnr_nerf: f64,
+        /// Folder with grids and blend maps of a few of the evaluated images.
+        pictures: PathBuf,
     },
     /// The run ended after `steps` steps.
     Finished { steps: u64, seconds: f64 },

@@ -3,6 +3,7 @@
 //! the final evaluation are [`nia_infer::eval`]. The library never prints; the binary
 //! (`main.rs`) turns events into a progress bar and a JSONL log.
 
+pub mod ablation;
 pub mod config;
 pub mod data;
 pub mod events;

@@ -2,8 +2,11 @@
 //! in the exact ZJU-MoCap layout.
 //!
 //! `nia-train --config configs/quickstart.toml [--backend ndarray|flex|wgpu] [--resume]
-//! [--out DIR] [--steps N]` (also as `nia-train train ...`), and `nia-train synth ...`.
+//! [--out DIR] [--steps N]` (also as `nia-train train ...`), `nia-train synth ...` and
+//! `nia-train ablation --config ...` (the paper's Table 3).
 
+mod ablation_cmd;
+mod log_lines;
 mod synth_cmd;
 
 use std::io::Write;
@@ -33,6 +36,9 @@ enum Command {
     Train(TrainArgs),
     /// Generate synthetic subjects in the exact ZJU-MoCap layout.
     Synth(synth_cmd::SynthArgs),
+    /// The paper's ablation (Table 3): variants (a)..(e) at equal budget, 1..3 source views,
+    /// novel pose; writes a markdown table and a picture.
+    Ablation(ablation_cmd::AblationArgs),
 }
 
 #[derive(Args, Debug)]
@@ -57,7 +63,7 @@ struct TrainArgs {
 /// Makes burn's default device the training backend (unless the user set `BURN_DEVICE`):
 /// burn materialises restored optimiser state on the default device, which with the `wgpu`
 /// feature compiled in would otherwise be the GPU even for a CPU run.
-fn pin_default_device(backend: Backend) {
+pub(crate) fn pin_default_device(backend: Backend) {
     if std::env::var_os("BURN_DEVICE").is_none() {
         std::env::set_var("BURN_DEVICE", backend.name());
     }
@@ -67,6 +73,7 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Synth(args)) => synth_cmd::run(args),
+        Some(Command::Ablation(args)) => ablation_cmd::run(args),
         Some(Command::Train(args)) => run_train(args),
         None => run_train(cli.train),
     }
@@ -127,7 +134,7 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     train_subjects,
                     unseen_subjects,
                     generated,
-                } => bar.println(format!(
+                } => log_lines::line(&bar, format!(
                     "data {}{}: train {:?}, held out {:?}",
                     root.display(),
                     if *generated { " (generated)" } else { "" },
@@ -144,23 +151,25 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     ..
                 } => {
                     bar.set_position(step + 1);
-                    bar.set_message(format!(
+                    let message = format!(
                         "loss {loss:.4} psnr {psnr:.2} dB {rays_per_s:.0} rays/s lr {lr:.2e}"
-                    ));
+                    );
+                    log_lines::progress(&bar, step + 1, config.train.steps, &message);
+                    bar.set_message(message);
                 }
                 TrainEvent::Skipped { step, reason } => {
                     bar.set_position(step + 1);
-                    bar.println(format!("step {step} skipped: {reason}"));
+                    log_lines::line(&bar, format!("step {step} skipped: {reason}"));
                 }
                 TrainEvent::Checkpoint { path, .. } => {
-                    bar.println(format!("checkpoint {}", path.display()))
+                    log_lines::line(&bar, format!("checkpoint {}", path.display()))
                 }
                 TrainEvent::Validation {
                     step,
                     images,
                     psnr,
                     ssim,
-                } => bar.println(format!(
+                } => log_lines::line(&bar, format!(
                     "validation after {step} steps: PSNR {psnr:.2} dB, SSIM {ssim:.4} on {images} held-out images"
                 )),
                 TrainEvent::Evaluation {
@@ -168,12 +177,22 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     images,
                     psnr,
                     ssim,
+                    c0_share_seen,
+                    psnr_ibr,
+                    psnr_nerf,
+                    pictures,
                     ..
                 } => {
+                    let share = c0_share_seen
+                        .map(|s| format!("{s:.2}"))
+                        .unwrap_or_else(|| "-".into());
                     let line = format!(
-                        "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}"
+                        "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}\n  \
+                         IBR-only {psnr_ibr:.2} dB, NeRF-only {psnr_nerf:.2} dB, NeRF-colour share where a source sees {share}\n  \
+                         grids and blend maps: {}",
+                        pictures.display()
                     );
-                    bar.println(&line);
+                    log_lines::line(&bar, &line);
                     final_evaluation = Some(line);
                 }
                 TrainEvent::Finished { .. } => {}
@@ -203,7 +222,7 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         println!("{line}");
         if let Some(c) = &summary.last_checkpoint {
             println!(
-                "grids, blend maps and the hybrid's instruments: nia-infer export --checkpoint {} --out model.nia && nia-infer eval --model model.nia --out eval",
+                "every image's grids and the per-image instruments: nia-infer export --checkpoint {} --out model.nia && nia-infer eval --model model.nia --out eval",
                 c.display()
             );
         }

@@ -25,8 +25,11 @@ use nia_data::dataset::loader::{Scene, SceneLoader, SceneTarget};
 use nia_data::dataset::protocol::EvalSplit;
 use nia_data::rng::Rng;
 use nia_data::scene::SceneInput;
-use nia_infer::eval::{eval_items, evaluate_items, EvalError};
-use nia_model::loss::{mask_loss, psnr_from_mse, render_loss};
+use nia_infer::eval::{
+    eval_items, evaluate_images, evaluate_items, EvalError, EvalOptions, EvalSummary, EvalTask,
+};
+use nia_infer::pictures::save_evaluated;
+use nia_model::loss::{distortion_loss, mask_loss, psnr_from_mse, render_loss};
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::{ModelError, NiaModel};
 
@@ -36,6 +39,9 @@ use crate::events::TrainEvent;
 
 /// Label of the jitter stream forked from a step's RNG (the loader uses the request seed).
 const JITTER_STREAM: u64 = 1;
+
+/// Images of the final evaluation whose grids and blend maps are written (`<out>/evaluation/`).
+pub const FINAL_PICTURES: usize = 4;
 
 /// A training error.
 #[derive(Debug, thiserror::Error)]
@@ -228,21 +234,46 @@ pub fn train(
     if t.evaluate_at_end {
         let split = EvalSplit::UnseenSubjects;
         let items = eval_items(&data.dataset, split, None)?;
-        if let Some(m) = evaluate_items(
+        let pictures = options.out.join("evaluation");
+        std::fs::create_dir_all(&pictures)
+            .map_err(|e| EvalError::Output(format!("creating {}: {e}", pictures.display())))?;
+        // Pictures of images spread over the split (every k-th), so they show several views.
+        let every = items.len().div_ceil(FINAL_PICTURES).max(1);
+        let mut index = 0usize;
+        let results = evaluate_images(
             &model,
             &data.dataset,
+            split,
             &items,
-            t.samples,
-            t.rays_per_step,
-            config.render,
+            EvalOptions {
+                task: EvalTask::NovelView,
+                samples: t.samples,
+                chunk: t.rays_per_step,
+                timed: false,
+                adaptive: config.render,
+            },
             &device,
-        )? {
+            &mut |evaluated| {
+                let keep = index % every == 0;
+                index += 1;
+                if keep {
+                    save_evaluated(&pictures, &evaluated)
+                        .map_err(|e| EvalError::Output(e.to_string()))?;
+                }
+                Ok(())
+            },
+        )?;
+        if let Some(m) = EvalSummary::of(&results) {
             on_event(TrainEvent::Evaluation {
                 step: summary.steps,
                 split: split.name().to_string(),
                 images: m.images,
                 psnr: m.psnr,
                 ssim: m.ssim,
+                c0_share_seen: m.diagnostics.c0_weight_seen,
+                psnr_ibr: m.diagnostics.psnr_ibr,
+                psnr_nerf: m.diagnostics.psnr_nerf,
+                pictures: pictures.clone(),
             });
         }
     }
@@ -304,6 +335,14 @@ fn train_step(
     let gt: Vec<f32> = rays.rgb.iter().flatten().copied().collect();
     let gt = Tensor::<2>::from_data(TensorData::new(gt, [rays.len(), 3]), device);
     let acc = out.acc.clone();
+    let distortion = if config.train.distortion_loss_weight > 0.0 {
+        Some(
+            distortion_loss(out.weights.clone(), out.t.clone(), out.delta.clone())
+                .map_err(|e| model_err(ModelError::Shape(e)))?,
+        )
+    } else {
+        None
+    };
     let mut loss =
         render_loss(out.rgb, out.rgb0, gt).map_err(|e| model_err(ModelError::Shape(e)))?;
     if config.train.mask_loss_weight > 0.0 {
@@ -311,6 +350,9 @@ fn train_step(
         let on_body = Tensor::<1>::from_data(TensorData::new(on_body, [rays.len()]), device);
         let mask = mask_loss(acc, on_body).map_err(|e| model_err(ModelError::Shape(e)))?;
         loss.total = loss.total + mask.mul_scalar(config.train.mask_loss_weight);
+    }
+    if let Some(distortion) = distortion {
+        loss.total = loss.total + distortion.mul_scalar(config.train.distortion_loss_weight);
     }
     let values = Tensor::cat(
         vec![

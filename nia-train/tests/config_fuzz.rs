@@ -54,7 +54,6 @@ const KEYS: &[(&str, &str)] = &[
     ("model", "dir_frequencies"),
     ("model", "voxel_size_m"),
     ("model", "box_enlarge"),
-    ("model", "cosine_temperature"),
     ("optim", "lr"),
     ("optim", "beta1"),
     ("optim", "beta2"),
@@ -73,6 +72,8 @@ const KEYS: &[(&str, &str)] = &[
     ("train", "evaluate_at_end"),
     ("train", "backend"),
     ("train", "init_from"),
+    ("train", "mask_loss_weight"),
+    ("train", "distortion_loss_weight"),
     ("synth", "subjects"),
     ("synth", "frames"),
     ("synth", "cameras"),
@@ -430,6 +431,10 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
             &["5e-4", "1e-9", "1.0", "1e30"],
             &["0.0", "-1.0", "nan", "inf", "-inf"],
         ),
+        "mask_loss_weight" | "distortion_loss_weight" => (
+            &["0.0", "-0.0", "0.1", "1e30"],
+            &["-1.0", "nan", "inf", "-1e-9"],
+        ),
         "grad_clip_norm" => (
             &["0.0", "-0.0", "1.0", "1e30"],
             &["-1.0", "nan", "inf", "-1e-9"],
@@ -438,8 +443,8 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
             (&["1", "2", "3", "1024"], &["0", "-1", "1.0"])
         }
         "samples" => (&["2", "8", "64"], &["0", "1", "-2"]),
-        "body_fraction" | "voxel_size_m" | "box_enlarge" | "cosine_temperature" | "beta1"
-        | "beta2" | "adam_eps" | "test_fraction" => (ANY_FLOAT, &["1e39", "\"0.5\""]),
+        "body_fraction" | "voxel_size_m" | "box_enlarge" | "beta1" | "beta2" | "adam_eps"
+        | "test_fraction" => (ANY_FLOAT, &["1e39", "\"0.5\""]),
         _ => (ANY_INT, &["-1", "1.5", "9223372036854775808"]),
     }
 }

@@ -130,9 +130,10 @@ pub struct SceneSource {
     pub cache: Option<VisibilityCache>,
 }
 
-/// An input view of a scene.
+/// An input view of a loaded scene: the dataset image (with its camera) and the rasterised
+/// vertex visibility. [`crate::scene::SourceView`] is the same view as the network reads it.
 #[derive(Debug, Clone, PartialEq)]
-pub struct SourceView {
+pub struct LoadedView {
     pub view: usize,
     pub image: ViewImage,
     /// [V] 0/1 visibility of each SMPL vertex in this view.
@@ -162,7 +163,7 @@ pub struct Scene {
     pub params: SmplParams,
     /// The padded SMPL box rays are clipped to.
     pub body_box: Aabb,
-    pub sources: Vec<SourceView>,
+    pub sources: Vec<LoadedView>,
     pub target_view: usize,
     pub target: SceneTarget,
 }
@@ -234,7 +235,7 @@ pub fn load_scene(
                 tol,
             )?,
         };
-        sources.push(SourceView {
+        sources.push(LoadedView {
             view,
             image,
             visibility,

@@ -260,7 +260,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     }
     let _ = writeln!(
         md,
-        "| **all** | {} | **{:.2}** | **{:.4}** |\n\nPSNR over `mask_at_box`, SSIM on its bounding-rectangle crop (NHP/NIA protocol). Pictures: `pictures/*_grid.png` (sources | prediction | ground truth | error, black to white = 0 to {ERROR_MAP_MAX} mean absolute error) and `pictures/*_blend.png` (blend weights: NeRF colour, then source views).",
+        "| **all** | {} | **{:.2}** | **{:.4}** |\n\nPSNR over `mask_at_box`, SSIM on its bounding-rectangle crop (NHP/NIA protocol). Pictures: `pictures/*_grid.png` (sources | prediction | ground truth | error, black to white = 0 to {ERROR_MAP_MAX} mean absolute error) `pictures/*_parts.png` (NeRF colour C0 | IBR-only composite | prediction | ground truth | opacity) and `pictures/*_blend.png` (blend weights: NeRF colour, then source views).",
         overall.images, overall.psnr, overall.ssim
     );
     let mut rows: Vec<(String, BlendDiagnostics)> = by_subject

@@ -32,7 +32,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
-use super::ibr::{cosine_weighted_colour, simple_average_colour};
+use super::ibr::{cosine_weights, simple_average_weights};
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
 use crate::variant::Variant;
@@ -144,8 +144,8 @@ pub struct PointColour {
     /// c, `[M, 3]`.
     pub colour: Tensor<2>,
     /// Effective weights over `[c0, c_1..c_N]`, `[M, N + 1]`, rows sum to 1: F_B's softmax for
-    /// the blended variants, one-hot on c0 for `NoIbr`, `(0, 1/N, ..)` for `SimpleAverage`,
-    /// `(0, softmax_n(cos_n / tau))` for `CosineWeighted`.
+    /// the blended variants, one-hot on c0 for `NoIbr`, `1 / (N + 1)` each for `SimpleAverage`,
+    /// `∝ (1, max(cos_n, 0))` for `CosineWeighted` (`field::ibr`).
     pub blend_weights: Tensor<2>,
 }
 
@@ -267,16 +267,9 @@ impl Blender {
 
     /// The colour of each point under `variant` (see [`PointColour::blend_weights`]).
     ///
-    /// `cosine_temperature` is tau of variant (d) (`ibr::DEFAULT_COSINE_TEMPERATURE`).
-    ///
     /// # Shapes
     /// - see [`BlendInputs`]; output colour `[M, 3]`, blend weights `[M, N + 1]`
-    pub fn colour(
-        &self,
-        variant: Variant,
-        inputs: BlendInputs,
-        cosine_temperature: f32,
-    ) -> Result<PointColour, ShapeError> {
+    pub fn colour(&self, variant: Variant, inputs: BlendInputs) -> Result<PointColour, ShapeError> {
         let [n, m] = inputs.visibility.dims();
         ShapeError::check("blend `c0` [M, 3]", &inputs.c0.dims(), &[Some(m), Some(3)])?;
         if n == 0 {
@@ -290,9 +283,6 @@ impl Blender {
             )?;
         }
         let device = inputs.c0.device();
-        // [M, N + 1] weights (0, w_1..w_N) from per-view weights [N, M].
-        let views_only =
-            |w: Tensor<2>| Tensor::cat(vec![Tensor::zeros([m, 1], &device), w.transpose()], 1);
         match variant {
             Variant::NoIbr => {
                 let one_hot = Tensor::cat(
@@ -307,27 +297,22 @@ impl Blender {
                     blend_weights: one_hot,
                 })
             }
-            Variant::SimpleAverage => Ok(PointColour {
-                colour: simple_average_colour(inputs.source_colours)?,
-                blend_weights: views_only(Tensor::full([n, m], 1.0 / n as f32, &device)),
-            }),
+            Variant::SimpleAverage => mix(
+                simple_average_weights(m, n, &device)?,
+                inputs.c0,
+                inputs.source_colours,
+            ),
             Variant::CosineWeighted => {
                 ShapeError::check(
                     "blend `view_dir_features` [N, M, 4]",
                     &inputs.view_dir_features.dims(),
                     &[Some(n), Some(m), Some(VIEW_DIR_FEATURE_DIM)],
                 )?;
-                let cosine = inputs.view_dir_features.clone().slice(s![.., .., 3..4]);
-                let weights =
-                    stable_softmax(cosine.reshape([n, m]).div_scalar(cosine_temperature), 0);
-                Ok(PointColour {
-                    colour: cosine_weighted_colour(
-                        inputs.source_colours,
-                        inputs.view_dir_features,
-                        cosine_temperature,
-                    )?,
-                    blend_weights: views_only(weights),
-                })
+                mix(
+                    cosine_weights(inputs.view_dir_features)?,
+                    inputs.c0,
+                    inputs.source_colours,
+                )
             }
             Variant::NoBody | Variant::Full => {
                 let blend_logits = self.forward(
@@ -368,8 +353,33 @@ pub fn blend(
         &blend_logits.dims(),
         &[Some(m), Some(n + 1)],
     )?;
-    let blend_weights = stable_softmax(blend_logits, 1); // [M, N + 1]
-                                                         // [N + 1, M, 3] candidates, weighted by [N + 1, M, 1].
+    mix(stable_softmax(blend_logits, 1), c0, source_colours)
+}
+
+/// `c = weights . [c0, c_1..c_N]`.
+///
+/// # Shapes
+/// - `blend_weights`: `[M, N + 1]` (index 0 = c0), rows summing to 1
+/// - `c0`: `[M, 3]`; `source_colours` c_n: `[N, M, 3]`
+/// - output: colour `[M, 3]` and the weights
+pub fn mix(
+    blend_weights: Tensor<2>,
+    c0: Tensor<2>,
+    source_colours: Tensor<3>,
+) -> Result<PointColour, ShapeError> {
+    let [n, m, three] = source_colours.dims();
+    ShapeError::check(
+        "mix `source_colours` [N, M, 3]",
+        &[n, m, three],
+        &[None, None, Some(3)],
+    )?;
+    ShapeError::check("mix `c0` [M, 3]", &c0.dims(), &[Some(m), Some(3)])?;
+    ShapeError::check(
+        "mix `blend_weights` [M, N + 1]",
+        &blend_weights.dims(),
+        &[Some(m), Some(n + 1)],
+    )?;
+    // [N + 1, M, 3] candidates, weighted by [N + 1, M, 1].
     let candidates = Tensor::cat(vec![c0.unsqueeze_dim::<3>(0), source_colours], 0);
     let weights = blend_weights.clone().transpose().reshape([n + 1, m, 1]);
     let colour = (candidates * weights).sum_dim(0).reshape([m, 3]);

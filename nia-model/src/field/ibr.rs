@@ -18,12 +18,6 @@ use burn::tensor::ops::GridSampleOptions;
 use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 
 use crate::shape::ShapeError;
-use crate::softmax::stable_softmax;
-
-/// Temperature tau of variant (d), `softmax_n(cos_n / tau)`: with 3 views 120 degrees apart a
-/// cosine gap of 0.3 gives a weight ratio of e^3 ~ 20, so the nearest view dominates without
-/// discarding the others.
-pub const DEFAULT_COSINE_TEMPERATURE: f32 = 0.1;
 
 /// Bilinearly samples N maps at M points each.
 ///
@@ -116,58 +110,48 @@ impl PixelFeature {
     }
 }
 
-/// Variant (c): `c = mean_n c_n`.
+/// Variant (c), the paper's "simple average of the different colour predictions": equal
+/// weights `1 / (N + 1)` over `[c0, c_1..c_N]`.
 ///
 /// # Shapes
-/// - `source_colours` c_n: `[N, M, 3]`
-/// - output c: `[M, 3]`
-pub fn simple_average_colour(source_colours: Tensor<3>) -> Result<Tensor<2>, ShapeError> {
-    let [n, m, c] = source_colours.dims();
-    ShapeError::check(
-        "IBR `source_colours` [N, M, 3]",
-        &[n, m, c],
-        &[None, None, Some(3)],
-    )?;
+/// - output weights: `[M, N + 1]` (index 0 = c0), rows sum to 1
+pub fn simple_average_weights(
+    m: usize,
+    n: usize,
+    device: &Device,
+) -> Result<Tensor<2>, ShapeError> {
     if n == 0 {
-        return Err(ShapeError::empty("IBR `source_colours` views N"));
+        return Err(ShapeError::empty("IBR views N"));
     }
-    Ok(source_colours.mean_dim(0).reshape([m, 3]))
+    Ok(Tensor::full([m, n + 1], 1.0 / (n + 1) as f32, device))
 }
 
-/// Variant (d): `c = sum_n softmax_n(cos_n / tau) c_n`, cos_n = d . d_n (the last channel of
-/// d_hat_n). The softmax is max-subtracted, so it is defined for any cosines (a normalised
-/// positive-cosine weight would divide by zero when every source view faces away).
+/// Variant (d), the paper's average "weighted by the cosine similarity" of the target ray to
+/// each prediction's view direction: `w ∝ [1, max(cos_1, 0) .. max(cos_N, 0)]` over
+/// `[c0, c_1..c_N]`, cos_n = d . d_n (the last channel of d_hat_n). c0 is predicted for the
+/// target ray itself (cos = 1, as F_B's NeRF token has d_hat = (0, 0, 0, 1)). A source view
+/// facing away gets weight 0, and the denominator is >= 1, so no input divides by zero.
 ///
 /// # Shapes
-/// - `source_colours` c_n: `[N, M, 3]`
 /// - `view_dir_features` d_hat_n: `[N, M, 4]`
-/// - output c: `[M, 3]`
-pub fn cosine_weighted_colour(
-    source_colours: Tensor<3>,
-    view_dir_features: Tensor<3>,
-    temperature: f32,
-) -> Result<Tensor<2>, ShapeError> {
-    let [n, m, c] = source_colours.dims();
-    ShapeError::check(
-        "IBR `source_colours` [N, M, 3]",
-        &[n, m, c],
-        &[None, None, Some(3)],
-    )?;
+/// - output weights: `[M, N + 1]` (index 0 = c0), rows sum to 1
+pub fn cosine_weights(view_dir_features: Tensor<3>) -> Result<Tensor<2>, ShapeError> {
+    let [n, m, k] = view_dir_features.dims();
     ShapeError::check(
         "IBR `view_dir_features` [N, M, 4]",
-        &view_dir_features.dims(),
-        &[Some(n), Some(m), Some(VIEW_DIR_FEATURE_DIM)],
+        &[n, m, k],
+        &[None, None, Some(VIEW_DIR_FEATURE_DIM)],
     )?;
     if n == 0 {
-        return Err(ShapeError::empty("IBR `source_colours` views N"));
+        return Err(ShapeError::empty("IBR `view_dir_features` views N"));
     }
-    if !(temperature.is_finite() && temperature > 0.0) {
-        return Err(ShapeError::value(
-            "IBR cosine `temperature`",
-            format!("a finite value > 0, got {temperature}"),
-        ));
-    }
-    let cosine = view_dir_features.slice(s![.., .., 3..4]); // [N, M, 1]
-    let weights = stable_softmax(cosine.div_scalar(temperature), 0);
-    Ok((source_colours * weights).sum_dim(0).reshape([m, 3]))
+    let device = view_dir_features.device();
+    let cosine = view_dir_features
+        .slice(s![.., .., 3..4])
+        .reshape([n, m])
+        .transpose()
+        .clamp_min(0.0); // [M, N]
+    let raw = Tensor::cat(vec![Tensor::ones([m, 1], &device), cosine], 1); // [M, N + 1]
+    let total = raw.clone().sum_dim(1); // [M, 1], >= 1
+    Ok(raw / total)
 }

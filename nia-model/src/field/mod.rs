@@ -202,7 +202,6 @@ impl NiaModel {
                 view_dir_features: points.view_dir_features.clone(),
                 visibility: points.visibility.clone(),
             },
-            self.cosine_temperature,
         )?;
         let ibr_colour = ibr_only_colour(
             blended.blend_weights.clone().detach(),

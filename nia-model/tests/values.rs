@@ -1,0 +1,147 @@
+//! Value tests of the image-based path, beyond shapes and finiteness: a point on a vertex's
+//! line of sight reads that view's own pixel (colour and encoder feature), and the whole
+//! forward (sampler -> field -> renderer) renders a source view's own pixels with the values
+//! the quadrature and the colour rule predict.
+
+mod common;
+
+use burn::prelude::*;
+use common::{assert_close, device, scene, values};
+use glam::{Vec2, Vec3};
+use nia_data::geometry::camera::Camera;
+use nia_data::geometry::rays::{pixel_ray, Aabb, RayBundle};
+use nia_data::scene::{PointInputs, RAY_BOX_PADDING_M};
+use nia_model::field::ibr::fetch_source_colours;
+use nia_model::field::PointTensors;
+use nia_model::variant::Variant;
+use nia_model::ModelConfig;
+
+/// f32 values through bilinear sampling and one linear layer.
+const VALUE_TOL: f32 = 1e-4;
+const SIZE: u32 = 32;
+
+/// The world point on the ray through image position `pixel` of `camera` at camera depth `z`.
+fn point_at_pixel(camera: &Camera, pixel: Vec2, z: f32) -> Vec3 {
+    let ray = pixel_ray(camera, pixel);
+    let z_per_metre = (camera.r * ray.dir).z;
+    ray.origin + ray.dir * (z / z_per_metre)
+}
+
+/// Pixel (x, y) of channel c of a `[3, H, W]` image.
+fn pixel(image: &[f32], c: usize, x: usize, y: usize) -> f32 {
+    let s = SIZE as usize;
+    image[(c * s + y) * s + x]
+}
+
+#[test]
+fn a_vertex_projected_into_a_view_reads_its_own_pixel_colour_and_feature() {
+    let dev = device();
+    let input = scene(3, SIZE);
+    let model = ModelConfig::tiny().init(&dev);
+    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    let view = &input.views[0];
+    let camera = &view.camera;
+    // Vertices view 0 sees, projecting well inside the image.
+    let seen: Vec<(Vec2, f32)> = input
+        .body
+        .vertices
+        .iter()
+        .zip(&view.vertex_visibility)
+        .filter(|(_, &o)| o > 0.5)
+        .filter_map(|(&v, _)| camera.project(v))
+        .filter(|(uv, _)| uv.min_element() > 2.0 && uv.max_element() < SIZE as f32 - 3.0)
+        .step_by(97)
+        .take(5)
+        .collect();
+    assert!(seen.len() >= 3, "too few visible vertices: {}", seen.len());
+    for (uv, z) in seen {
+        // (1) Moved onto the nearest pixel centre (integer coordinates), at the vertex's depth:
+        // the colour read is exactly that pixel of view 0.
+        let (x, y) = (uv.x.round() as usize, uv.y.round() as usize);
+        let p = point_at_pixel(camera, Vec2::new(x as f32, y as f32), z);
+        let inputs = PointInputs::compute(&encoded.geometry, &[p], &[Vec3::Z], None);
+        let tensors = PointTensors::upload(&inputs, &dev);
+        let colours = fetch_source_colours(encoded.images.clone(), tensors.proj_grid).unwrap();
+        let got = values(colours.slice(s![0..1, .., ..]));
+        let expected: Vec<f32> = (0..3).map(|c| pixel(&view.image, c, x, y)).collect();
+        assert_close(&got, &expected, VALUE_TOL, "c_0 at its own pixel centre");
+
+        // (2) At the centre of a 2 x 2 pixel block, (2k + 0.5, 2j + 0.5): the half-resolution
+        // feature map is read exactly at its pixel (k, j), and the colour is the block's mean.
+        let (k, j) = ((uv.x / 2.0).floor() as usize, (uv.y / 2.0).floor() as usize);
+        let block = Vec2::new(2.0 * k as f32 + 0.5, 2.0 * j as f32 + 0.5);
+        let p = point_at_pixel(camera, block, z);
+        let inputs = PointInputs::compute(&encoded.geometry, &[p], &[Vec3::Z], None);
+        let tensors = PointTensors::upload(&inputs, &dev);
+        let l = model
+            .pixel_feature
+            .forward(encoded.feature_maps.clone(), tensors.proj_grid.clone())
+            .unwrap();
+        let channels = encoded.feature_maps.dims()[1];
+        let own = encoded
+            .feature_maps
+            .clone()
+            .slice(s![0..1, .., j..j + 1, k..k + 1])
+            .reshape([1, 1, channels]);
+        let expected = model.pixel_feature.reduce.forward(own);
+        assert_close(
+            &values(l.slice(s![0..1, .., ..])),
+            &values(expected),
+            VALUE_TOL,
+            "l_0 at its own feature pixel",
+        );
+        let colours = fetch_source_colours(encoded.images.clone(), tensors.proj_grid).unwrap();
+        let mean: Vec<f32> = (0..3)
+            .map(|c| {
+                (pixel(&view.image, c, 2 * k, 2 * j)
+                    + pixel(&view.image, c, 2 * k + 1, 2 * j)
+                    + pixel(&view.image, c, 2 * k, 2 * j + 1)
+                    + pixel(&view.image, c, 2 * k + 1, 2 * j + 1))
+                    / 4.0
+            })
+            .collect();
+        assert_close(
+            &values(colours.slice(s![0..1, .., ..])),
+            &mean,
+            VALUE_TOL,
+            "c_0 at a block centre",
+        );
+    }
+}
+
+/// Rendering source view 0 from its own camera with variant (c) and one view: every sample of
+/// the ray through pixel p projects onto p, so c_1 = I_0(p) along the whole ray and
+/// `rgb = sum_i w_i (c0_i + I_0(p)) / 2 = (rgb0 + acc * I_0(p)) / 2` whatever the weights.
+/// The check is not vacuous: some rays gather opacity, and the source pixels vary.
+#[test]
+fn the_whole_forward_renders_a_source_views_own_pixels() {
+    let dev = device();
+    let input = scene(1, SIZE);
+    let mut config = ModelConfig::tiny();
+    config.variant = Variant::SimpleAverage;
+    let model = config.init(&dev);
+    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    let view = &input.views[0];
+    let ray_box = Aabb::from_points(&input.body.vertices)
+        .unwrap()
+        .padded(RAY_BOX_PADDING_M);
+    let rays = RayBundle::through_pixels(&view.camera, &ray_box, None);
+    assert!(rays.len() > 50, "{} rays cross the box", rays.len());
+    let out = model.render(&encoded, &rays, 16, None, None).unwrap();
+    let rgb = values(out.rgb);
+    let rgb0 = values(out.rgb0);
+    let acc = values(out.acc);
+    let s = SIZE as usize;
+    let mut expected = Vec::with_capacity(rgb.len());
+    for (r, &p) in rays.pixels.iter().enumerate() {
+        let (x, y) = (p as usize % s, p as usize / s);
+        for c in 0..3 {
+            expected.push((rgb0[r * 3 + c] + acc[r] * pixel(&view.image, c, x, y)) / 2.0);
+        }
+    }
+    assert_close(&rgb, &expected, VALUE_TOL, "rgb = (rgb0 + acc I_0(p)) / 2");
+    assert!(
+        acc.iter().any(|&a| a > 0.05),
+        "no ray gathered opacity: the check would be vacuous"
+    );
+}
