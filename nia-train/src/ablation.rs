@@ -215,16 +215,6 @@ pub fn run(
             let seconds = started.elapsed().as_secs_f64() / results.len().max(1) as f64;
             Ok((results, seconds))
         };
-        let mean = |r: &[ImageResult], f: fn(&ImageResult) -> f64| {
-            r.iter().map(f).sum::<f64>() / r.len().max(1) as f64
-        };
-        let c0_share = |r: &[ImageResult]| {
-            let seen: Vec<f64> = r
-                .iter()
-                .filter_map(|x| x.diagnostics.c0_weight_seen)
-                .collect();
-            (!seen.is_empty()).then(|| seen.iter().sum::<f64>() / seen.len() as f64)
-        };
         let mut picture = None;
         let (on, seconds) = evaluate(
             on_event,
@@ -249,20 +239,16 @@ pub fn run(
             tiles.push(tile);
         }
         let views = items[0].input_views.len();
-        let row = AblationRow {
-            label: format!("({letter}) {name}"),
+        let row = summarise(
+            format!("({letter}) {name}"),
             variant,
             views,
-            task: "novel_view",
-            images: on.len(),
-            psnr: mean(&on, |r| r.psnr),
-            ssim: mean(&on, |r| r.ssim),
-            psnr_no_skip: Some(mean(&off, |r| r.psnr)),
-            ssim_no_skip: Some(mean(&off, |r| r.ssim)),
+            "novel_view",
+            &on,
+            Some(&off),
             train_seconds,
-            seconds_per_image: seconds,
-            c0_share_seen: c0_share(&on),
-        };
+            seconds,
+        );
         on_event(AblationEvent::Row(&row));
         rows.push(row);
         if variant != Variant::Full {
@@ -293,20 +279,16 @@ pub fn run(
             if let Some((tile, _)) = picture {
                 tiles.push(tile);
             }
-            let row = AblationRow {
+            let row = summarise(
                 label,
                 variant,
-                views: fewer,
-                task: "novel_view",
-                images: r.len(),
-                psnr: mean(&r, |x| x.psnr),
-                ssim: mean(&r, |x| x.ssim),
-                psnr_no_skip: None,
-                ssim_no_skip: None,
+                fewer,
+                "novel_view",
+                &r,
+                None,
                 train_seconds,
-                seconds_per_image: seconds,
-                c0_share_seen: c0_share(&r),
-            };
+                seconds,
+            );
             on_event(AblationEvent::Row(&row));
             rows.push(row);
         }
@@ -322,20 +304,16 @@ pub fn run(
             &mut None,
         )?;
         if !r.is_empty() {
-            let row = AblationRow {
+            let row = summarise(
                 label,
                 variant,
                 views,
-                task: "novel_pose",
-                images: r.len(),
-                psnr: mean(&r, |x| x.psnr),
-                ssim: mean(&r, |x| x.ssim),
-                psnr_no_skip: None,
-                ssim_no_skip: None,
+                "novel_pose",
+                &r,
+                None,
                 train_seconds,
-                seconds_per_image: seconds,
-                c0_share_seen: c0_share(&r),
-            };
+                seconds,
+            );
             on_event(AblationEvent::Row(&row));
             rows.push(row);
         }
@@ -351,6 +329,41 @@ pub fn run(
         table,
         picture,
     })
+}
+
+/// A row from the per-image results with skipping on (and off, where measured).
+#[allow(clippy::too_many_arguments)]
+fn summarise(
+    label: String,
+    variant: Variant,
+    views: usize,
+    task: &'static str,
+    on: &[ImageResult],
+    off: Option<&[ImageResult]>,
+    train_seconds: f64,
+    seconds_per_image: f64,
+) -> AblationRow {
+    let mean = |r: &[ImageResult], f: fn(&ImageResult) -> f64| {
+        r.iter().map(f).sum::<f64>() / r.len().max(1) as f64
+    };
+    let seen: Vec<f64> = on
+        .iter()
+        .filter_map(|x| x.diagnostics.c0_weight_seen)
+        .collect();
+    AblationRow {
+        label,
+        variant,
+        views,
+        task,
+        images: on.len(),
+        psnr: mean(on, |r| r.psnr),
+        ssim: mean(on, |r| r.ssim),
+        psnr_no_skip: off.map(|r| mean(r, |x| x.psnr)),
+        ssim_no_skip: off.map(|r| mean(r, |x| x.ssim)),
+        train_seconds,
+        seconds_per_image,
+        c0_share_seen: (!seen.is_empty()).then(|| seen.iter().sum::<f64>() / seen.len() as f64),
+    }
 }
 
 /// Trains one variant into `dir` (resuming from its newest checkpoint), returning its total

@@ -100,10 +100,13 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
             }
             bar.set_message(message);
         }
-        AblationEvent::Row(row) => log_lines::line(&bar, format!(
-            "{:<28} PSNR {:.2} dB  SSIM {:.4}  ({} images, {} views, train {:.0} s)",
-            row.label, row.psnr, row.ssim, row.images, row.views, row.train_seconds
-        )),
+        AblationEvent::Row(row) => log_lines::line(
+            &bar,
+            format!(
+                "{:<28} PSNR {:.2} dB  SSIM {:.4}  ({} images, {} views, train {:.0} s)",
+                row.label, row.psnr, row.ssim, row.images, row.views, row.train_seconds
+            ),
+        ),
     })
     .with_context(|| format!("ablation of {}", args.config.display()))?;
     bar.finish_and_clear();

@@ -29,6 +29,12 @@ use std::time::Instant;
 use nia_data::rng::Rng;
 use nia_train::config::{ConfigError, TrainConfig};
 
+mod common;
+
+fn scratch(name: &str) -> PathBuf {
+    common::scratch("config-fuzz", name)
+}
+
 /// Inputs per run by default (split over the three streams).
 const CASES: usize = 12_000;
 /// Default seed of the mutation stream.
@@ -548,16 +554,6 @@ fn exercise(bytes: &[u8], path: &Path) -> Outcome {
             Outcome::Rejected
         }
     }
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "nia-train-config-fuzz-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 #[test]

@@ -11,55 +11,19 @@ use std::time::{Duration, Instant};
 use nia_model::store::checkpoint::{self, FAULT_PAUSE_ENV};
 use nia_train::config::TrainConfig;
 
-/// How long one tiny run may take before the test gives up waiting for a state.
-const WAIT_LIMIT: Duration = Duration::from_secs(300);
+mod common;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("nia-train-crash-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("crash", name)
 }
 
-/// A tiny config (1 training subject, 48 px, 8 samples) checkpointing after every step.
+/// The tiny config (1 training subject, 48 px, 8 samples) checkpointing after every step.
 fn tiny_config(dir: &Path, steps: u64) -> PathBuf {
-    let text = format!(
-        r#"
-[data]
-root = "{root}"
-ratio = 1.0
-border_px = 1
-loader_threads = 1
-
-[synth]
-subjects = 2
-frames = 2
-cameras = 4
-size = 48
-supersample = 1
-test_fraction = 0.5
-
-[model]
-preset = "tiny"
-
-[train]
-steps = {steps}
-rays_per_step = 32
-samples = 8
-source_views = 3
-seed = 3
-checkpoint_every = 1
-keep_last = 2
-validate_every = 0
-evaluate_at_end = false
-backend = "ndarray"
-"#,
-        root = dir.join("data").display().to_string().replace('\\', "/"),
-    );
-    let path = dir.join("tiny.toml");
-    std::fs::write(&path, text).unwrap();
-    path
+    common::tiny_config(dir, steps, 3, "validate_every = 0\nevaluate_at_end = false")
 }
+
+/// How long one tiny run may take before the test gives up waiting for a state.
+const WAIT_LIMIT: Duration = Duration::from_secs(300);
 
 fn spawn(config: &Path, out: &Path, resume: bool, pause_ms: Option<u64>) -> Child {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_nia-train"));

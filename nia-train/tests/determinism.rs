@@ -25,6 +25,8 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
 use nia_model::store::checkpoint;
 
+mod common;
+
 /// Steps each run takes before its weights are compared.
 const STEPS: u64 = 3;
 
@@ -43,25 +45,7 @@ impl Fixture {
         let _ = std::fs::remove_dir_all(&root);
         std::fs::create_dir_all(&root).unwrap();
         let data = root.join("data");
-        let output = Command::new(env!("CARGO_BIN_EXE_nia-train"))
-            .args([
-                "synth",
-                "--subjects",
-                "2",
-                "--frames",
-                "2",
-                "--cameras",
-                "4",
-            ])
-            .args(["--size", "32", "--supersample", "1", "--out"])
-            .arg(&data)
-            .output()
-            .unwrap();
-        assert!(
-            output.status.success(),
-            "synth failed: {}",
-            String::from_utf8_lossy(&output.stderr)
-        );
+        common::synth_small(&data, 32);
         Fixture { root, data }
     }
 }

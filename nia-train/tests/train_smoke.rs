@@ -7,59 +7,19 @@ use std::process::{Command, Output};
 
 use nia_model::store::checkpoint;
 
-/// The same weights rendering the same images: only reduction order may differ (ndarray).
-const EVAL_REPEAT_TOL_DB: f64 = 1e-3;
+mod common;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("nia-train-smoke-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("smoke", name)
 }
 
-/// A tiny config: 2 subjects (1 train, 1 held out), 2 frames, 4 cameras, 48 px.
+/// The tiny config (2 subjects, 1 held out; 48 px) with `extra_train` lines.
 fn tiny_config(dir: &Path, steps: u64, extra_train: &str) -> PathBuf {
-    let text = format!(
-        r#"
-[data]
-root = "{root}"
-ratio = 1.0
-border_px = 1
-loader_threads = 1
-
-[synth]
-subjects = 2
-frames = 2
-cameras = 4
-size = 48
-supersample = 1
-test_fraction = 0.5
-
-[model]
-preset = "tiny"
-
-[optim]
-lr = 5e-4
-decay_steps = 1000
-grad_clip_norm = 1.0
-
-[train]
-steps = {steps}
-rays_per_step = 32
-samples = 8
-source_views = 3
-seed = 7
-checkpoint_every = 1
-keep_last = 2
-backend = "ndarray"
-{extra_train}
-"#,
-        root = dir.join("data").display().to_string().replace('\\', "/"),
-    );
-    let path = dir.join("tiny.toml");
-    std::fs::write(&path, text).unwrap();
-    path
+    common::tiny_config(dir, steps, 7, extra_train)
 }
+
+/// The same weights rendering the same images: only reduction order may differ (ndarray).
+const EVAL_REPEAT_TOL_DB: f64 = 1e-3;
 
 fn nia_train(args: &[&str], config: &Path, out: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_nia-train"))

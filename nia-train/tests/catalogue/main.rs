@@ -13,6 +13,8 @@
 //! `NIA_CATALOGUE_VERBOSE=1` prints the stderr of every case.
 
 mod command_line;
+#[path = "../common/mod.rs"]
+mod common;
 mod configs;
 mod datasets;
 mod model_files;
@@ -107,25 +109,7 @@ fn base() -> &'static Base {
         let _ = std::fs::remove_dir_all(&root);
         std::fs::create_dir_all(&root).unwrap();
         let data = root.join("data");
-        let output = nia_train()
-            .args([
-                "synth",
-                "--subjects",
-                "2",
-                "--frames",
-                "2",
-                "--cameras",
-                "4",
-            ])
-            .args(["--size", &SIZE.to_string(), "--supersample", "1", "--out"])
-            .arg(&data)
-            .output()
-            .unwrap();
-        assert!(
-            output.status.success(),
-            "synth failed: {}",
-            String::from_utf8_lossy(&output.stderr)
-        );
+        common::synth_small(&data, SIZE);
         // The checkpoint's run reads its own copy, so its visibility cache stays there.
         let ckpt_data = root.join("ckpt_data");
         link_tree(&data, &ckpt_data);

@@ -27,7 +27,7 @@ const TORCH_CONV_INIT_GAIN: f64 = 0.577_350_269_189_625_8;
 
 /// Rulebooks whose fill ratio (active (output, offset) slots / `27 P_out`) is at least this
 /// run as `Im2col` under [`ConvMethod::Auto`], sparser ones as `Pairs`. Measured at paper size
-/// (6890 vertices, 5 mm, 3 views, 2 busy cores; the `timing_paper_size` test): on ndarray
+/// (6890 vertices, 5 mm, 3 views, 2 busy cores; `cargo bench -p nia-model --bench body_volume`): on ndarray
 /// `Pairs` is 2-3.5x faster on the two full-resolution rulebooks (fill 0.06-0.08: 78 vs 156 ms,
 /// 102 vs 371 ms) and slower from fill ~0.2 up; on flex blocked `Im2col` is faster at every
 /// fill (40 vs 90 ms, 58 vs 97 ms there; its missing neighbours all read one cached zero
