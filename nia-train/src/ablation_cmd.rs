@@ -32,10 +32,13 @@ pub struct AblationArgs {
     /// Override `synth.seed`: other synthetic people (use with `--data`, a fresh folder).
     #[arg(long, requires = "data")]
     pub synth_seed: Option<u64>,
+    /// Override any config key (repeatable), as `nia-train --set`.
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    pub set: Vec<String>,
 }
 
 pub fn run(args: AblationArgs) -> anyhow::Result<()> {
-    let mut config = TrainConfig::load(&args.config)?;
+    let mut config = TrainConfig::load_with(&args.config, &args.set)?;
     if let Some(steps) = args.steps {
         config.train.steps = steps;
     }

@@ -58,6 +58,11 @@ struct TrainArgs {
     /// Override `train.steps`.
     #[arg(long, allow_negative_numbers = true)]
     steps: Option<u64>,
+    /// Override any config key, e.g. `--set train.mask_loss_weight=0.3` or
+    /// `--set 'model.ray_sampler={ kind = "band" }'` (repeatable; TOML values, bare words are
+    /// strings).
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    set: Vec<String>,
 }
 
 /// Makes burn's default device the training backend (unless the user set `BURN_DEVICE`):
@@ -83,7 +88,7 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
     let Some(config_path) = args.config else {
         anyhow::bail!("missing `--config <FILE>` (e.g. configs/quickstart.toml); see --help");
     };
-    let mut config = TrainConfig::load(&config_path)?;
+    let mut config = TrainConfig::load_with(&config_path, &args.set)?;
     if let Some(backend) = args.backend {
         config.train.backend = backend;
     }

@@ -1,0 +1,78 @@
+//! `--set section.key=value` overrides of a run config: TOML values and bare words, nested
+//! keys, the order of several, and errors that name the override or the key.
+
+use nia_model::sampler::AdaptiveConfig;
+use nia_model::sampler::RaySampler;
+use nia_train::config::{ConfigError, TrainConfig};
+
+mod common;
+
+fn overrides(list: &[&str]) -> Vec<String> {
+    list.iter().map(|s| s.to_string()).collect()
+}
+
+#[test]
+fn overrides_write_over_the_file() {
+    let dir = common::scratch("overrides", "ok");
+    let path = common::tiny_config(&dir, 2, 5, "");
+    let config = TrainConfig::load_with(
+        &path,
+        &overrides(&[
+            "train.steps=7",
+            "train.mask_loss_weight = 0.3",
+            "train.backend=flex",
+            "model.ray_sampler={ kind = \"band\" }",
+            "model.body_volume.full_convs=2",
+            "optim.lr=1e-3",
+            "optim.lr=2e-3",
+            "render.skip_empty_space=false",
+        ]),
+    )
+    .unwrap();
+    assert_eq!(config.train.steps, 7);
+    assert_eq!(config.train.mask_loss_weight, 0.3);
+    assert_eq!(config.train.backend.name(), "flex");
+    assert!(matches!(config.model.ray_sampler, RaySampler::Band { .. }));
+    assert_eq!(config.model.body_volume.full_convs, 2);
+    assert_eq!(config.optim.lr, 2e-3, "the last of two overrides wins");
+    assert!(!config.render.skip_empty_space);
+    // Keys the overrides do not touch keep the file's values.
+    assert_eq!(config.train.rays_per_step, 32);
+    assert_eq!(
+        config.render.empty_space_m,
+        AdaptiveConfig::default().empty_space_m
+    );
+    // No overrides: the same as `load`.
+    let plain = TrainConfig::load_with(&path, &[]).unwrap();
+    assert_eq!(plain.train.steps, 2);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bad_overrides_name_the_setting_or_the_key() {
+    let dir = common::scratch("overrides", "bad");
+    let path = common::tiny_config(&dir, 2, 5, "");
+    let message = |list: &[&str]| match TrainConfig::load_with(&path, &overrides(list)) {
+        Ok(_) => panic!("{list:?} was accepted"),
+        Err(e) => (matches!(e, ConfigError::Override { .. }), e.to_string()),
+    };
+    let (is_override, m) = message(&["train.steps"]);
+    assert!(
+        is_override && m.contains("--set `train.steps`") && m.contains("section.key=value"),
+        "{m}"
+    );
+    let (is_override, m) = message(&["steps=3"]);
+    assert!(
+        is_override && m.contains("`steps` is not `section.key`"),
+        "{m}"
+    );
+    let (is_override, m) = message(&["train.steps.deeper=3"]);
+    assert!(is_override && m.contains("`train.steps` is a value"), "{m}");
+    let (_, m) = message(&["train.stepz=3"]);
+    assert!(m.contains("stepz"), "{m}");
+    let (_, m) = message(&["train.steps=many"]);
+    assert!(m.contains("steps"), "{m}");
+    let (_, m) = message(&["train.mask_loss_weight=-1"]);
+    assert!(m.contains("train.mask_loss_weight"), "{m}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
