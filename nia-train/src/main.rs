@@ -16,6 +16,7 @@ use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use nia_model::device::Backend;
+use nia_model::store::checkpoint;
 use nia_train::config::TrainConfig;
 use nia_train::events::TrainEvent;
 use nia_train::train_loop::{train, RunOptions};
@@ -52,6 +53,11 @@ struct TrainArgs {
     /// Continue from the newest checkpoint in the output folder.
     #[arg(long)]
     resume: bool,
+    /// Start afresh in an output folder that already holds a run: its checkpoints/,
+    /// metrics.jsonl and evaluation/ are deleted first. Without `--resume` or `--overwrite`, a
+    /// folder with checkpoints is refused.
+    #[arg(long, conflicts_with = "resume")]
+    overwrite: bool,
     /// Output folder (default `runs/<config name>`): metrics.jsonl and checkpoints/.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -103,6 +109,30 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
             .unwrap_or_else(|| "run".into());
         PathBuf::from("runs").join(stem)
     });
+    let existing = checkpoint::latest(&out)
+        .with_context(|| format!("reading the checkpoints of {}", out.display()))?;
+    if let Some((step, _)) = existing {
+        if args.overwrite {
+            for name in ["checkpoints", "evaluation"] {
+                let dir = out.join(name);
+                if dir.exists() {
+                    std::fs::remove_dir_all(&dir)
+                        .with_context(|| format!("deleting {}", dir.display()))?;
+                }
+            }
+            let metrics = out.join("metrics.jsonl");
+            if metrics.exists() {
+                std::fs::remove_file(&metrics)
+                    .with_context(|| format!("deleting {}", metrics.display()))?;
+            }
+        } else if !args.resume {
+            anyhow::bail!(
+                "{} already holds a run (its newest checkpoint is step {step}): pass --resume to \
+                 continue it, --overwrite to start afresh there, or --out for another folder",
+                out.display()
+            );
+        }
+    }
     std::fs::create_dir_all(&out)
         .with_context(|| format!("creating the output folder {}", out.display()))?;
     let metrics_path = out.join("metrics.jsonl");

@@ -263,3 +263,45 @@ fn presets_parse() {
         }
     }
 }
+
+/// A second run into a folder that holds checkpoints is refused unless `--resume` or
+/// `--overwrite` says which; the refusal leaves the folder as it was, `--overwrite` starts
+/// afresh (a new log, checkpoints from step 1).
+#[test]
+fn a_rerun_into_a_used_folder_must_say_resume_or_overwrite() {
+    let dir = scratch("rerun");
+    let config = tiny_config(&dir, 1, "validate_every = 0");
+    let out = dir.join("run");
+    ok(&nia_train(&[], &config, &out));
+    let log = std::fs::read(out.join("metrics.jsonl")).unwrap();
+    let refused = nia_train(&[], &config, &out);
+    assert!(!refused.status.success());
+    let message = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        message.contains("already holds a run")
+            && message.contains("--resume")
+            && message.contains("--overwrite"),
+        "{message}"
+    );
+    assert_eq!(
+        std::fs::read(out.join("metrics.jsonl")).unwrap(),
+        log,
+        "the log was touched"
+    );
+    assert_eq!(checkpoint::latest(&out).unwrap().unwrap().0, 1);
+
+    ok(&nia_train(&["--overwrite"], &config, &out));
+    let fresh = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
+    assert_eq!(
+        fresh
+            .lines()
+            .filter(|l| l.contains("\"event\":\"started\""))
+            .count(),
+        1,
+        "one run in the new log:\n{fresh}"
+    );
+    assert_eq!(checkpoint::latest(&out).unwrap().unwrap().0, 1);
+    let both = nia_train(&["--resume", "--overwrite"], &config, &out);
+    assert!(!both.status.success(), "--resume and --overwrite together");
+    let _ = std::fs::remove_dir_all(&dir);
+}
