@@ -111,7 +111,12 @@ pub fn sample_weights_delta(sigma: Tensor<2>, delta: Tensor<2>) -> Result<Tensor
     if s == 0 {
         return Err(ShapeError::empty("render samples S"));
     }
-    let delta = delta.clamp_min(0.0);
+    Ok(weights_of_clamped(sigma, delta.clamp_min(0.0)))
+}
+
+/// w_i from intervals already clamped at 0 ([`sample_weights_delta`] without the checks).
+fn weights_of_clamped(sigma: Tensor<2>, delta: Tensor<2>) -> Tensor<2> {
+    let [r, s] = sigma.dims();
     let tau = (sigma * delta).clamp(0.0, OPTICAL_DEPTH_MAX);
     let device = tau.device();
     let exclusive = if s > 1 {
@@ -122,7 +127,7 @@ pub fn sample_weights_delta(sigma: Tensor<2>, delta: Tensor<2>) -> Result<Tensor
     };
     let transmittance = exclusive.neg().exp();
     let alpha = tau.neg().exp().neg().add_scalar(1.0);
-    Ok(transmittance * alpha)
+    transmittance * alpha
 }
 
 /// Volume-renders R rays of S samples.
@@ -174,8 +179,12 @@ pub fn render_rays_delta(
         )?;
     }
     ShapeError::check("render `t` [R, S]", &t.dims(), &[Some(r), Some(s)])?;
+    ShapeError::check("render `delta` [R, S]", &delta.dims(), &[Some(r), Some(s)])?;
+    if s == 0 {
+        return Err(ShapeError::empty("render samples S"));
+    }
     let delta = delta.clamp_min(0.0);
-    let weights = sample_weights_delta(sigma, delta.clone())?;
+    let weights = weights_of_clamped(sigma, delta.clone());
     let w3 = weights.clone().reshape([r, s, 1]);
     let composite = |x: Tensor<3>| {
         let k = x.dims()[2];

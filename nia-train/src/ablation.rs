@@ -33,6 +33,9 @@ use crate::train_loop::{train, RunOptions, TrainError};
 /// Errors of an ablation run, naming the variant or file.
 #[derive(Debug, thiserror::Error)]
 pub enum AblationError {
+    /// Opening the data, the device or the held-out items.
+    #[error("{0}")]
+    Setup(TrainError),
     #[error("variant `{variant}`: {source}")]
     Train { variant: String, source: TrainError },
     #[error("variant `{variant}`: evaluation: {source}")]
@@ -131,6 +134,21 @@ pub fn run(
     // Tiles of the first held-out image: ground truth, then one per row.
     let mut tiles: Vec<RgbImage> = Vec::new();
     let mut crop: Option<Crop> = None;
+    // The data, the device and the evaluation items are the same for every variant (opening
+    // generates a `[synth]` dataset if it is missing, so training finds it).
+    let data = TrainData::open(config).map_err(|e| AblationError::Setup(e.into()))?;
+    let device = config
+        .train
+        .backend
+        .device()
+        .map_err(|e| AblationError::Setup(e.into()))?
+        .autodiff();
+    let split = EvalSplit::UnseenSubjects;
+    let items =
+        eval_items(&data.dataset, split, None).map_err(|e| AblationError::Setup(e.into()))?;
+    if items.is_empty() {
+        return Err(AblationError::NothingToEvaluate);
+    }
     for variant in Variant::ALL {
         let name = variant.name().to_string();
         let letter = paper_letter(variant);
@@ -141,19 +159,6 @@ pub fn run(
         run_config.train.validate_every = 0;
         let train_seconds = train_variant(&run_config, &dir, variant, on_event)?;
 
-        let data = TrainData::open(&run_config).map_err(|e| AblationError::Train {
-            variant: name.clone(),
-            source: e.into(),
-        })?;
-        let device = run_config
-            .train
-            .backend
-            .device()
-            .map_err(|e| AblationError::Train {
-                variant: name.clone(),
-                source: e.into(),
-            })?
-            .autodiff();
         let checkpoint_err = |source| AblationError::Checkpoint {
             variant: name.clone(),
             source,
@@ -163,15 +168,6 @@ pub fn run(
             .ok_or_else(|| AblationError::NoCheckpoint(name.clone()))?;
         let model = checkpoint::load_model(&last, run_config.model.init(&device))
             .map_err(checkpoint_err)?;
-        let split = EvalSplit::UnseenSubjects;
-        let items =
-            eval_items(&data.dataset, split, None).map_err(|source| AblationError::Eval {
-                variant: name.clone(),
-                source,
-            })?;
-        if items.is_empty() {
-            return Err(AblationError::NothingToEvaluate);
-        }
         let mut evaluate = |on_event: &mut dyn FnMut(AblationEvent<'_>),
                             label: &str,
                             items: &[EvalItem],

@@ -59,12 +59,7 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
     }
     crate::pin_default_device(config.train.backend);
     let out = args.out.unwrap_or_else(|| {
-        let stem = args
-            .config
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "run".into());
-        PathBuf::from("runs").join(format!("ablation_{stem}"))
+        PathBuf::from("runs").join(format!("ablation_{}", crate::config_stem(&args.config)))
     });
     let steps = config.train.steps;
     let style = ProgressStyle::with_template(

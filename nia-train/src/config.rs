@@ -333,11 +333,7 @@ impl TrainConfig {
 
     /// Reads and checks a config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::from_toml(&text, path)
+        Self::load_with(path, &[])
     }
 
     /// [`TrainConfig::load`] with `section.key=value` overrides (`--set`, in order) written over

@@ -74,6 +74,14 @@ struct TrainArgs {
 /// Makes burn's default device the training backend (unless the user set `BURN_DEVICE`):
 /// burn materialises restored optimiser state on the default device, which with the `wgpu`
 /// feature compiled in would otherwise be the GPU even for a CPU run.
+/// The config file's name without its extension (`quickstart` for configs/quickstart.toml),
+/// which names the default output folder.
+pub(crate) fn config_stem(path: &std::path::Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "run".into())
+}
+
 pub(crate) fn pin_default_device(backend: Backend) {
     if std::env::var_os("BURN_DEVICE").is_none() {
         std::env::set_var("BURN_DEVICE", backend.name());
@@ -102,13 +110,9 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         config.train.steps = steps;
     }
     pin_default_device(config.train.backend);
-    let out = args.out.unwrap_or_else(|| {
-        let stem = config_path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "run".into());
-        PathBuf::from("runs").join(stem)
-    });
+    let out = args
+        .out
+        .unwrap_or_else(|| PathBuf::from("runs").join(config_stem(&config_path)));
     let existing = checkpoint::latest(&out)
         .with_context(|| format!("reading the checkpoints of {}", out.display()))?;
     if let Some((step, _)) = existing {

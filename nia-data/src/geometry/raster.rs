@@ -124,6 +124,27 @@ pub struct Fragments {
 }
 
 impl Fragments {
+    /// Every face index the fragments hold addresses `faces` (checked before reading it).
+    pub(crate) fn check_face_indices(
+        &self,
+        what: &'static str,
+        faces: &[[u32; 3]],
+    ) -> Result<(), MeshError> {
+        match self
+            .face
+            .iter()
+            .find(|f| **f != EMPTY_FACE && **f as usize >= faces.len())
+        {
+            Some(bad) => Err(MeshError::Length {
+                what,
+                field: "faces",
+                got: faces.len(),
+                expected: *bad as usize + 1,
+            }),
+            None => Ok(()),
+        }
+    }
+
     /// An empty buffer (nothing drawn).
     pub fn empty(width: u32, height: u32) -> Self {
         let n = width as usize * height as usize;
@@ -175,18 +196,7 @@ impl Fragments {
     ) -> Result<Vec<Option<Vec3>>, MeshError> {
         const WHAT: &str = "Fragments::interpolate";
         validate_faces(WHAT, "attribute", attribute.len(), faces)?;
-        if let Some(bad) = self
-            .face
-            .iter()
-            .find(|f| **f != EMPTY_FACE && **f as usize >= faces.len())
-        {
-            return Err(MeshError::Length {
-                what: WHAT,
-                field: "faces",
-                got: faces.len(),
-                expected: *bad as usize + 1,
-            });
-        }
+        self.check_face_indices(WHAT, faces)?;
         Ok(self
             .face
             .par_iter()

@@ -67,18 +67,7 @@ pub fn vertex_visibility(
             });
         }
     }
-    if let Some(bad) = fragments
-        .face
-        .iter()
-        .find(|f| **f != EMPTY_FACE && **f as usize >= faces.len())
-    {
-        return Err(MeshError::Length {
-            what: WHAT,
-            field: "faces",
-            got: faces.len(),
-            expected: *bad as usize + 1,
-        });
-    }
+    fragments.check_face_indices(WHAT, faces)?;
     if !(depth_tol_m >= 0.0) {
         return Err(MeshError::Invalid {
             what: WHAT,

@@ -336,23 +336,13 @@ impl Blender {
 /// - `c0`: `[M, 3]`
 /// - `source_colours` c_n: `[N, M, 3]`
 /// - output: colour `[M, 3]`, blend weights `[M, N + 1]`
+///
+/// The softmax keeps the logits' shape, so [`mix`] checks all three inputs.
 pub fn blend(
     blend_logits: Tensor<2>,
     c0: Tensor<2>,
     source_colours: Tensor<3>,
 ) -> Result<PointColour, ShapeError> {
-    let [n, m, three] = source_colours.dims();
-    ShapeError::check(
-        "blend `source_colours` [N, M, 3]",
-        &[n, m, three],
-        &[None, None, Some(3)],
-    )?;
-    ShapeError::check("blend `c0` [M, 3]", &c0.dims(), &[Some(m), Some(3)])?;
-    ShapeError::check(
-        "blend `blend_logits` [M, N + 1]",
-        &blend_logits.dims(),
-        &[Some(m), Some(n + 1)],
-    )?;
     mix(stable_softmax(blend_logits, 1), c0, source_colours)
 }
 
