@@ -350,7 +350,9 @@ pub fn evaluate_images(
 }
 
 /// Novel-view evaluation of `items` of the unseen-subject split with `samples` samples per ray
-/// in chunks of `chunk` rays (what training reports); `None` when there is nothing to evaluate.
+/// in chunks of `chunk` rays (what training reports); `on_done(k)` after the k-th image; `None`
+/// when there is nothing to evaluate.
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate_items(
     model: &NiaModel,
     data: &OpenedDataset,
@@ -359,7 +361,9 @@ pub fn evaluate_items(
     chunk: usize,
     adaptive: AdaptiveConfig,
     device: &Device,
+    on_done: &mut dyn FnMut(usize),
 ) -> Result<Option<EvalSummary>, EvalError> {
+    let mut done = 0;
     let results = evaluate_images(
         model,
         data,
@@ -373,7 +377,11 @@ pub fn evaluate_items(
             adaptive,
         },
         device,
-        &mut |_| Ok(()),
+        &mut |_| {
+            done += 1;
+            on_done(done);
+            Ok(())
+        },
     )?;
     Ok(EvalSummary::of(&results))
 }

@@ -21,9 +21,10 @@ pub struct ModelArgs {
     /// Model file written by `nia-infer export`.
     #[arg(long)]
     pub model: PathBuf,
-    /// Backend: ndarray, flex or wgpu (default: flex on the CPU).
-    #[arg(long, value_parser = str::parse::<Backend>, default_value = "flex")]
-    pub backend: Backend,
+    /// Backend: ndarray, flex or wgpu (default: flex on the CPU, also for a model trained on a
+    /// GPU; the command says so).
+    #[arg(long, value_parser = str::parse::<Backend>)]
+    pub backend: Option<Backend>,
     /// Samples per ray (default: the training setting stored in the model file).
     #[arg(long)]
     pub samples: Option<usize>,
@@ -55,6 +56,8 @@ pub struct LoadedModel {
     pub run: RunSettings,
     /// Training steps taken.
     pub step: u64,
+    /// The backend it runs on.
+    pub backend: Backend,
     pub device: Device,
 }
 
@@ -81,13 +84,26 @@ impl LoadedModel {
                 path.display()
             )
         })?;
-        let device = args.backend.device()?;
+        let backend = args.backend.unwrap_or(Backend::Flex);
+        if let Some(trained) = run.train.backend.filter(|b| b.is_gpu()) {
+            if args.backend.is_none() {
+                eprintln!(
+                    "{}: trained on {}; rendering on the CPU ({}); pass --backend {} for the GPU",
+                    path.display(),
+                    trained.name(),
+                    backend.name(),
+                    trained.name()
+                );
+            }
+        }
+        let device = backend.device()?;
         let model = file.load(path, &device)?;
         Ok(LoadedModel {
             path: path.clone(),
             model,
             run,
             step: file.header.step,
+            backend,
             device,
         })
     }

@@ -4,6 +4,7 @@
 
 use nia_data::dataset::DataConfig;
 use nia_data::synth::SynthSection;
+use nia_model::device::Backend;
 use nia_model::sampler::AdaptiveConfig;
 use serde::Deserialize;
 
@@ -30,6 +31,9 @@ pub struct TrainSettings {
     pub samples: usize,
     /// Source views per scene.
     pub source_views: usize,
+    /// The backend it trained on (absent in hand-made headers).
+    #[serde(default)]
+    pub backend: Option<Backend>,
 }
 
 impl RunSettings {

@@ -1,7 +1,7 @@
 //! One subject folder opened for rendering: the ZJU-MoCap / MonoCap / synthetic reader at the
 //! model's training resolution, the user's SMPL model, and scenes of chosen source views.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
@@ -16,12 +16,16 @@ use nia_infer::run_settings::RunSettings;
 
 use crate::model_load::smpl_path;
 
-/// Which subject and how to read it.
+/// Which subject and how to read it. `--data` is the dataset root, as in `eval` and `sweep`.
 #[derive(Args, Debug, Clone)]
 pub struct SubjectArgs {
-    /// The subject folder (`CoreView_377`, a MonoCap subject, or a synthetic subject).
+    /// Dataset root holding the subject folders (default: the model's training data root).
     #[arg(long)]
-    pub data: PathBuf,
+    pub data: Option<PathBuf>,
+    /// The subject: a folder name under the dataset root (`CoreView_377`, `subject_0003`), or
+    /// the path of a subject folder.
+    #[arg(long)]
+    pub subject: String,
     /// SMPL model (`SMPL_NEUTRAL.pkl` or `.npz`); default: the model's training setting, else
     /// the synthetic dataset's `body_model.npz`.
     #[arg(long)]
@@ -29,6 +33,35 @@ pub struct SubjectArgs {
     /// Image resize ratio (default: the model's training setting).
     #[arg(long)]
     pub ratio: Option<f32>,
+}
+
+/// The subject folder of `args`: `ROOT/SUBJECT` (ROOT: `--data`, else the model's training
+/// root), else `SUBJECT` as a path; a folder holding `annots.npy`.
+pub fn subject_dir(args: &SubjectArgs, run: &RunSettings) -> anyhow::Result<PathBuf> {
+    let root = args.data.clone().unwrap_or_else(|| run.data.root.clone());
+    let annots = |dir: &Path| dir.join("annots.npy").is_file();
+    let under_root = root.join(&args.subject);
+    if annots(&under_root) {
+        return Ok(under_root);
+    }
+    let as_path = PathBuf::from(&args.subject);
+    if annots(&as_path) {
+        return Ok(as_path);
+    }
+    if annots(&root) {
+        anyhow::bail!(
+            "--data {}: a subject folder, not a dataset root; pass --data {} --subject {}",
+            root.display(),
+            root.parent().unwrap_or(Path::new(".")).display(),
+            root.file_name().unwrap_or_default().to_string_lossy()
+        );
+    }
+    anyhow::bail!(
+        "--subject {}: no subject folder (holding annots.npy) at {} or {}",
+        args.subject,
+        under_root.display(),
+        as_path.display()
+    )
 }
 
 /// Camera indices given as `0,7,15`.
@@ -47,6 +80,8 @@ pub fn parse_views(s: &str) -> Result<ViewList, String> {
 }
 
 pub struct OpenedSubject {
+    /// The subject folder.
+    pub dir: PathBuf,
     pub source: SceneSource,
     pub body: BodyModel,
     pub loader: LoaderConfig,
@@ -54,7 +89,8 @@ pub struct OpenedSubject {
 
 impl OpenedSubject {
     pub fn open(args: &SubjectArgs, run: &RunSettings) -> anyhow::Result<Self> {
-        let smpl = smpl_path(args.smpl.as_deref(), run, &args.data)?;
+        let dir = subject_dir(args, run)?;
+        let smpl = smpl_path(args.smpl.as_deref(), run, &dir)?;
         let body =
             BodyModel::load(&smpl).with_context(|| format!("{}: SMPL model", smpl.display()))?;
         let config = DatasetConfig {
@@ -62,8 +98,9 @@ impl OpenedSubject {
             smpl_model: Some(smpl),
             ..DatasetConfig::for_format(run.data.format)
         };
-        let subject = Subject::open(&args.data, &config)?;
+        let subject = Subject::open(&dir, &config)?;
         Ok(OpenedSubject {
+            dir,
             source: SceneSource {
                 subjects: vec![subject],
                 faces: body.faces.clone(),
@@ -79,6 +116,29 @@ impl OpenedSubject {
 
     pub fn subject(&self) -> &Subject {
         &self.source.subjects[0]
+    }
+
+    /// Source views: `given`, else the test-time input views of the model's split protocol
+    /// (NHP: 0,7,15; a synthetic set: its own), checked against the subject.
+    pub fn views_or_protocol(
+        &self,
+        given: Option<&ViewList>,
+        run: &RunSettings,
+    ) -> anyhow::Result<Vec<usize>> {
+        let views = match given {
+            Some(v) => v.0.clone(),
+            None => {
+                let spec = run.synth.as_ref().map(|s| s.spec());
+                let protocol = run.data.protocol(spec.as_ref()).with_context(|| {
+                    "the model's split protocol gives the default source views; pass --views"
+                })?;
+                protocol
+                    .input_views
+                    .resolve(self.subject().num_cameras(), &[])
+            }
+        };
+        self.check_views("--views", &views)?;
+        Ok(views)
     }
 
     /// Checks camera indices against the subject.

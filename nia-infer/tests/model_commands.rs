@@ -329,16 +329,18 @@ fn render_and_animate_write_pictures() {
     let t = trained();
     let subject = t.dir.join("data/CoreView_2");
     let out_dir = scratch("render");
+    // `--data` is the dataset root in every command; `--subject` a name under it. Without
+    // `--views`, the sources are the synthetic protocol's input views (4 cameras: 0, 1, 3).
     let out = nia_infer(&[
         "render",
         "--model",
         s(&t.model),
         "--data",
-        s(&subject),
+        s(&t.dir.join("data")),
+        "--subject",
+        "CoreView_2",
         "--frame",
         "1",
-        "--views",
-        "0,1,2",
         "--targets",
         "3,1",
         "--out",
@@ -348,6 +350,7 @@ fn render_and_animate_write_pictures() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("render.json")).unwrap())
             .unwrap();
+    assert_eq!(report["views"], serde_json::json!([0, 1, 3]));
     for (i, view) in [3, 1].iter().enumerate() {
         let img = &report["images"][i];
         assert_eq!(img["target_view"], *view);
@@ -368,7 +371,7 @@ fn render_and_animate_write_pictures() {
         "animate",
         "--model",
         s(&t.model),
-        "--data",
+        "--subject",
         s(&subject),
         "--ref-frame",
         "0",
@@ -400,7 +403,7 @@ fn render_and_animate_write_pictures() {
         "animate",
         "--model",
         s(&t.model),
-        "--data",
+        "--subject",
         s(&subject),
         "--ref-frame",
         "0",
@@ -521,7 +524,7 @@ fn broken_model_files_and_data_give_clear_errors() {
             "render",
             "--model",
             s(&t.model),
-            "--data",
+            "--subject",
             s(subject),
             "--smpl",
             s(&t.dir.join("data/body_model.npz")),
@@ -543,6 +546,45 @@ fn broken_model_files_and_data_give_clear_errors() {
     fails_with(
         &render(&t.dir.join("data/CoreView_2"), "0,1,9"),
         &["--views 9", "4 cameras"],
+    );
+    // `--data` given a subject folder says what it expects instead.
+    fails_with(
+        &nia_infer(&[
+            "render",
+            "--model",
+            s(&t.model),
+            "--data",
+            s(&t.dir.join("data/CoreView_2")),
+            "--subject",
+            "CoreView_2",
+            "--frame",
+            "0",
+            "--targets",
+            "3",
+            "--out",
+            s(&dir.join("render")),
+        ]),
+        &[
+            "a subject folder, not a dataset root",
+            "--subject CoreView_2",
+        ],
+    );
+    // A subject that is not there names where it looked.
+    fails_with(
+        &nia_infer(&[
+            "render",
+            "--model",
+            s(&t.model),
+            "--subject",
+            "CoreView_99",
+            "--frame",
+            "0",
+            "--targets",
+            "3",
+            "--out",
+            s(&dir.join("render")),
+        ]),
+        &["--subject CoreView_99", "annots.npy"],
     );
 }
 

@@ -45,6 +45,12 @@ impl Backend {
         }
     }
 
+    /// Whether this backend runs on a GPU (a model trained there renders on the CPU unless
+    /// told otherwise).
+    pub fn is_gpu(self) -> bool {
+        matches!(self, Backend::Wgpu)
+    }
+
     /// The inference device of this backend.
     pub fn device(self) -> Result<Device, BackendUnavailable> {
         match self {

@@ -90,6 +90,11 @@ pub enum AblationEvent<'a> {
         variant: Variant,
         event: &'a TrainEvent,
     },
+    /// `done` of `total` images of the `[synth]` dataset written (before the first variant).
+    Generating {
+        done: usize,
+        total: usize,
+    },
     /// Evaluation of `label` began.
     Evaluating {
         label: &'a str,
@@ -136,7 +141,10 @@ pub fn run(
     let mut crop: Option<Crop> = None;
     // The data, the device and the evaluation items are the same for every variant (opening
     // generates a `[synth]` dataset if it is missing, so training finds it).
-    let data = TrainData::open(config).map_err(|e| AblationError::Setup(e.into()))?;
+    let data = TrainData::open(config, &mut |done, total| {
+        on_event(AblationEvent::Generating { done, total })
+    })
+    .map_err(|e| AblationError::Setup(e.into()))?;
     let device = config
         .train
         .backend

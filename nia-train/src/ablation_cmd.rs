@@ -89,8 +89,19 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
                 &bar,
                 format!("{}: step {step} skipped: {reason}", variant.name()),
             ),
+            TrainEvent::Progress { phase, done, total } => {
+                let name = format!("{}: {}", variant.name(), phase.name());
+                log_lines::phase(&bar, &name, *done, *total);
+                bar.set_message(format!("{name}: {done}/{total} images"));
+            }
             _ => {}
         },
+        AblationEvent::Generating { done, total } => {
+            log_lines::phase(&bar, "generating the synthetic dataset", done, total);
+            bar.set_message(format!(
+                "generating the synthetic dataset: {done}/{total} images"
+            ));
+        }
         AblationEvent::Evaluating { label } => {
             let message = format!("evaluating {label}");
             if bar.is_hidden() {

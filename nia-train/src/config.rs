@@ -242,6 +242,13 @@ pub struct TrainSection {
     /// MonoCap with `steps = 0`); `--resume` from the run's own checkpoints takes precedence.
     #[serde(default)]
     pub init_from: Option<PathBuf>,
+    /// torchvision `resnet18` weights (`resnet18-f37072fd.pth`, ImageNet) loaded into the
+    /// image encoder before the first step, as NHP and NIA start (conv1..layer3; needs
+    /// `model.encoder_width = 64`, the paper preset). Ignored when resuming or with
+    /// `init_from`, whose weights already hold a trained encoder. None: the encoder starts from
+    /// random weights.
+    #[serde(default)]
+    pub encoder_weights: Option<PathBuf>,
     /// Weight of the mask loss `mean (acc - mask)^2` added to the paper's loss (0: the paper's
     /// loss only; see `nia_model::loss::mask_loss`).
     #[serde(default)]
@@ -524,6 +531,15 @@ impl TrainConfig {
                 "the path of SMPL_NEUTRAL.pkl (needed for visibility)",
                 "nothing".into(),
             ));
+        }
+        if let Some(w) = &t.encoder_weights {
+            if !w.is_file() {
+                return Err(bad(
+                    "train.encoder_weights",
+                    "an existing torchvision resnet18 state dict (.pth)",
+                    w.display().to_string(),
+                ));
+            }
         }
         Ok(())
     }

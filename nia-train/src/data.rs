@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use nia_data::dataset::loader::{SceneRequest, TargetKind};
 use nia_data::dataset::{OpenError, OpenedDataset};
 use nia_data::rng::Rng;
-use nia_data::synth::{self, SynthError, DESCRIPTION_FILE};
+use nia_data::synth::{self, SynthError, SynthEvent, DESCRIPTION_FILE};
 
 use crate::config::TrainConfig;
 
@@ -49,18 +49,25 @@ pub struct TrainData {
 }
 
 impl TrainData {
-    /// Opens (and, for `[synth]`, first generates) the dataset of `config`.
-    pub fn open(config: &TrainConfig) -> Result<Self, DataError> {
+    /// Opens (and, for `[synth]`, first generates) the dataset of `config`; `on_image(done,
+    /// total)` follows the generation's images.
+    pub fn open(
+        config: &TrainConfig,
+        on_image: &mut dyn FnMut(usize, usize),
+    ) -> Result<Self, DataError> {
         let data = &config.data;
         let spec = config.synth.as_ref().map(|s| s.spec());
         let mut generated = false;
         if let Some(spec) = &spec {
             if !data.root.join(DESCRIPTION_FILE).is_file() {
-                synth::generate(spec, &data.root, &mut |_| {}).map_err(|source| {
-                    DataError::Synth {
-                        root: data.root.clone(),
-                        source: Box::new(source),
-                    }
+                let progress = &mut |event: SynthEvent| match event {
+                    SynthEvent::Started { total_images } => on_image(0, total_images),
+                    SynthEvent::ImageWritten { done, total, .. } => on_image(done, total),
+                    _ => {}
+                };
+                synth::generate(spec, &data.root, progress).map_err(|source| DataError::Synth {
+                    root: data.root.clone(),
+                    source: Box::new(source),
                 })?;
                 generated = true;
             }

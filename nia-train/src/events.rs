@@ -57,4 +57,35 @@ pub enum TrainEvent {
     },
     /// The run ended after `steps` steps.
     Finished { steps: u64, seconds: f64 },
+    /// Progress inside a long phase that is not a step: `done` of `total` units (images) of
+    /// `phase`. For progress bars and plain progress lines; not a record (the binary leaves it
+    /// out of `metrics.jsonl`).
+    Progress {
+        phase: Phase,
+        done: usize,
+        total: usize,
+    },
+}
+
+/// A long phase of a run besides the training steps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Phase {
+    /// Writing the `[synth]` dataset's images.
+    Generation,
+    /// Rendering the periodic validation images.
+    Validation,
+    /// Rendering every held-out image at the end.
+    Evaluation,
+}
+
+impl Phase {
+    /// The phase's name in progress lines.
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Generation => "generating the synthetic dataset",
+            Phase::Validation => "validation",
+            Phase::Evaluation => "final evaluation",
+        }
+    }
 }

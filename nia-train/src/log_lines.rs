@@ -26,3 +26,52 @@ pub fn progress(bar: &ProgressBar, done: u64, total: u64, message: &str) {
         );
     }
 }
+
+/// Plain progress lines of a phase (`done` of `total` images) when `bar` is hidden: at the
+/// start, about every tenth and at the end.
+pub fn phase(bar: &ProgressBar, name: &str, done: usize, total: usize) {
+    let every = total.div_ceil(10).max(1);
+    if bar.is_hidden() && (done == 0 || done == total || done % every == 0) {
+        println!(
+            "[{:>6.0} s] {name}: {done}/{total} images",
+            bar.elapsed().as_secs_f64()
+        );
+    }
+}
+
+/// The bar of a phase (generation, validation, final evaluation) under the run's bar while the
+/// phase lasts: created at its first report, cleared at its last.
+#[derive(Default)]
+pub struct PhaseBar {
+    bar: Option<ProgressBar>,
+}
+
+impl PhaseBar {
+    /// Shows `done` of `total` images of the phase `name` in `multi`.
+    pub fn update(
+        &mut self,
+        multi: &indicatif::MultiProgress,
+        name: &str,
+        done: usize,
+        total: usize,
+    ) {
+        let bar = self.bar.get_or_insert_with(|| {
+            let bar = multi.add(ProgressBar::new(total as u64));
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{spinner} {prefix} [{elapsed_precise}] {bar:30} {pos}/{len} images (eta {eta})",
+                )
+                .expect("static progress template"),
+            );
+            bar.set_prefix(name.to_string());
+            bar
+        });
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        if done >= total {
+            bar.finish_and_clear();
+            multi.remove(bar);
+            self.bar = None;
+        }
+    }
+}

@@ -14,7 +14,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use nia_model::device::Backend;
 use nia_model::store::checkpoint;
 use nia_train::config::TrainConfig;
@@ -145,7 +145,9 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         .append(true)
         .open(&metrics_path)
         .with_context(|| format!("opening {}", metrics_path.display()))?;
-    let bar = ProgressBar::new(config.train.steps);
+    let multi = MultiProgress::new();
+    let bar = multi.add(ProgressBar::new(config.train.steps));
+    let mut phase_bar = log_lines::PhaseBar::default();
     bar.set_style(
         ProgressStyle::with_template(
             "{spinner} train [{elapsed_precise}] {bar:30} {pos}/{len} steps (eta {eta}) {msg}",
@@ -161,6 +163,11 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
             resume: args.resume,
         },
         &mut |event| {
+            if let TrainEvent::Progress { phase, done, total } = &event {
+                log_lines::phase(&bar, phase.name(), *done, *total);
+                phase_bar.update(&multi, phase.name(), *done, *total);
+                return;
+            }
             if write_error.is_none() {
                 let line = serde_json::to_string(&event).unwrap_or_default();
                 if let Err(e) = writeln!(metrics, "{line}") {
@@ -234,7 +241,7 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     log_lines::line(&bar, &line);
                     final_evaluation = Some(line);
                 }
-                TrainEvent::Finished { .. } => {}
+                TrainEvent::Finished { .. } | TrainEvent::Progress { .. } => {}
             }
         },
     )

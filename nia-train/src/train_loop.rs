@@ -35,7 +35,7 @@ use nia_model::{ModelError, NiaModel};
 
 use crate::config::TrainConfig;
 use crate::data::{DataError, TrainData};
-use crate::events::TrainEvent;
+use crate::events::{Phase, TrainEvent};
 
 /// Label of the jitter stream forked from a step's RNG (the loader uses the request seed).
 const JITTER_STREAM: u64 = 1;
@@ -70,6 +70,9 @@ pub enum TrainError {
     },
     #[error("the loader produced a scene without training rays at step {0}")]
     NoRays(u64),
+    /// `train.encoder_weights` could not be loaded into the encoder.
+    #[error("train.encoder_weights: {0}")]
+    EncoderWeights(#[from] nia_model::field::encoder_import::EncoderLoadError),
 }
 
 /// What a finished run reports.
@@ -105,7 +108,13 @@ pub fn train(
         path: options.out.clone(),
         source,
     })?;
-    let data = TrainData::open(config)?;
+    let data = TrainData::open(config, &mut |done, total| {
+        on_event(TrainEvent::Progress {
+            phase: Phase::Generation,
+            done,
+            total,
+        })
+    })?;
     on_event(TrainEvent::DataReady {
         root: config.data.root.clone(),
         train_subjects: data.train_subject_names(),
@@ -132,6 +141,8 @@ pub fn train(
         last_checkpoint = Some(dir);
     } else if let Some(dir) = &t.init_from {
         model = checkpoint::load_model(dir, model)?;
+    } else if let Some(path) = &t.encoder_weights {
+        model.encoder = model.encoder.load_torchvision(path)?;
     }
     on_event(TrainEvent::Started {
         first_step,
@@ -197,6 +208,12 @@ pub fn train(
                 Some(t.validation_images),
             )?;
             let chunk = t.rays_per_step;
+            let total = items.len();
+            on_event(TrainEvent::Progress {
+                phase: Phase::Validation,
+                done: 0,
+                total,
+            });
             if let Some(m) = evaluate_items(
                 &model,
                 &data.dataset,
@@ -205,6 +222,13 @@ pub fn train(
                 chunk,
                 config.render,
                 &device,
+                &mut |done| {
+                    on_event(TrainEvent::Progress {
+                        phase: Phase::Validation,
+                        done,
+                        total,
+                    })
+                },
             )? {
                 on_event(TrainEvent::Validation {
                     step: done,
@@ -240,6 +264,12 @@ pub fn train(
         // Pictures of images spread over the split (every k-th), so they show several views.
         let every = items.len().div_ceil(FINAL_PICTURES).max(1);
         let mut index = 0usize;
+        let total = items.len();
+        on_event(TrainEvent::Progress {
+            phase: Phase::Evaluation,
+            done: 0,
+            total,
+        });
         let results = evaluate_images(
             &model,
             &data.dataset,
@@ -260,6 +290,11 @@ pub fn train(
                     save_evaluated(&pictures, &evaluated)
                         .map_err(|e| EvalError::Output(e.to_string()))?;
                 }
+                on_event(TrainEvent::Progress {
+                    phase: Phase::Evaluation,
+                    done: index,
+                    total,
+                });
                 Ok(())
             },
         )?;

@@ -78,6 +78,7 @@ const KEYS: &[(&str, &str)] = &[
     ("train", "evaluate_at_end"),
     ("train", "backend"),
     ("train", "init_from"),
+    ("train", "encoder_weights"),
     ("train", "mask_loss_weight"),
     ("train", "distortion_loss_weight"),
     ("synth", "subjects"),
@@ -411,6 +412,7 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
         "root" => (&["\"data/g\"", "\".\""], &["\"no/such/dir\"", "\"\""]),
         "visibility_cache" => (&["\"data/g/cache\"", "\"\""], &["\"/\""]),
         "init_from" => (&[], &["\"no/such/run\"", "\".\""]),
+        "encoder_weights" => (&["\"Cargo.toml\""], &["\"no_such.pth\"", "\".\""]),
         "smpl_model" => (&["\"Cargo.toml\""], &["\"no_such.pkl\"", "\".\""]),
         "format" => (&["\"zju\"", "\"monocap\""], &["\"MonoCap\"", "\"h36m\""]),
         "protocol" => (&["\"synthetic\"", "\"nhp\"", "\"monocap\""], &["\"zju\""]),
@@ -493,6 +495,9 @@ fn check_invariants(c: &TrainConfig, path: &Path) {
     }
     if let Some(dir) = &t.init_from {
         assert!(dir.join(nia_model::store::checkpoint::MODEL_FILE).is_file());
+    }
+    if let Some(w) = &t.encoder_weights {
+        assert!(w.is_file());
     }
     // The network configuration of any accepted config is buildable.
     assert!(c.model.check().is_ok());

@@ -57,9 +57,28 @@ fn trains_two_steps_end_to_end_on_ndarray() {
     let dir = scratch("two");
     let config = tiny_config(&dir, 2, "validate_every = 2\nevaluate_at_end = true");
     let out = dir.join("run");
-    ok(&nia_train(&[], &config, &out));
+    let run = nia_train(&[], &config, &out);
+    ok(&run);
     assert!(dir.join("data/synth.json").is_file(), "dataset generated");
+    // Without a terminal every event and phase reaches stdout as a plain line.
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    for line in [
+        "generating the synthetic dataset: 0/16 images",
+        "generating the synthetic dataset: 16/16 images",
+        "validation: 0/2 images",
+        "validation after 2 steps: PSNR",
+        "checkpoint ",
+        "step 2/2 loss",
+        "final evaluation: 0/",
+        "evaluation (unseen_subjects,",
+    ] {
+        assert!(stdout.contains(line), "stdout lacks `{line}`:\n{stdout}");
+    }
     let all = events(&out);
+    assert!(
+        of_kind(&all, "progress").is_empty(),
+        "phase progress is not a record"
+    );
     let ready = of_kind(&all, "data_ready");
     assert_eq!(ready.len(), 1);
     assert_eq!(ready[0]["generated"], true);
@@ -303,5 +322,90 @@ fn a_rerun_into_a_used_folder_must_say_resume_or_overwrite() {
     assert_eq!(checkpoint::latest(&out).unwrap().unwrap().0, 1);
     let both = nia_train(&["--resume", "--overwrite"], &config, &out);
     assert!(!both.status.success(), "--resume and --overwrite together");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The torchvision ResNet fixture of nia-model's import tests (trunk width 8, the tiny preset's).
+fn resnet_fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../nia-model/tests/fixtures/resnet")
+        .join(name)
+}
+
+/// `train.encoder_weights` puts the torchvision weights into the encoder before the first step,
+/// and the encoder then trains: after one Adam step (lr 5e-4) every conv1 weight sits within one
+/// step of the file's value and most have moved.
+#[test]
+fn encoder_weights_start_the_encoder_and_it_trains() {
+    use burn::module::{Module, ModuleVisitor, Param};
+    use burn::prelude::*;
+    let dir = scratch("encoder_weights");
+    let weights = resnet_fixture("resnet_tiny.pth");
+    let line = format!(
+        "encoder_weights = \"{}\"",
+        weights.display().to_string().replace('\\', "/")
+    );
+    let config = tiny_config(&dir, 1, &line);
+    let out = dir.join("run");
+    ok(&nia_train(&[], &config, &out));
+
+    struct Conv1(Option<Vec<f32>>);
+    impl ModuleVisitor for Conv1 {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            if self.0.is_none() && param.shape().dims::<4>() == [8, 3, 7, 7] {
+                self.0 = Some(param.val().into_data().try_to_vec::<f32>().unwrap());
+            }
+        }
+    }
+    let (_, ckpt) = checkpoint::latest(&out).unwrap().unwrap();
+    let saved = checkpoint::read_config(&ckpt).unwrap();
+    #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
+    let device = Device::ndarray();
+    let model = checkpoint::load_model(&ckpt, saved.model.init(&device)).unwrap();
+    let mut visitor = Conv1(None);
+    model.encoder.visit(&mut visitor);
+    let trained = visitor.0.expect("the encoder's conv1 [8, 3, 7, 7]");
+    let file = nia_data::formats::npy::read(&resnet_fixture("conv1_weight.npy"))
+        .unwrap()
+        .to_f32_vec()
+        .unwrap();
+    assert_eq!(trained.len(), file.len());
+    let lr = 5e-4f32;
+    let moved = trained
+        .iter()
+        .zip(&file)
+        .filter(|(t, f)| (*t - *f).abs() > 0.1 * lr)
+        .count();
+    let worst = trained
+        .iter()
+        .zip(&file)
+        .map(|(t, f)| (t - f).abs())
+        .fold(0.0f32, f32::max);
+    assert!(
+        worst <= 1.01 * lr,
+        "one Adam step moves at most lr: {worst}"
+    );
+    assert!(
+        moved * 2 > trained.len(),
+        "the loaded encoder trains: {moved} of {} moved",
+        trained.len()
+    );
+
+    // A trunk of another width is refused, naming the key and the file.
+    let bad = dir.join("bad");
+    let output = Command::new(env!("CARGO_BIN_EXE_nia-train"))
+        .args(["--set", "model.encoder_width=16", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains("train.encoder_weights") && stderr.contains("resnet_tiny.pth"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }

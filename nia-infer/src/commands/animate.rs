@@ -36,9 +36,10 @@ pub struct AnimateArgs {
     /// The frame whose source images show the subject.
     #[arg(long)]
     pub ref_frame: usize,
-    /// Source cameras of the reference frame, e.g. 0,7,15.
-    #[arg(long, value_parser = parse_views, default_value = "0,7,15")]
-    pub views: ViewList,
+    /// Source cameras of the reference frame, e.g. 0,7,15 (default: the input views of the
+    /// model's split protocol, as `eval` uses).
+    #[arg(long, value_parser = parse_views)]
+    pub views: Option<ViewList>,
     /// The camera to render from.
     #[arg(long, default_value_t = 0)]
     pub target: usize,
@@ -151,7 +152,7 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
     opened.check_views("--target", &[args.target])?;
     opened.check_frame("--ref-frame", args.ref_frame)?;
     let poses = poses(args, &opened)?;
-    let views = args.views.0.clone();
+    let views = opened.views_or_protocol(args.views.as_ref(), &loaded.run)?;
     let scene = opened.scene(args.ref_frame, &views)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -215,7 +216,7 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
     save_gif(&args.out.join(gif), &frames, 1000 / args.fps.max(1))?;
     let report = Report {
         model: loaded.path.clone(),
-        subject: args.subject.data.clone(),
+        subject: opened.dir.clone(),
         ref_frame: args.ref_frame,
         views,
         target: args.target,

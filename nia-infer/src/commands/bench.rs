@@ -19,6 +19,8 @@ use nia_model::device::Backend;
 use nia_model::loss::render_loss;
 use nia_model::timing::{Stage, StageTimes};
 use nia_model::ModelConfig;
+
+use crate::output::progress_bar;
 use serde::Serialize;
 
 #[derive(Args, Debug)]
@@ -137,6 +139,19 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     device.seed(0);
     let model = config.init(&device);
 
+    // One warm-up and `reps` timed repetitions of the forward, and of the training step.
+    let passes = if args.no_train { 1 } else { 2 };
+    let bar = progress_bar((passes * (args.reps + 1)) as u64, "bench");
+    // Per-repetition times: above the bar, or on stderr without a terminal (stdout carries the
+    // table and the JSON line).
+    let note = |line: String| {
+        if bar.is_hidden() {
+            eprintln!("{line}");
+        } else {
+            bar.println(line);
+        }
+    };
+
     // Forward (inference device), per stage.
     let mut stages = StageTimes::default();
     let mut forward_s = 0.0;
@@ -158,7 +173,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             forward_s += start.elapsed().as_secs_f64();
             stages.merge(&times);
         }
-        eprintln!("forward rep {rep}: {:.2} s", start.elapsed().as_secs_f64());
+        note(format!(
+            "forward rep {rep}{}: {:.2} s",
+            if rep == 0 { " (warm-up)" } else { "" },
+            start.elapsed().as_secs_f64()
+        ));
+        bar.inc(1);
     }
     let reps = args.reps.max(1) as f64;
     forward_s /= reps;
@@ -186,7 +206,11 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             model = optim.step(5e-4, model, grads);
             ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
             let dt = start.elapsed().as_secs_f64();
-            eprintln!("train rep {rep}: {dt:.2} s");
+            note(format!(
+                "train rep {rep}{}: {dt:.2} s",
+                if rep == 0 { " (warm-up)" } else { "" }
+            ));
+            bar.inc(1);
             if rep > 0 {
                 total += dt;
             }
@@ -195,6 +219,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         (Some(step), Some(rays.len() as f64 / step))
     };
 
+    bar.finish_and_clear();
     let report = Report {
         backend: args.backend.name().to_string(),
         rays: rays.len(),

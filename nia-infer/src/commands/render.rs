@@ -28,9 +28,10 @@ pub struct RenderArgs {
     /// Frame index (position in `annots['ims']`).
     #[arg(long)]
     pub frame: usize,
-    /// Source cameras, e.g. 0,7,15.
+    /// Source cameras, e.g. 0,7,15 (default: the input views of the model's split protocol,
+    /// as `eval` uses).
     #[arg(long, value_parser = parse_views)]
-    pub views: ViewList,
+    pub views: Option<ViewList>,
     /// Target cameras to render, e.g. 3,5.
     #[arg(long, value_parser = parse_views)]
     pub targets: ViewList,
@@ -70,11 +71,11 @@ struct Report {
 }
 
 pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
-    let views: Vec<usize> = args.views.0.clone();
     let targets: Vec<usize> = args.targets.0.clone();
     let loaded = LoadedModel::open(&args.model)?;
     let samples = loaded.samples(&args.model);
     let opened = OpenedSubject::open(&args.subject, &loaded.run)?;
+    let views = opened.views_or_protocol(args.views.as_ref(), &loaded.run)?;
     opened.check_views("--targets", &targets)?;
     let scene = opened.scene(args.frame, &views)?;
     std::fs::create_dir_all(&args.out)
@@ -143,7 +144,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     }
     let report = Report {
         model: loaded.path.clone(),
-        subject: args.subject.data.clone(),
+        subject: opened.dir.clone(),
         frame: args.frame,
         views,
         samples,

@@ -176,7 +176,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         loaded.step,
         args.data.as_ref().unwrap_or(&loaded.run.data.root).display(),
         args.limit,
-        args.model.backend.name(),
+        loaded.backend.name(),
     );
     for r in &rows {
         let _ = writeln!(
