@@ -350,8 +350,8 @@ pub fn evaluate_images(
 }
 
 /// Novel-view evaluation of `items` of the unseen-subject split with `samples` samples per ray
-/// in chunks of `chunk` rays (what training reports); `on_done(k)` after the k-th image; `None`
-/// when there is nothing to evaluate.
+/// in chunks of `chunk` rays (what training reports); `on_done(k, image)` after the k-th image;
+/// `None` when there is nothing to evaluate.
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate_items(
     model: &NiaModel,
@@ -361,7 +361,7 @@ pub fn evaluate_items(
     chunk: usize,
     adaptive: AdaptiveConfig,
     device: &Device,
-    on_done: &mut dyn FnMut(usize),
+    on_done: &mut dyn FnMut(usize, &EvaluatedImage<'_>),
 ) -> Result<Option<EvalSummary>, EvalError> {
     let mut done = 0;
     let results = evaluate_images(
@@ -377,9 +377,9 @@ pub fn evaluate_items(
             adaptive,
         },
         device,
-        &mut |_| {
+        &mut |image| {
             done += 1;
-            on_done(done);
+            on_done(done, &image);
             Ok(())
         },
     )?;

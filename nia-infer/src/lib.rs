@@ -5,6 +5,7 @@
 //! - [`eval`]: held-out evaluation (render and score a split's images), used by `nia-infer
 //!   eval`/`sweep` and by the trainer's validation and final evaluation;
 //! - [`pictures`]: comparison grids, error maps and blend-weight maps as images;
+//! - [`plot`]: SVG plots (the sweep's accuracy-time scatter, training curves);
 //! - [`run_settings`]: the settings inference takes from the run a model was trained with.
 //!
 //! The binary (`main.rs`) holds the commands; the library never prints.
@@ -12,4 +13,5 @@
 pub mod diagnostics;
 pub mod eval;
 pub mod pictures;
+pub mod plot;
 pub mod run_settings;

@@ -6,7 +6,6 @@
 mod commands;
 mod model_load;
 mod output;
-mod plot;
 mod subject_scene;
 
 use std::process::ExitCode;

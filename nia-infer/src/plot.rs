@@ -1,12 +1,29 @@
-//! A scatter plot as SVG (log-scale x), with a front drawn as a line over the points: enough
-//! for the accuracy-time plot, with no plotting dependency.
+//! Plots as SVG through plotters (its SVG backend only: no font or bitmap stack): the
+//! accuracy-time scatter of `nia-infer sweep` (log-scale x, the Pareto front drawn over the
+//! points) and the training curves of `nia-train` (loss and PSNR against steps).
 
-use std::fmt::Write as _;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+/// A plot could not be drawn (plotters' message).
+#[derive(Debug, thiserror::Error)]
+#[error("plot `{title}`: {message}")]
+pub struct PlotError {
+    pub title: String,
+    pub message: String,
+}
+
+fn plot_err<E: std::fmt::Debug>(title: &str) -> impl Fn(E) -> PlotError + '_ {
+    move |e| PlotError {
+        title: title.to_string(),
+        message: format!("{e:?}"),
+    }
+}
 
 /// Points of one colour.
 pub struct Series {
     pub name: String,
-    pub colour: String,
+    pub colour: RGBColor,
     /// (x, y, label)
     pub points: Vec<(f64, f64, String)>,
 }
@@ -25,168 +42,219 @@ pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
         .collect()
 }
 
-fn escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
+/// `[lo, hi]` of `values` widened by `pad` of its span (a unit span when empty or flat).
+fn padded_range(values: impl Iterator<Item = f64>, pad: f64) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(v), b.max(v)));
+    if lo > hi {
+        return (0.0, 1.0);
+    }
+    let span = if hi - lo < 1e-9 { 1.0 } else { hi - lo };
+    (lo - pad * span, hi + pad * span)
 }
 
-/// The plot: `series` as dots (hover titles are their labels), `front` ((x, y) sorted by x)
-/// as a dashed line with rings on its points.
+/// The accuracy-time plot: `series` as dots labelled with their labels, `front` ((x, y)
+/// sorted by x) as a dashed line with rings on its points; x on a log scale (x > 0 only).
 pub fn scatter_svg(
     title: &str,
     x_label: &str,
     y_label: &str,
     series: &[Series],
     front: &[(f64, f64)],
-) -> String {
-    let (w, h) = (760.0, 480.0);
-    let (left, right, top, bottom) = (70.0, 170.0, 40.0, 60.0);
+) -> Result<String, PlotError> {
+    let err = plot_err(title);
+    let valid = |x: f64, y: f64| x > 0.0 && x.is_finite() && y.is_finite();
     let all: Vec<(f64, f64)> = series
         .iter()
         .flat_map(|s| s.points.iter().map(|p| (p.0, p.1)))
-        .filter(|p| p.0 > 0.0 && p.0.is_finite() && p.1.is_finite())
+        .filter(|&(x, y)| valid(x, y))
         .collect();
-    let (mut x0, mut x1) = all.iter().fold((f64::MAX, f64::MIN), |(a, b), p| {
-        (a.min(p.0.log10()), b.max(p.0.log10()))
-    });
-    let (mut y0, mut y1) = all
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
-    if all.is_empty() {
-        (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
-    }
-    if x1 - x0 < 1e-9 {
-        x1 = x0 + 1.0;
-    }
-    if y1 - y0 < 1e-9 {
-        y1 = y0 + 1.0;
-    }
-    let (px, py) = (0.05 * (x1 - x0), 0.08 * (y1 - y0));
-    let (x0, x1, y0, y1) = (x0 - px, x1 + px, y0 - py, y1 + py);
-    let sx = |x: f64| left + (x.log10() - x0) / (x1 - x0) * (w - left - right);
-    let sy = |y: f64| h - bottom - (y - y0) / (y1 - y0) * (h - top - bottom);
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="12">"#
-    );
-    let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
-    let _ = writeln!(
-        s,
-        r#"<text x="{}" y="22" text-anchor="middle" font-size="15">{}</text>"#,
-        (w - right + left) / 2.0,
-        escape(title)
-    );
-    // Axes and ticks: powers of 10 and 2x, 5x between them on x; 6 steps on y.
-    let _ = writeln!(
-        s,
-        r##"<path d="M{left} {top} V{} H{}" stroke="#333" fill="none"/>"##,
-        h - bottom,
-        w - right
-    );
-    for e in (x0.floor() as i32)..=(x1.ceil() as i32) {
-        for m in [1.0, 2.0, 5.0] {
-            let v = m * 10f64.powi(e);
-            let lv = v.log10();
-            if lv < x0 || lv > x1 {
-                continue;
-            }
-            let x = sx(v);
-            let _ = writeln!(
-                s,
-                r##"<line x1="{x:.1}" y1="{}" x2="{x:.1}" y2="{}" stroke="#ddd"/><text x="{x:.1}" y="{}" text-anchor="middle">{}</text>"##,
-                top,
-                h - bottom,
-                h - bottom + 16.0,
-                if v >= 1.0 {
+    let (lx0, lx1) = padded_range(all.iter().map(|p| p.0.log10()), 0.05);
+    let (y0, y1) = padded_range(all.iter().map(|p| p.1), 0.08);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (820, 500)).into_drawing_area();
+        root.fill(&WHITE).map_err(&err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 18))
+            .margin(12)
+            .x_label_area_size(42)
+            .y_label_area_size(56)
+            .build_cartesian_2d((10f64.powf(lx0)..10f64.powf(lx1)).log_scale(), y0..y1)
+            .map_err(&err)?;
+        chart
+            .configure_mesh()
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .x_label_formatter(&|v| {
+                if *v >= 1.0 {
                     format!("{v:.0}")
                 } else {
-                    format!("{v}")
+                    format!("{v:.2}")
                 }
-            );
+            })
+            .y_label_formatter(&|v| format!("{v:.1}"))
+            .light_line_style(RGBColor(238, 238, 238))
+            .draw()
+            .map_err(&err)?;
+        let green = RGBColor(44, 160, 44);
+        if front.len() > 1 {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    front.iter().copied(),
+                    6,
+                    4,
+                    green.stroke_width(2),
+                ))
+                .map_err(&err)?;
         }
+        chart
+            .draw_series(
+                front
+                    .iter()
+                    .map(|&(x, y)| Circle::new((x, y), 7, green.stroke_width(2))),
+            )
+            .map_err(&err)?
+            .label("Pareto front")
+            .legend(move |(x, y)| Circle::new((x + 10, y), 6, green.stroke_width(2)));
+        for s in series {
+            let colour = s.colour;
+            chart
+                .draw_series(
+                    s.points
+                        .iter()
+                        .filter(|p| valid(p.0, p.1))
+                        .map(|(x, y, label)| {
+                            EmptyElement::at((*x, *y))
+                                + Circle::new((0, 0), 4, colour.filled())
+                                + Text::new(
+                                    label.clone(),
+                                    (6, -12),
+                                    ("sans-serif", 10).into_font().color(&RGBColor(90, 90, 90)),
+                                )
+                        }),
+                )
+                .map_err(&err)?
+                .label(s.name.as_str())
+                .legend(move |(x, y)| Circle::new((x + 10, y), 4, colour.filled()));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(RGBColor(180, 180, 180))
+            .draw()
+            .map_err(&err)?;
+        root.present().map_err(&err)?;
     }
-    for i in 0..=6 {
-        let v = y0 + (y1 - y0) * i as f64 / 6.0;
-        let y = sy(v);
-        let _ = writeln!(
-            s,
-            r##"<line x1="{left}" y1="{y:.1}" x2="{}" y2="{y:.1}" stroke="#eee"/><text x="{}" y="{:.1}" text-anchor="end">{v:.2}</text>"##,
-            w - right,
-            left - 6.0,
-            y + 4.0
-        );
+    Ok(svg)
+}
+
+/// One line of a [`Panel`].
+pub struct Curve {
+    pub name: String,
+    pub colour: RGBColor,
+    /// (x, y), in x order.
+    pub points: Vec<(f64, f64)>,
+    /// Dots on the points (sparse measurements) instead of a thin line.
+    pub dots: bool,
+    pub width: u32,
+}
+
+/// One chart of [`panels_svg`]: its curves against a shared x.
+pub struct Panel {
+    pub title: String,
+    pub y_label: String,
+    /// A log-scale y (positive values only).
+    pub log_y: bool,
+    pub curves: Vec<Curve>,
+}
+
+/// `panels` side by side, each its curves against `x_label`.
+pub fn panels_svg(x_label: &str, panels: &[Panel]) -> Result<String, PlotError> {
+    let mut svg = String::new();
+    {
+        let width = 520 * panels.len().max(1) as u32;
+        let root = SVGBackend::with_string(&mut svg, (width, 420)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err("curves"))?;
+        let areas = root.split_evenly((1, panels.len().max(1)));
+        for (panel, area) in panels.iter().zip(&areas) {
+            draw_panel(area, x_label, panel)?;
+        }
+        root.present().map_err(plot_err("curves"))?;
     }
-    let _ = writeln!(
-        s,
-        r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
-        (w - right + left) / 2.0,
-        h - 18.0,
-        escape(x_label)
-    );
-    let _ = writeln!(
-        s,
-        r#"<text transform="translate(18 {}) rotate(-90)" text-anchor="middle">{}</text>"#,
-        (h - bottom + top) / 2.0,
-        escape(y_label)
-    );
-    if front.len() > 1 {
-        let d: Vec<String> = front
+    Ok(svg)
+}
+
+fn draw_panel(
+    area: &DrawingArea<SVGBackend<'_>, Shift>,
+    x_label: &str,
+    panel: &Panel,
+) -> Result<(), PlotError> {
+    let err = plot_err(&panel.title);
+    let ok = |&(x, y): &(f64, f64)| x.is_finite() && y.is_finite() && (!panel.log_y || y > 0.0);
+    let points = || {
+        panel
+            .curves
             .iter()
-            .map(|&(x, y)| format!("{:.1},{:.1}", sx(x), sy(y)))
-            .collect();
-        let _ = writeln!(
-            s,
-            r##"<polyline points="{}" fill="none" stroke="#2ca02c" stroke-width="2" stroke-dasharray="6 4"/>"##,
-            d.join(" ")
-        );
-    }
-    for &(x, y) in front {
-        let _ = writeln!(
-            s,
-            r##"<circle cx="{:.1}" cy="{:.1}" r="7" fill="none" stroke="#2ca02c" stroke-width="2"/>"##,
-            sx(x),
-            sy(y)
-        );
-    }
-    for (k, ser) in series.iter().enumerate() {
-        for (x, y, label) in &ser.points {
-            if !(*x > 0.0 && x.is_finite() && y.is_finite()) {
-                continue;
-            }
-            let _ = writeln!(
-                s,
-                r#"<circle cx="{:.1}" cy="{:.1}" r="3.5" fill="{}"><title>{}: {:.2} dB, {:.0} ms</title></circle>"#,
-                sx(*x),
-                sy(*y),
-                ser.colour,
-                escape(label),
-                y,
-                x
-            );
+            .flat_map(|c| c.points.iter().filter(|p| ok(p)))
+    };
+    let (x0, x1) = padded_range(points().map(|p| p.0), 0.02);
+    let y_of = |y: f64| if panel.log_y { y.log10() } else { y };
+    let (y0, y1) = padded_range(points().map(|p| y_of(p.1)), 0.05);
+    // Log scale through log10 values with 10^v labels: one coordinate type for both kinds.
+    let label = |v: &f64| {
+        if panel.log_y {
+            format!("{:.2e}", 10f64.powf(*v))
+        } else {
+            format!("{v:.1}")
         }
-        let ly = top + 20.0 + 20.0 * k as f64;
-        let _ = writeln!(
-            s,
-            r#"<circle cx="{}" cy="{ly}" r="4" fill="{}"/><text x="{}" y="{}">{}</text>"#,
-            w - right + 16.0,
-            ser.colour,
-            w - right + 26.0,
-            ly + 4.0,
-            escape(&ser.name)
-        );
+    };
+    let mut chart = ChartBuilder::on(area)
+        .caption(&panel.title, ("sans-serif", 16))
+        .margin(10)
+        .x_label_area_size(38)
+        .y_label_area_size(64)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(&err)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(&panel.y_label)
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&label)
+        .light_line_style(RGBColor(238, 238, 238))
+        .draw()
+        .map_err(&err)?;
+    for c in &panel.curves {
+        let colour = c.colour;
+        let pts: Vec<(f64, f64)> = c
+            .points
+            .iter()
+            .filter(|p| ok(p))
+            .map(|&(x, y)| (x, y_of(y)))
+            .collect();
+        let drawn = if c.dots {
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled())))
+                .map_err(&err)?
+        } else {
+            chart
+                .draw_series(LineSeries::new(pts, colour.stroke_width(c.width)))
+                .map_err(&err)?
+        };
+        drawn.label(c.name.as_str()).legend(move |(x, y)| {
+            PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2))
+        });
     }
-    let ly = top + 20.0 + 20.0 * series.len() as f64;
-    let _ = writeln!(
-        s,
-        r##"<circle cx="{}" cy="{ly}" r="6" fill="none" stroke="#2ca02c" stroke-width="2"/><text x="{}" y="{}">Pareto front</text>"##,
-        w - right + 16.0,
-        w - right + 26.0,
-        ly + 4.0
-    );
-    s.push_str("</svg>\n");
-    s
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(RGBColor(180, 180, 180))
+        .draw()
+        .map_err(&err)?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -209,20 +277,65 @@ mod tests {
     }
 
     #[test]
-    fn svg_has_every_point_and_the_front() {
+    fn svg_has_every_point_label_and_the_front() {
         let s = scatter_svg(
             "t",
             "x",
             "y",
             &[Series {
-                name: "a".into(),
-                colour: "#000".into(),
-                points: vec![(10.0, 1.0, "p".into()), (100.0, 2.0, "q".into())],
+                name: "series a".into(),
+                colour: RGBColor(0, 0, 0),
+                points: vec![
+                    (10.0, 1.0, "p-label".into()),
+                    (100.0, 2.0, "q-label".into()),
+                ],
             }],
             &[(10.0, 1.0), (100.0, 2.0)],
-        );
-        assert!(s.starts_with("<svg") && s.ends_with("</svg>\n"));
-        assert_eq!(s.matches("<title>").count(), 2);
-        assert!(s.contains("<polyline"));
+        )
+        .unwrap();
+        assert!(s.starts_with("<svg") && s.trim_end().ends_with("</svg>"));
+        for text in ["p-label", "q-label", "series a", "Pareto front"] {
+            assert!(s.contains(text), "{text}");
+        }
+        assert!(s.contains("<polyline") || s.contains("<path"), "{s}");
+    }
+
+    #[test]
+    fn panels_draw_every_curve_and_survive_empty_or_flat_data() {
+        let curve = |name: &str, points: Vec<(f64, f64)>, dots| Curve {
+            name: name.into(),
+            colour: RGBColor(200, 0, 0),
+            points,
+            dots,
+            width: 1,
+        };
+        let s = panels_svg(
+            "step",
+            &[
+                Panel {
+                    title: "loss".into(),
+                    y_label: "loss".into(),
+                    log_y: true,
+                    curves: vec![curve(
+                        "raw",
+                        vec![(0.0, 0.1), (1.0, 0.01), (2.0, -1.0)],
+                        false,
+                    )],
+                },
+                Panel {
+                    title: "psnr".into(),
+                    y_label: "dB".into(),
+                    log_y: false,
+                    curves: vec![
+                        curve("flat", vec![(0.0, 20.0), (1.0, 20.0)], true),
+                        curve("empty", vec![], false),
+                    ],
+                },
+            ],
+        )
+        .unwrap();
+        for text in ["raw", "flat", "empty", "loss", "psnr"] {
+            assert!(s.contains(text), "{text}");
+        }
     }
 }

@@ -57,6 +57,16 @@ pub enum TrainEvent {
     },
     /// The run ended after `steps` steps.
     Finished { steps: u64, seconds: f64 },
+    /// The comparison grid (sources | prediction | ground truth | error) of validation image
+    /// `index` after `step` steps, `width` x `height` RGB bytes row by row (for TensorBoard;
+    /// not a record either).
+    ValidationImage {
+        step: u64,
+        index: usize,
+        width: u32,
+        height: u32,
+        rgb: Vec<u8>,
+    },
     /// Progress inside a long phase that is not a step: `done` of `total` units (images) of
     /// `phase`. For progress bars and plain progress lines; not a record (the binary leaves it
     /// out of `metrics.jsonl`).

@@ -18,7 +18,9 @@ use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use nia_model::device::Backend;
 use nia_model::store::checkpoint;
 use nia_train::config::TrainConfig;
+use nia_train::curves::RunCurves;
 use nia_train::events::TrainEvent;
+use nia_train::tensorboard::EventWriter;
 use nia_train::train_loop::{train, RunOptions};
 
 /// Train NIA models, or generate the synthetic ZJU-MoCap-layout dataset.
@@ -40,6 +42,12 @@ enum Command {
     /// The paper's ablation (Table 3): variants (a)..(e) at equal budget, 1..3 source views,
     /// novel pose; writes a markdown table and a picture.
     Ablation(ablation_cmd::AblationArgs),
+    /// Draw a run's loss and PSNR curves (`RUN/curves.svg`) from its `metrics.jsonl`, also
+    /// while it trains.
+    Curves {
+        /// The run folder (holding metrics.jsonl).
+        run: PathBuf,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -71,9 +79,6 @@ struct TrainArgs {
     set: Vec<String>,
 }
 
-/// Makes burn's default device the training backend (unless the user set `BURN_DEVICE`):
-/// burn materialises restored optimiser state on the default device, which with the `wgpu`
-/// feature compiled in would otherwise be the GPU even for a CPU run.
 /// The config file's name without its extension (`quickstart` for configs/quickstart.toml),
 /// which names the default output folder.
 pub(crate) fn config_stem(path: &std::path::Path) -> String {
@@ -82,11 +87,27 @@ pub(crate) fn config_stem(path: &std::path::Path) -> String {
         .unwrap_or_else(|| "run".into())
 }
 
+/// Makes burn's default device the training backend (unless the user set `BURN_DEVICE`):
+/// burn materialises restored optimiser state on the default device, which with the `wgpu`
+/// feature compiled in would otherwise be the GPU even for a CPU run.
 pub(crate) fn pin_default_device(backend: Backend) {
     if std::env::var_os("BURN_DEVICE").is_none() {
         std::env::set_var("BURN_DEVICE", backend.name());
     }
 }
+
+/// Writes `run/curves.svg` from `run/metrics.jsonl`.
+fn write_curves(run: &std::path::Path) -> anyhow::Result<PathBuf> {
+    let svg = RunCurves::read(&run.join(METRICS_FILE))?.svg()?;
+    let path = run.join(CURVES_FILE);
+    std::fs::write(&path, svg).with_context(|| format!("writing {}", path.display()))?;
+    Ok(path)
+}
+
+/// What a run folder holds besides its checkpoints (deleted by `--overwrite`).
+const METRICS_FILE: &str = "metrics.jsonl";
+const CURVES_FILE: &str = "curves.svg";
+const TENSORBOARD_DIR: &str = "tensorboard";
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
@@ -94,6 +115,11 @@ fn main() -> anyhow::Result<()> {
         Some(Command::Synth(args)) => synth_cmd::run(args),
         Some(Command::Ablation(args)) => ablation_cmd::run(args),
         Some(Command::Train(args)) => run_train(args),
+        Some(Command::Curves { run }) => {
+            let path = write_curves(&run)?;
+            println!("curves: {}", path.display());
+            Ok(())
+        }
         None => run_train(cli.train),
     }
 }
@@ -117,17 +143,19 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         .with_context(|| format!("reading the checkpoints of {}", out.display()))?;
     if let Some((step, _)) = existing {
         if args.overwrite {
-            for name in ["checkpoints", "evaluation"] {
+            for name in ["checkpoints", "evaluation", TENSORBOARD_DIR] {
                 let dir = out.join(name);
                 if dir.exists() {
                     std::fs::remove_dir_all(&dir)
                         .with_context(|| format!("deleting {}", dir.display()))?;
                 }
             }
-            let metrics = out.join("metrics.jsonl");
-            if metrics.exists() {
-                std::fs::remove_file(&metrics)
-                    .with_context(|| format!("deleting {}", metrics.display()))?;
+            for name in [METRICS_FILE, CURVES_FILE] {
+                let file = out.join(name);
+                if file.exists() {
+                    std::fs::remove_file(&file)
+                        .with_context(|| format!("deleting {}", file.display()))?;
+                }
             }
         } else if !args.resume {
             anyhow::bail!(
@@ -139,7 +167,7 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&out)
         .with_context(|| format!("creating the output folder {}", out.display()))?;
-    let metrics_path = out.join("metrics.jsonl");
+    let metrics_path = out.join(METRICS_FILE);
     let mut metrics = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
@@ -155,6 +183,8 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         .expect("static progress template"),
     );
     let mut write_error: Option<std::io::Error> = None;
+    let mut tensorboard = EventWriter::create(&out.join(TENSORBOARD_DIR))?;
+    let mut tensorboard_error: Option<anyhow::Error> = None;
     let mut final_evaluation: Option<String> = None;
     let summary = train(
         &config,
@@ -163,9 +193,17 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
             resume: args.resume,
         },
         &mut |event| {
+            if tensorboard_error.is_none() {
+                if let Err(e) = tensorboard_record(&mut tensorboard, &event) {
+                    tensorboard_error = Some(e);
+                }
+            }
             if let TrainEvent::Progress { phase, done, total } = &event {
                 log_lines::phase(&bar, phase.name(), *done, *total);
                 phase_bar.update(&multi, phase.name(), *done, *total);
+                return;
+            }
+            if let TrainEvent::ValidationImage { .. } = &event {
                 return;
             }
             if write_error.is_none() {
@@ -241,7 +279,9 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     log_lines::line(&bar, &line);
                     final_evaluation = Some(line);
                 }
-                TrainEvent::Finished { .. } | TrainEvent::Progress { .. } => {}
+                TrainEvent::Finished { .. }
+                | TrainEvent::Progress { .. }
+                | TrainEvent::ValidationImage { .. } => {}
             }
         },
     )
@@ -250,6 +290,11 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
     if let Some(e) = write_error {
         return Err(e).with_context(|| format!("writing {}", metrics_path.display()));
     }
+    if let Some(e) = tensorboard_error {
+        return Err(e);
+    }
+    tensorboard.flush()?;
+    let curves = write_curves(&out)?;
     println!(
         "trained {} steps ({} this run, {} skipped); last loss {}; metrics {}",
         summary.steps,
@@ -264,6 +309,11 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
     if let Some(c) = &summary.last_checkpoint {
         println!("checkpoint: {}", c.display());
     }
+    println!(
+        "curves: {}; TensorBoard: tensorboard --logdir {}",
+        curves.display(),
+        out.join(TENSORBOARD_DIR).display()
+    );
     if let Some(line) = final_evaluation {
         println!("{line}");
         if let Some(c) = &summary.last_checkpoint {
@@ -272,6 +322,81 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                 c.display()
             );
         }
+    }
+    Ok(())
+}
+
+/// The TensorBoard record of `event`: scalars of steps, validations and the final evaluation,
+/// validation grids as images; checkpoints flush the file.
+fn tensorboard_record(tb: &mut EventWriter, event: &TrainEvent) -> anyhow::Result<()> {
+    match event {
+        TrainEvent::Step {
+            step,
+            loss,
+            psnr,
+            rays_per_s,
+            lr,
+            ..
+        } => {
+            let step = step + 1;
+            tb.scalar("train/loss", step, *loss as f32)?;
+            tb.scalar("train/psnr", step, *psnr as f32)?;
+            tb.scalar("train/lr", step, *lr as f32)?;
+            tb.scalar("train/rays_per_s", step, *rays_per_s as f32)?;
+        }
+        TrainEvent::Validation {
+            step, psnr, ssim, ..
+        } => {
+            tb.scalar("validation/psnr", *step, *psnr as f32)?;
+            tb.scalar("validation/ssim", *step, *ssim as f32)?;
+            tb.flush()?;
+        }
+        TrainEvent::ValidationImage {
+            step,
+            index,
+            width,
+            height,
+            rgb,
+        } => {
+            let image = image::RgbImage::from_raw(*width, *height, rgb.clone())
+                .context("a validation grid whose size does not match its pixels")?;
+            let mut png = Vec::new();
+            image
+                .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+                .context("encoding a validation grid as PNG")?;
+            tb.png(
+                &format!("validation/image_{index}"),
+                *step,
+                *width,
+                *height,
+                &png,
+            )?;
+        }
+        TrainEvent::Evaluation {
+            step,
+            split,
+            psnr,
+            ssim,
+            psnr_ibr,
+            psnr_nerf,
+            ..
+        } => {
+            tb.scalar(&format!("evaluation/{split}/psnr"), *step, *psnr as f32)?;
+            tb.scalar(&format!("evaluation/{split}/ssim"), *step, *ssim as f32)?;
+            tb.scalar(
+                &format!("evaluation/{split}/psnr_ibr"),
+                *step,
+                *psnr_ibr as f32,
+            )?;
+            tb.scalar(
+                &format!("evaluation/{split}/psnr_nerf"),
+                *step,
+                *psnr_nerf as f32,
+            )?;
+            tb.flush()?;
+        }
+        TrainEvent::Checkpoint { .. } | TrainEvent::Finished { .. } => tb.flush()?,
+        _ => {}
     }
     Ok(())
 }

@@ -28,7 +28,7 @@ use nia_data::scene::SceneInput;
 use nia_infer::eval::{
     eval_items, evaluate_images, evaluate_items, EvalError, EvalOptions, EvalSummary, EvalTask,
 };
-use nia_infer::pictures::save_evaluated;
+use nia_infer::pictures::{comparison_grid, save_evaluated};
 use nia_model::loss::{distortion_loss, mask_loss, psnr_from_mse, render_loss};
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::{ModelError, NiaModel};
@@ -42,6 +42,8 @@ const JITTER_STREAM: u64 = 1;
 
 /// Images of the final evaluation whose grids and blend maps are written (`<out>/evaluation/`).
 pub const FINAL_PICTURES: usize = 4;
+/// Validation images whose comparison grids are reported (TensorBoard).
+pub const VALIDATION_PICTURES: usize = 2;
 
 /// A training error.
 #[derive(Debug, thiserror::Error)]
@@ -209,6 +211,7 @@ pub fn train(
             )?;
             let chunk = t.rays_per_step;
             let total = items.len();
+            let done_steps = done;
             on_event(TrainEvent::Progress {
                 phase: Phase::Validation,
                 done: 0,
@@ -222,7 +225,17 @@ pub fn train(
                 chunk,
                 config.render,
                 &device,
-                &mut |done| {
+                &mut |done, evaluated| {
+                    if done <= VALIDATION_PICTURES {
+                        let grid = comparison_grid(evaluated);
+                        on_event(TrainEvent::ValidationImage {
+                            step: done_steps,
+                            index: done - 1,
+                            width: grid.width(),
+                            height: grid.height(),
+                            rgb: grid.into_raw(),
+                        });
+                    }
                     on_event(TrainEvent::Progress {
                         phase: Phase::Validation,
                         done,

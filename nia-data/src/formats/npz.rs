@@ -32,7 +32,7 @@ pub fn read_bytes_named(bytes: &[u8], path: &Path) -> Result<Vec<(String, NdArra
         if member.is_dir() {
             continue;
         }
-        let entry = member.name().to_string();
+        let entry = member.name().map_err(zip_err)?.to_string();
         // Read what the member really holds (the declared size is not trusted for allocation).
         let mut data = Vec::new();
         member

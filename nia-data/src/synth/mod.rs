@@ -143,12 +143,11 @@ impl SynthSpec {
                 self.test_fraction.to_string(),
             );
         }
-        if self
-            .first_subject_id
-            .checked_add(self.subjects as u32 - 1)
-            .is_none()
-            || self.subjects > u32::MAX as usize
-        {
+        // `subjects >= 1` here; ids first..first + subjects - 1 must fit in u32.
+        let last_id = u32::try_from(self.subjects - 1)
+            .ok()
+            .and_then(|n| self.first_subject_id.checked_add(n));
+        if last_id.is_none() {
             return bad(
                 "first_subject_id",
                 "ids that fit in u32 for every subject",

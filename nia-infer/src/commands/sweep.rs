@@ -15,7 +15,8 @@ use serde::Serialize;
 
 use crate::model_load::{LoadedModel, ModelArgs};
 use crate::output::progress_bar;
-use crate::plot::{pareto_front, scatter_svg, Series};
+use nia_infer::plot::{pareto_front, scatter_svg, Series};
+use plotters::style::RGBColor;
 
 #[derive(Args, Debug)]
 pub struct SweepArgs {
@@ -196,9 +197,9 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     let md_path = args.out.join("sweep.md");
     std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
 
-    let series = |skip: bool, name: &str, colour: &str| Series {
+    let series = |skip: bool, name: &str, colour: RGBColor| Series {
         name: name.to_string(),
-        colour: colour.to_string(),
+        colour,
         points: rows
             .iter()
             .filter(|r| r.skip_empty_space == skip)
@@ -222,11 +223,11 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         "milliseconds per image (log scale)",
         "PSNR (dB)",
         &[
-            series(false, "skipping off", "#d62728"),
-            series(true, "skipping on", "#1f77b4"),
+            series(false, "skipping off", RGBColor(214, 39, 40)),
+            series(true, "skipping on", RGBColor(31, 119, 180)),
         ],
         &front,
-    );
+    )?;
     let svg_path = args.out.join("sweep.svg");
     std::fs::write(&svg_path, svg).with_context(|| format!("writing {}", svg_path.display()))?;
     println!("{}", serde_json::to_string_pretty(&rows)?);

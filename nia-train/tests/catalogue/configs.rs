@@ -160,7 +160,7 @@ pub(super) fn cases() -> Vec<Case> {
         ),
         case(
             "config_bad_toml_syntax",
-            &["tiny.toml", "invalid table header"],
+            &["tiny.toml", "line 14", "unclosed table"],
             |c| {
                 let config = c.config(&[("[model]", "[model")]);
                 c.train_args(&config, &[])
