@@ -1,4 +1,4 @@
-//! nia-infer: export, render, animate, evaluate, sweep, bench, inspect, metrics.
+//! nia-infer: export, render, animate, orbit, evaluate, sweep, bench, inspect, metrics.
 //!
 //! A thin binary: each subcommand parses its arguments and calls the libraries; all data
 //! and model logic lives in `nia-data` and `nia-model`, evaluation in this crate's library.
@@ -34,6 +34,9 @@ enum Cli {
     /// Repose the subject of a reference frame to other frames' SMPL poses: PNG frames and an
     /// animated GIF.
     Animate(commands::animate::AnimateArgs),
+    /// A 360-degree turn around the subject of one frame on the ring of the calibrated
+    /// cameras: PNG frames, an animated GIF and an MP4 where ffmpeg is installed.
+    Orbit(commands::orbit::OrbitArgs),
     /// Score a split with the protocol's PSNR and SSIM: metrics.json, metrics.csv, report.md,
     /// comparison grids and blend-weight maps.
     Eval(commands::eval::EvalArgs),
@@ -53,6 +56,7 @@ fn main() -> ExitCode {
         Cli::Export(args) => commands::export::run(&args),
         Cli::Render(args) => commands::render::run(&args),
         Cli::Animate(args) => commands::animate::run(&args),
+        Cli::Orbit(args) => commands::orbit::run(&args),
         Cli::Eval(args) => commands::eval::run(&args),
         Cli::Sweep(args) => commands::sweep::run(&args),
     };

@@ -324,6 +324,56 @@ fn exported_file_renders_what_the_checkpoint_renders() {
     );
 }
 
+/// `orbit`: views on the ring of the subject's calibrated cameras, PNG frames and a GIF of
+/// as many frames (an MP4 where ffmpeg is installed), the person in every view.
+#[test]
+fn orbit_turns_around_the_subject() {
+    let t = trained();
+    let out_dir = scratch("orbit");
+    let out = nia_infer(&[
+        "orbit",
+        "--model",
+        s(&t.model),
+        "--subject",
+        "CoreView_2",
+        "--frame",
+        "1",
+        "--steps",
+        "4",
+        "--out",
+        s(&out_dir),
+    ]);
+    ok(&out);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("orbit.json")).unwrap())
+            .unwrap();
+    assert_eq!(report["views"], serde_json::json!([0, 1, 3]));
+    let radius = report["radius_m"].as_f64().unwrap();
+    assert!(radius > 0.5 && radius < 10.0, "radius {radius}");
+    for k in 0..4 {
+        let png = image::open(out_dir.join(format!("orbit_{k:03}.png")))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!((png.width(), png.height()), (40, 40));
+        let lit = png.pixels().filter(|p| p.0.iter().any(|&c| c > 8)).count();
+        assert!(lit > 20, "view {k}: the person is in view ({lit} lit pixels)");
+    }
+    let gif = std::fs::File::open(out_dir.join("orbit.gif")).unwrap();
+    use image::AnimationDecoder;
+    let frames = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif))
+        .unwrap()
+        .into_frames()
+        .collect_frames()
+        .unwrap();
+    assert_eq!(frames.len(), 4);
+    let ffmpeg = std::process::Command::new("ffmpeg")
+        .arg("-version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert_eq!(out_dir.join("orbit.mp4").is_file(), ffmpeg);
+    assert_eq!(report["mp4"].is_null(), !ffmpeg);
+}
+
 #[test]
 fn render_and_animate_write_pictures() {
     let t = trained();

@@ -294,8 +294,8 @@ mod tests {
         let mut want = vec![0x09];
         want.extend_from_slice(&1.5f64.to_le_bytes());
         want.extend_from_slice(&[0x10, 0xac, 0x02]); // field 2 varint 300
-        want.extend_from_slice(&[0x2a, 0x09]); // field 5, 9 bytes of Summary
-        want.extend_from_slice(&[0x0a, 0x07]); // field 1, 7 bytes of Value
+        want.extend_from_slice(&[0x2a, 0x0a]); // field 5, 10 bytes of Summary
+        want.extend_from_slice(&[0x0a, 0x08]); // field 1, 8 bytes of Value
         want.extend_from_slice(&[0x0a, 0x01, b'a']); // tag
         want.push(0x15); // field 2, fixed32
         want.extend_from_slice(&2.0f32.to_le_bytes());

@@ -8,10 +8,12 @@
 //! - [`visibility`]: per-vertex visibility in a view by rasterisation.
 //! - [`surface`]: nearest point on a triangle mesh (BVH) with barycentric weights.
 //! - [`occupancy`]: the occupancy grid of a posed mesh (which samples can be skipped).
+//! - [`orbit`]: a 360-degree camera path on the ring of a dataset's calibrated cameras.
 //! - [`sparse`]: voxel boxes, active sites, convolution rulebooks and trilinear corners.
 
 pub mod camera;
 pub mod occupancy;
+pub mod orbit;
 pub mod raster;
 pub mod rays;
 pub mod sparse;

@@ -4,5 +4,6 @@ pub mod eval;
 pub mod export;
 pub mod inspect;
 pub mod metrics;
+pub mod orbit;
 pub mod render;
 pub mod sweep;
