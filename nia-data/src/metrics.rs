@@ -327,8 +327,31 @@ fn ssim_plane(x: &[f64], y: &[f64], width: usize, height: usize, data_range: f64
     sum / count as f64
 }
 
+/// `img` set to 0 outside `mask` ([H * W]) and cropped to the mask's bounding rectangle, as
+/// NHP scores SSIM (and nia-rs LPIPS): ([h * w * C] values, w, h).
+pub fn masked_crop(
+    img: &ImageView,
+    mask: &[bool],
+) -> Result<(Vec<f32>, usize, usize), MetricsError> {
+    check_mask(mask, img.width, img.height)?;
+    let (x0, y0, cw, ch) =
+        bounding_rect(mask, img.width, img.height).ok_or(MetricsError::EmptyMask)?;
+    let c = img.channels;
+    let mut out = Vec::with_capacity(cw * ch * c);
+    for y in y0..y0 + ch {
+        for x in x0..x0 + cw {
+            let i = y * img.width + x;
+            let keep = mask[i];
+            for k in 0..c {
+                out.push(if keep { img.data[i * c + k] } else { 0.0 });
+            }
+        }
+    }
+    Ok((out, cw, ch))
+}
+
 /// NHP's SSIM: both images set to 0 outside `mask` (`mask_at_box`, [H * W]), cropped to the
-/// mask's bounding rectangle, then [`ssim`].
+/// mask's bounding rectangle ([`masked_crop`]), then [`ssim`].
 pub fn ssim_masked_crop(
     pred: &ImageView,
     gt: &ImageView,
@@ -336,26 +359,11 @@ pub fn ssim_masked_crop(
     options: SsimOptions,
 ) -> Result<f64, MetricsError> {
     check_pair(pred, gt)?;
-    check_mask(mask, gt.width, gt.height)?;
-    let (x0, y0, cw, chh) =
-        bounding_rect(mask, gt.width, gt.height).ok_or(MetricsError::EmptyMask)?;
+    let (pc, cw, ch) = masked_crop(pred, mask)?;
+    let (gc, _, _) = masked_crop(gt, mask)?;
     let c = gt.channels;
-    let crop = |img: &ImageView| -> Vec<f32> {
-        let mut out = Vec::with_capacity(cw * chh * c);
-        for y in y0..y0 + chh {
-            for x in x0..x0 + cw {
-                let i = y * gt.width + x;
-                let keep = mask[i];
-                for k in 0..c {
-                    out.push(if keep { img.data[i * c + k] } else { 0.0 });
-                }
-            }
-        }
-        out
-    };
-    let (pc, gc) = (crop(pred), crop(gt));
-    let pv = ImageView::new("prediction crop", &pc, cw, chh, c)?;
-    let gv = ImageView::new("ground-truth crop", &gc, cw, chh, c)?;
+    let pv = ImageView::new("prediction crop", &pc, cw, ch, c)?;
+    let gv = ImageView::new("ground-truth crop", &gc, cw, ch, c)?;
     ssim(&pv, &gv, options)
 }
 

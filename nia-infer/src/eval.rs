@@ -11,6 +11,7 @@
 //!   SMPL parameters and rendered from the target camera, scored against that frame's image.
 
 use crate::diagnostics::{BlendDiagnostics, DiagnosticsInput};
+use crate::perceptual::lpips_masked_crop;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -26,6 +27,7 @@ use nia_data::geometry::rays::RayBundle;
 use nia_data::metrics::{evaluate, ImageMetrics, ImageView, MetricsError, SsimOptions};
 use nia_data::scene::SceneInput;
 use nia_model::image::{render_image, ImageRenderOptions, RenderedImage};
+use nia_model::lpips::Lpips;
 use nia_model::sampler::AdaptiveConfig;
 use nia_model::timing::StageTimes;
 use nia_model::{ModelError, NiaModel};
@@ -58,6 +60,8 @@ pub struct EvalSummary {
     pub psnr: f64,
     /// Mean per-image SSIM (NHP's data range 2).
     pub ssim: f64,
+    /// Mean per-image LPIPS, when it was computed ([`EvalOptions::lpips`]).
+    pub lpips: Option<f64>,
     /// Mean instruments.
     pub diagnostics: BlendDiagnostics,
 }
@@ -73,6 +77,11 @@ impl EvalSummary {
             images: results.len(),
             psnr: results.iter().map(|r| r.psnr).sum::<f64>() / n,
             ssim: results.iter().map(|r| r.ssim).sum::<f64>() / n,
+            lpips: results
+                .iter()
+                .map(|r| r.lpips)
+                .sum::<Option<f64>>()
+                .map(|s| s / n),
             diagnostics: BlendDiagnostics::mean_of(results.iter().map(|r| &r.diagnostics)),
         })
     }
@@ -91,7 +100,7 @@ pub enum EvalTask {
 }
 
 /// How to evaluate.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct EvalOptions {
     pub task: EvalTask,
     /// Samples per ray.
@@ -102,6 +111,8 @@ pub struct EvalOptions {
     pub timed: bool,
     /// Empty-space skipping.
     pub adaptive: AdaptiveConfig,
+    /// Also score LPIPS with this network (on the evaluation device), on SSIM's crop.
+    pub lpips: Option<Arc<Lpips>>,
 }
 
 /// The score and cost of one evaluated image.
@@ -116,6 +127,8 @@ pub struct ImageResult {
     pub target_view: usize,
     pub psnr: f64,
     pub ssim: f64,
+    /// LPIPS on the `mask_at_box` crop, when [`EvalOptions::lpips`] is set.
+    pub lpips: Option<f64>,
     /// Rays sent to the network.
     pub rays: usize,
     /// Points evaluated by the network.
@@ -311,6 +324,13 @@ pub fn evaluate_images(
         let gv = ImageView::new("ground truth", &image.image, w, h, 3).map_err(metrics_err)?;
         let ImageMetrics { psnr, ssim } =
             evaluate(&pv, &gv, mask_at_box, SsimOptions::nhp()).map_err(metrics_err)?;
+        let lpips = match &options.lpips {
+            Some(net) => Some(
+                lpips_masked_crop(net, &pv, &gv, mask_at_box, &plain)
+                    .map_err(|e| eval_err(e.to_string()))?,
+            ),
+            None => None,
+        };
         let diagnostics = BlendDiagnostics::measure(&DiagnosticsInput {
             rendered: &rendered,
             rays: &rays,
@@ -331,6 +351,7 @@ pub fn evaluate_images(
             target_view: request.target_view,
             psnr,
             ssim,
+            lpips,
             rays: rendered.rays,
             point_evaluations: rendered.point_evaluations,
             seconds,
@@ -360,6 +381,7 @@ pub fn evaluate_items(
     samples: usize,
     chunk: usize,
     adaptive: AdaptiveConfig,
+    lpips: Option<Arc<Lpips>>,
     device: &Device,
     on_done: &mut dyn FnMut(usize, &EvaluatedImage<'_>),
 ) -> Result<Option<EvalSummary>, EvalError> {
@@ -375,6 +397,7 @@ pub fn evaluate_items(
             chunk,
             timed: false,
             adaptive,
+            lpips,
         },
         device,
         &mut |image| {

@@ -3,14 +3,17 @@
 //! every command).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::Context;
 use burn::prelude::Device;
 use clap::Args;
 use nia_data::dataset::protocol::EvalSplit;
 use nia_data::dataset::{DataConfig, OpenedDataset};
+use nia_infer::perceptual::LpipsFiles;
 use nia_infer::run_settings::RunSettings;
 use nia_model::device::Backend;
+use nia_model::lpips::{Lpips, LpipsNet};
 use nia_model::sampler::AdaptiveConfig;
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
@@ -176,4 +179,49 @@ pub fn smpl_path(
                 candidates[1].display()
             )
         })
+}
+
+/// LPIPS on the command line: all three flags, or none (then the model's training setting,
+/// `train.lpips`, where there is one).
+#[derive(Args, Debug, Clone, Default)]
+pub struct LpipsArgs {
+    /// LPIPS network: alex or vgg (with --lpips-backbone and --lpips-heads).
+    #[arg(long, requires_all = ["lpips_backbone", "lpips_heads"])]
+    pub lpips_net: Option<LpipsNet>,
+    /// The torchvision trunk: alexnet-owt-7be5be79.pth or vgg16-397923af.pth.
+    #[arg(long, requires = "lpips_net")]
+    pub lpips_backbone: Option<PathBuf>,
+    /// The `lpips` package's heads: lpips/weights/v0.1/alex.pth or vgg.pth.
+    #[arg(long, requires = "lpips_net")]
+    pub lpips_heads: Option<PathBuf>,
+}
+
+impl LpipsArgs {
+    /// The files of the flags, else `fallback`.
+    pub fn files(&self, fallback: Option<&LpipsFiles>) -> Option<LpipsFiles> {
+        match (&self.lpips_net, &self.lpips_backbone, &self.lpips_heads) {
+            (Some(net), Some(backbone), Some(heads)) => Some(LpipsFiles {
+                net: *net,
+                backbone: backbone.clone(),
+                heads: heads.clone(),
+                widths: None,
+            }),
+            _ => fallback.cloned(),
+        }
+    }
+
+    /// Loads the metric of [`Self::files`] onto `device`.
+    pub fn load(
+        &self,
+        fallback: Option<&LpipsFiles>,
+        device: &Device,
+    ) -> anyhow::Result<Option<(LpipsFiles, Arc<Lpips>)>> {
+        let Some(files) = self.files(fallback) else {
+            return Ok(None);
+        };
+        let lpips = files
+            .load(device)
+            .with_context(|| format!("loading LPIPS ({})", files.net.name()))?;
+        Ok(Some((files, Arc::new(lpips))))
+    }
 }

@@ -2,6 +2,7 @@
 //! carries the whole run config (the trainer's schema); inference reads only the sections it
 //! needs, so it does not depend on the trainer.
 
+use crate::perceptual::LpipsFiles;
 use nia_data::dataset::DataConfig;
 use nia_data::synth::SynthSection;
 use nia_model::device::Backend;
@@ -25,7 +26,7 @@ pub struct RunSettings {
 }
 
 /// The part of `[train]` inference reuses.
-#[derive(Debug, Clone, Copy, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 pub struct TrainSettings {
     /// Samples per ray.
     pub samples: usize,
@@ -34,6 +35,9 @@ pub struct TrainSettings {
     /// The backend it trained on (absent in hand-made headers).
     #[serde(default)]
     pub backend: Option<Backend>,
+    /// The LPIPS network of its validation and evaluation, if it had one.
+    #[serde(default)]
+    pub lpips: Option<LpipsFiles>,
 }
 
 impl RunSettings {

@@ -290,6 +290,7 @@ fn exported_file_renders_what_the_checkpoint_renders() {
         chunk: 256,
         timed: false,
         adaptive: run.render,
+        lpips: None,
     };
     let render = |model| {
         let mut images = Vec::new();
@@ -298,7 +299,7 @@ fn exported_file_renders_what_the_checkpoint_renders() {
             &data,
             EvalSplit::UnseenSubjects,
             &items,
-            options,
+            options.clone(),
             &device,
             &mut |e| {
                 images.push(e.rendered.rgb.clone());
@@ -356,7 +357,10 @@ fn orbit_turns_around_the_subject() {
             .to_rgb8();
         assert_eq!((png.width(), png.height()), (40, 40));
         let lit = png.pixels().filter(|p| p.0.iter().any(|&c| c > 8)).count();
-        assert!(lit > 20, "view {k}: the person is in view ({lit} lit pixels)");
+        assert!(
+            lit > 20,
+            "view {k}: the person is in view ({lit} lit pixels)"
+        );
     }
     let gif = std::fs::File::open(out_dir.join("orbit.gif")).unwrap();
     use image::AnimationDecoder;

@@ -16,6 +16,7 @@ pub mod device;
 pub mod field;
 pub mod image;
 pub mod loss;
+pub mod lpips;
 pub mod model;
 pub mod renderer;
 pub mod sampler;

@@ -199,6 +199,7 @@ pub fn run(
                     chunk: run_config.train.rays_per_step,
                     timed: false,
                     adaptive,
+                    lpips: None,
                 },
                 &device,
                 &mut |e| {

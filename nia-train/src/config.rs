@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use nia_data::dataset::{DataConfig, ProtocolName};
 use nia_data::synth::SynthSection;
+use nia_infer::perceptual::LpipsFiles;
 use nia_model::device::Backend;
 use nia_model::sampler::AdaptiveConfig;
 use nia_model::store::checkpoint;
@@ -249,6 +250,11 @@ pub struct TrainSection {
     /// random weights.
     #[serde(default)]
     pub encoder_weights: Option<PathBuf>,
+    /// LPIPS in validation and the final evaluation (and the default of `nia-infer eval` for
+    /// the exported model): `{ net = "alex", backbone = "alexnet-owt-7be5be79.pth", heads =
+    /// "lpips/weights/v0.1/alex.pth" }`, the user's files. None: PSNR and SSIM only.
+    #[serde(default)]
+    pub lpips: Option<LpipsFiles>,
     /// Weight of the mask loss `mean (acc - mask)^2` added to the paper's loss (0: the paper's
     /// loss only; see `nia_model::loss::mask_loss`).
     #[serde(default)]
@@ -531,6 +537,15 @@ impl TrainConfig {
                 "the path of SMPL_NEUTRAL.pkl (needed for visibility)",
                 "nothing".into(),
             ));
+        }
+        if let Some(l) = &t.lpips {
+            if let Some(missing) = l.missing().first() {
+                return Err(bad(
+                    "train.lpips",
+                    "existing backbone and heads files",
+                    missing.display().to_string(),
+                ));
+            }
         }
         if let Some(w) = &t.encoder_weights {
             if !w.is_file() {

@@ -39,6 +39,9 @@ pub enum TrainEvent {
         images: usize,
         psnr: f64,
         ssim: f64,
+        /// Mean LPIPS with `train.lpips`'s network.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        lpips: Option<f64>,
     },
     /// The final evaluation of a split (every image of the opened subjects), as NHP reports it.
     Evaluation {
@@ -47,6 +50,9 @@ pub enum TrainEvent {
         images: usize,
         psnr: f64,
         ssim: f64,
+        /// Mean LPIPS with `train.lpips`'s network.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        lpips: Option<f64>,
         /// Mean blend weight of the NeRF colour c0 on person pixels some source view sees.
         c0_share_seen: Option<f64>,
         /// PSNR of the IBR-only and NeRF-only composites (`nia_infer::diagnostics`).

@@ -253,14 +253,17 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     images,
                     psnr,
                     ssim,
+                    lpips,
                 } => log_lines::line(&bar, format!(
-                    "validation after {step} steps: PSNR {psnr:.2} dB, SSIM {ssim:.4} on {images} held-out images"
+                    "validation after {step} steps: PSNR {psnr:.2} dB, SSIM {ssim:.4}{} on {images} held-out images",
+                    lpips_text(*lpips, config.train.lpips.as_ref())
                 )),
                 TrainEvent::Evaluation {
                     split,
                     images,
                     psnr,
                     ssim,
+                    lpips,
                     c0_share_seen,
                     psnr_ibr,
                     psnr_nerf,
@@ -271,9 +274,10 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                         .map(|s| format!("{s:.2}"))
                         .unwrap_or_else(|| "-".into());
                     let line = format!(
-                        "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}\n  \
+                        "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}{}\n  \
                          IBR-only {psnr_ibr:.2} dB, NeRF-only {psnr_nerf:.2} dB, NeRF-colour share where a source sees {share}\n  \
                          grids and blend maps: {}",
+                        lpips_text(*lpips, config.train.lpips.as_ref()),
                         pictures.display()
                     );
                     log_lines::line(&bar, &line);
@@ -345,10 +349,17 @@ fn tensorboard_record(tb: &mut EventWriter, event: &TrainEvent) -> anyhow::Resul
             tb.scalar("train/rays_per_s", step, *rays_per_s as f32)?;
         }
         TrainEvent::Validation {
-            step, psnr, ssim, ..
+            step,
+            psnr,
+            ssim,
+            lpips,
+            ..
         } => {
             tb.scalar("validation/psnr", *step, *psnr as f32)?;
             tb.scalar("validation/ssim", *step, *ssim as f32)?;
+            if let Some(l) = lpips {
+                tb.scalar("validation/lpips", *step, *l as f32)?;
+            }
             tb.flush()?;
         }
         TrainEvent::ValidationImage {
@@ -379,8 +390,12 @@ fn tensorboard_record(tb: &mut EventWriter, event: &TrainEvent) -> anyhow::Resul
             ssim,
             psnr_ibr,
             psnr_nerf,
+            lpips,
             ..
         } => {
+            if let Some(l) = lpips {
+                tb.scalar(&format!("evaluation/{split}/lpips"), *step, *l as f32)?;
+            }
             tb.scalar(&format!("evaluation/{split}/psnr"), *step, *psnr as f32)?;
             tb.scalar(&format!("evaluation/{split}/ssim"), *step, *ssim as f32)?;
             tb.scalar(
@@ -399,4 +414,13 @@ fn tensorboard_record(tb: &mut EventWriter, event: &TrainEvent) -> anyhow::Resul
         _ => {}
     }
     Ok(())
+}
+
+/// `, LPIPS 0.1234 (alex)` when LPIPS was scored.
+fn lpips_text(value: Option<f64>, files: Option<&nia_infer::perceptual::LpipsFiles>) -> String {
+    match (value, files) {
+        (Some(v), Some(f)) => format!(", LPIPS {v:.4} ({})", f.net.name()),
+        (Some(v), None) => format!(", LPIPS {v:.4}"),
+        _ => String::new(),
+    }
 }

@@ -16,6 +16,7 @@
 //! `ModuleOptimizer::step_multi` before the same clipping and step.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 use burn::module::{Module, ModuleVisitor, Param};
@@ -72,6 +73,9 @@ pub enum TrainError {
     },
     #[error("the loader produced a scene without training rays at step {0}")]
     NoRays(u64),
+    /// `train.lpips` could not be loaded.
+    #[error("train.lpips: {0}")]
+    Lpips(#[from] nia_model::lpips::LpipsLoadError),
     /// `train.encoder_weights` could not be loaded into the encoder.
     #[error("train.encoder_weights: {0}")]
     EncoderWeights(#[from] nia_model::field::encoder_import::EncoderLoadError),
@@ -128,6 +132,11 @@ pub fn train(
     device.seed(t.seed);
     let mut model = config.model.init(&device);
     let mut optimizer = adam(config).init();
+    // LPIPS of validation and the final evaluation, on the evaluation (non-autodiff) device.
+    let lpips = match &t.lpips {
+        Some(files) => Some(Arc::new(files.load(&device.clone().inner())?)),
+        None => None,
+    };
     let mut first_step = 0;
     let mut last_checkpoint = None;
     let resume_from = if options.resume {
@@ -224,6 +233,7 @@ pub fn train(
                 t.samples,
                 chunk,
                 config.render,
+                lpips.clone(),
                 &device,
                 &mut |done, evaluated| {
                     if done <= VALIDATION_PICTURES {
@@ -248,6 +258,7 @@ pub fn train(
                     images: m.images,
                     psnr: m.psnr,
                     ssim: m.ssim,
+                    lpips: m.lpips,
                 });
             }
         }
@@ -294,6 +305,7 @@ pub fn train(
                 chunk: t.rays_per_step,
                 timed: false,
                 adaptive: config.render,
+                lpips: lpips.clone(),
             },
             &device,
             &mut |evaluated| {
@@ -318,6 +330,7 @@ pub fn train(
                 images: m.images,
                 psnr: m.psnr,
                 ssim: m.ssim,
+                lpips: m.lpips,
                 c0_share_seen: m.diagnostics.c0_weight_seen,
                 psnr_ibr: m.diagnostics.psnr_ibr,
                 psnr_nerf: m.diagnostics.psnr_nerf,

@@ -409,3 +409,49 @@ fn encoder_weights_start_the_encoder_and_it_trains() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `train.lpips` (here nia-model's narrow VGG fixture) adds LPIPS to validation and the final
+/// evaluation: in the log, the printed lines and the events; a missing weight file is refused
+/// before anything runs, naming the key.
+#[test]
+fn lpips_is_scored_in_validation_and_evaluation() {
+    let dir = scratch("lpips");
+    let lpips_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../nia-model/tests/fixtures/lpips");
+    let slash = |p: PathBuf| p.display().to_string().replace('\\', "/");
+    let line = format!(
+        "validate_every = 1\nevaluate_at_end = true\nlpips = {{ net = \"vgg\", backbone = \"{}\", heads = \"{}\", widths = [4, 4, 8, 8, 8, 8, 8, 12, 12, 12, 12, 12, 12] }}",
+        slash(lpips_dir.join("vgg_trunk.pth")),
+        slash(lpips_dir.join("vgg_heads.pth")),
+    );
+    let config = tiny_config(&dir, 1, &line);
+    let out = dir.join("run");
+    let run = nia_train(&[], &config, &out);
+    ok(&run);
+    let all = events(&out);
+    for kind in ["validation", "evaluation"] {
+        let e = of_kind(&all, kind);
+        assert_eq!(e.len(), 1, "{kind}");
+        let lpips = e[0]["lpips"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{kind}: {:?}", e[0]));
+        assert!(lpips.is_finite() && lpips >= 0.0, "{kind}: {lpips}");
+    }
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        stdout.contains("LPIPS") && stdout.contains("(vgg)"),
+        "{stdout}"
+    );
+
+    let text = std::fs::read_to_string(&config)
+        .unwrap()
+        .replace("vgg_heads.pth", "no_such_heads.pth");
+    std::fs::write(&config, text).unwrap();
+    let refused = nia_train(&[], &config, &dir.join("run2"));
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        stderr.contains("train.lpips") && stderr.contains("no_such_heads.pth"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

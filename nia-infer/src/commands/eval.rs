@@ -14,11 +14,12 @@ use nia_data::dataset::protocol::EvalSplit;
 use nia_infer::eval::{
     eval_items, evaluate_images, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult,
 };
+use nia_infer::perceptual::LpipsFiles;
 use nia_infer::pictures::{save_evaluated, ERROR_MAP_MAX};
 use nia_model::sampler::AdaptiveConfig;
 use serde::Serialize;
 
-use crate::model_load::{LoadedModel, ModelArgs};
+use crate::model_load::{LoadedModel, LpipsArgs, ModelArgs};
 use crate::output::{progress_bar, write_json};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -71,6 +72,8 @@ pub struct EvalArgs {
     /// Evaluate only the first N images of the split.
     #[arg(long)]
     pub limit: Option<usize>,
+    #[command(flatten)]
+    pub lpips: LpipsArgs,
     /// Skip the grid and blend-weight PNGs.
     #[arg(long)]
     pub no_pictures: bool,
@@ -84,6 +87,8 @@ struct Mean {
     images: usize,
     psnr: f64,
     ssim: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    lpips: Option<f64>,
     diagnostics: BlendDiagnostics,
 }
 
@@ -93,6 +98,7 @@ impl From<EvalSummary> for Mean {
             images: s.images,
             psnr: s.psnr,
             ssim: s.ssim,
+            lpips: s.lpips,
             diagnostics: s.diagnostics,
         }
     }
@@ -116,6 +122,8 @@ struct Metrics<'a> {
     /// Novel pose: the source frame given on the command line (`None`: each subject's first).
     reference_frame: Option<usize>,
     samples: usize,
+    /// The LPIPS network and files, when LPIPS was scored.
+    lpips: Option<LpipsFiles>,
     overall: Mean,
     subjects: BTreeMap<String, Mean>,
     images: Vec<ImageRow<'a>>,
@@ -157,6 +165,9 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         &pictures
     };
     std::fs::create_dir_all(folder).with_context(|| format!("creating {}", folder.display()))?;
+    let lpips = args
+        .lpips
+        .load(loaded.run.train.lpips.as_ref(), &loaded.device)?;
     let bar = progress_bar(items.len() as u64, "eval");
     let results = evaluate_images(
         &loaded.model,
@@ -169,6 +180,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             chunk: args.model.chunk,
             timed: true,
             adaptive,
+            lpips: lpips.as_ref().map(|(_, net)| net.clone()),
         },
         &loaded.device,
         &mut |e| {
@@ -203,6 +215,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         adaptive,
         reference_frame: args.ref_frame,
         samples,
+        lpips: lpips.as_ref().map(|(files, _)| files.clone()),
         overall: overall.into(),
         subjects,
         images: results
@@ -216,13 +229,13 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     write_json(&args.out.join("metrics.json"), &metrics)?;
 
     let mut csv = String::from(
-        "subject,frame,reference_frame,target_view,input_views,psnr,ssim,rays,point_evaluations,seconds\n",
+        "subject,frame,reference_frame,target_view,input_views,psnr,ssim,lpips,rays,point_evaluations,seconds\n",
     );
     for r in &results {
         let views: Vec<String> = r.input_views.iter().map(|v| v.to_string()).collect();
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{:.6},{:.6},{},{},{:.4}",
+            "{},{},{},{},{},{:.6},{:.6},{},{},{},{:.4}",
             r.subject,
             r.frame,
             r.reference_frame,
@@ -230,6 +243,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             views.join(" "),
             r.psnr,
             r.ssim,
+            r.lpips.map(|l| format!("{l:.6}")).unwrap_or_default(),
             r.rays,
             r.point_evaluations,
             r.seconds
@@ -242,8 +256,13 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         TaskArg::NovelView => "novel view",
         TaskArg::NovelPose => "novel pose",
     };
+    let lpips_name = lpips
+        .as_ref()
+        .map(|(files, _)| format!(" ({})", files.net.name()))
+        .unwrap_or_default();
+    let lpips_cell = |l: Option<f64>| l.map(|l| format!("{l:.4}")).unwrap_or_else(|| "-".into());
     let mut md = format!(
-        "# Evaluation: {task_title}, split `{}`\n\nModel `{}` (step {}), data `{}`, {samples} samples per ray.\n\n| subject | images | PSNR (dB) | SSIM |\n|---|---:|---:|---:|\n",
+        "# Evaluation: {task_title}, split `{}`\n\nModel `{}` (step {}), data `{}`, {samples} samples per ray.\n\n| subject | images | PSNR (dB) | SSIM | LPIPS{lpips_name} |\n|---|---:|---:|---:|---:|\n",
         split.name(),
         loaded.path.display(),
         loaded.step,
@@ -253,15 +272,21 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         if let Some(s) = EvalSummary::of(v) {
             let _ = writeln!(
                 md,
-                "| {name} | {} | {:.2} | {:.4} |",
-                s.images, s.psnr, s.ssim
+                "| {name} | {} | {:.2} | {:.4} | {} |",
+                s.images,
+                s.psnr,
+                s.ssim,
+                lpips_cell(s.lpips)
             );
         }
     }
     let _ = writeln!(
         md,
-        "| **all** | {} | **{:.2}** | **{:.4}** |\n\nPSNR over `mask_at_box`, SSIM on its bounding-rectangle crop (NHP/NIA protocol). Pictures: `pictures/*_grid.png` (sources | prediction | ground truth | error, black to white = 0 to {ERROR_MAP_MAX} mean absolute error) `pictures/*_parts.png` (NeRF colour C0 | IBR-only composite | prediction | ground truth | opacity) and `pictures/*_blend.png` (blend weights: NeRF colour, then source views).",
-        overall.images, overall.psnr, overall.ssim
+        "| **all** | {} | **{:.2}** | **{:.4}** | **{}** |\n\nPSNR over `mask_at_box`, SSIM and LPIPS (when weights were given: `--lpips-*` or the model's `train.lpips`) on its bounding-rectangle crop (NHP/NIA protocol). Pictures: `pictures/*_grid.png` (sources | prediction | ground truth | error, black to white = 0 to {ERROR_MAP_MAX} mean absolute error) `pictures/*_parts.png` (NeRF colour C0 | IBR-only composite | prediction | ground truth | opacity) and `pictures/*_blend.png` (blend weights: NeRF colour, then source views).",
+        overall.images,
+        overall.psnr,
+        overall.ssim,
+        lpips_cell(overall.lpips)
     );
     let mut rows: Vec<(String, BlendDiagnostics)> = by_subject
         .iter()
@@ -280,6 +305,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             "images": overall.images,
             "psnr": overall.psnr,
             "ssim": overall.ssim,
+            "lpips": overall.lpips,
+            "lpips_net": lpips.as_ref().map(|(files, _)| files.net.name()),
             "diagnostics": overall.diagnostics,
             "out": args.out,
         })

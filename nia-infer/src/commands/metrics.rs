@@ -11,6 +11,9 @@ use anyhow::{bail, Context};
 use clap::Args;
 use nia_data::dataset::image_io::{read_mask, read_rgb_f32};
 use nia_data::metrics::{evaluate, ImageView, SsimOptions, NHP_SSIM_DATA_RANGE};
+use nia_infer::perceptual::lpips_masked_crop;
+
+use crate::model_load::LpipsArgs;
 
 /// Arguments of `metrics`.
 #[derive(Args, Debug)]
@@ -28,9 +31,13 @@ pub struct MetricsArgs {
     /// on float images), 1 is the textbook value for colours in [0, 1].
     #[arg(long, default_value_t = NHP_SSIM_DATA_RANGE)]
     pub ssim_data_range: f64,
+    /// Also LPIPS on the same crop as SSIM (all three `--lpips-*` flags).
+    #[command(flatten)]
+    pub lpips: LpipsArgs,
 }
 
-/// Prints `{"psnr": .., "ssim": ..}` (PSNR `null` when the images are identical: +inf dB).
+/// Prints `{"psnr": .., "ssim": ..}` (PSNR `null` when the images are identical: +inf dB),
+/// with `"lpips"` and `"lpips_net"` when LPIPS weights are given.
 pub fn run(args: &MetricsArgs) -> anyhow::Result<()> {
     let (pw, ph, pred) = read_rgb_f32(&args.pred)?;
     let (gw, gh, gt) = read_rgb_f32(&args.gt)?;
@@ -69,6 +76,15 @@ pub fn run(args: &MetricsArgs) -> anyhow::Result<()> {
             args.gt.display()
         )
     })?;
-    println!("{}", serde_json::to_string(&metrics)?);
+    let mut out = serde_json::json!({ "psnr": metrics.psnr, "ssim": metrics.ssim });
+    #[allow(deprecated)] // burn 0.22 spells the CPU reference device this way.
+    let device = burn::prelude::Device::ndarray();
+    if let Some((files, net)) = args.lpips.load(None, &device)? {
+        let d = lpips_masked_crop(&net, &pv, &gv, &mask, &device)
+            .with_context(|| format!("LPIPS of {}", args.pred.display()))?;
+        out["lpips"] = d.into();
+        out["lpips_net"] = files.net.name().into();
+    }
+    println!("{out}");
     Ok(())
 }

@@ -116,6 +116,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                                 skip_empty_space: skip,
                                 ..base_adaptive
                             },
+                            lpips: None,
                         },
                         &loaded.device,
                         &mut |_| Ok(()),
