@@ -12,7 +12,7 @@ use nia_data::dataset::protocol::EvalSplit;
 use nia_data::dataset::{DataConfig, OpenedDataset};
 use nia_infer::perceptual::LpipsFiles;
 use nia_infer::run_settings::RunSettings;
-use nia_model::device::Backend;
+use nia_model::device::{Backend, DeviceSpec};
 use nia_model::lpips::{Lpips, LpipsNet};
 use nia_model::sampler::AdaptiveConfig;
 use nia_model::store::model_file::ModelFile;
@@ -28,6 +28,9 @@ pub struct ModelArgs {
     /// GPU; the command says so).
     #[arg(long, value_parser = str::parse::<Backend>)]
     pub backend: Option<Backend>,
+    /// Which GPU of a GPU backend (`--backend wgpu --device 1`: the second discrete GPU).
+    #[arg(long)]
+    pub device: Option<usize>,
     /// Samples per ray (default: the training setting stored in the model file).
     #[arg(long)]
     pub samples: Option<usize>,
@@ -99,7 +102,11 @@ impl LoadedModel {
                 );
             }
         }
-        let device = backend.device()?;
+        let device = DeviceSpec {
+            backend,
+            index: args.device,
+        }
+        .device()?;
         let model = file.load(path, &device)?;
         Ok(LoadedModel {
             path: path.clone(),

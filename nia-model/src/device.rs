@@ -66,3 +66,120 @@ impl Backend {
         }
     }
 }
+
+/// One compute device: a backend and, for GPU backends, which GPU (`wgpu:1`: the second
+/// discrete GPU). Written `flex`, `ndarray`, `wgpu` or `wgpu:N` in configs and flags.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DeviceSpec {
+    pub backend: Backend,
+    /// GPU index for GPU backends (`None`: the system's default adapter); CPU backends have
+    /// one device and take no index.
+    pub index: Option<usize>,
+}
+
+/// A device that cannot exist.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    #[error(transparent)]
+    Unavailable(#[from] BackendUnavailable),
+    #[error(
+        "`{backend}:{index}`: {backend} is a CPU backend with a single device (write `{backend}`)"
+    )]
+    IndexedCpu { backend: &'static str, index: usize },
+}
+
+impl DeviceSpec {
+    /// The default device of `backend`.
+    pub fn of(backend: Backend) -> Self {
+        DeviceSpec {
+            backend,
+            index: None,
+        }
+    }
+
+    /// The device (inference mode; `.autodiff()` for training).
+    pub fn device(self) -> Result<Device, DeviceError> {
+        match (self.backend, self.index) {
+            (Backend::Ndarray | Backend::Flex, Some(index)) => Err(DeviceError::IndexedCpu {
+                backend: self.backend.name(),
+                index,
+            }),
+            #[cfg(feature = "wgpu")]
+            (Backend::Wgpu, Some(index)) => {
+                Ok(Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(index)))
+            }
+            (backend, _) => Ok(backend.device()?),
+        }
+    }
+}
+
+impl std::fmt::Display for DeviceSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.index {
+            Some(i) => write!(f, "{}:{i}", self.backend.name()),
+            None => f.write_str(self.backend.name()),
+        }
+    }
+}
+
+impl std::str::FromStr for DeviceSpec {
+    type Err = String;
+
+    /// `flex`, `ndarray`, `wgpu` or `wgpu:N`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (backend, index) = match s.split_once(':') {
+            Some((b, i)) => (
+                b,
+                Some(i.trim().parse::<usize>().map_err(|_| {
+                    format!("`{s}`: expected backend:index with a GPU index, e.g. wgpu:1")
+                })?),
+            ),
+            None => (s, None),
+        };
+        Ok(DeviceSpec {
+            backend: backend.trim().parse()?,
+            index,
+        })
+    }
+}
+
+impl serde::Serialize for DeviceSpec {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for DeviceSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(d)?;
+        text.parse().map_err(serde::de::Error::custom)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_specs_parse_print_and_refuse_nonsense() {
+        for (text, backend, index) in [
+            ("flex", Backend::Flex, None),
+            ("ndarray", Backend::Ndarray, None),
+            ("wgpu", Backend::Wgpu, None),
+            ("wgpu:1", Backend::Wgpu, Some(1)),
+        ] {
+            let spec: DeviceSpec = text.parse().unwrap();
+            assert_eq!((spec.backend, spec.index), (backend, index));
+            assert_eq!(spec.to_string(), text);
+        }
+        for bad in ["cuda", "wgpu:x", "wgpu:-1", ""] {
+            assert!(bad.parse::<DeviceSpec>().is_err(), "{bad}");
+        }
+        let err = "flex:1"
+            .parse::<DeviceSpec>()
+            .unwrap()
+            .device()
+            .unwrap_err();
+        assert!(err.to_string().contains("single device"), "{err}");
+    }
+}

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use nia_data::dataset::{DataConfig, ProtocolName};
 use nia_data::synth::SynthSection;
 use nia_infer::perceptual::LpipsFiles;
-use nia_model::device::Backend;
+use nia_model::device::{Backend, DeviceSpec};
 use nia_model::sampler::AdaptiveConfig;
 use nia_model::store::checkpoint;
 use nia_model::ModelConfig;
@@ -239,6 +239,11 @@ pub struct TrainSection {
     pub evaluate_at_end: bool,
     #[serde(default = "default_backend")]
     pub backend: Backend,
+    /// Data parallelism: the devices of a step (`["wgpu:0", "wgpu:1"]`, `["flex", "ndarray"]`),
+    /// each taking one scene; gradients are summed and one optimiser step is taken on the
+    /// first, which holds the model. Empty: one device, `backend`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub devices: Vec<DeviceSpec>,
     /// Start from the weights of this checkpoint folder (e.g. a ZJU-MoCap model evaluated on
     /// MonoCap with `steps = 0`); `--resume` from the run's own checkpoints takes precedence.
     #[serde(default)]
@@ -264,6 +269,17 @@ pub struct TrainSection {
     /// `nia_model::loss::distortion_loss`).
     #[serde(default)]
     pub distortion_loss_weight: f32,
+}
+
+impl TrainSection {
+    /// The devices of a step: `devices`, else `backend`'s default device.
+    pub fn device_specs(&self) -> Vec<DeviceSpec> {
+        if self.devices.is_empty() {
+            vec![DeviceSpec::of(self.backend)]
+        } else {
+            self.devices.clone()
+        }
+    }
 }
 
 fn default_rays() -> usize {
@@ -537,6 +553,15 @@ impl TrainConfig {
                 "the path of SMPL_NEUTRAL.pkl (needed for visibility)",
                 "nothing".into(),
             ));
+        }
+        for spec in &t.devices {
+            if spec.index.is_some() && !spec.backend.is_gpu() {
+                return Err(bad(
+                    "train.devices",
+                    "CPU backends without an index (flex, ndarray) or GPUs as wgpu:N",
+                    spec.to_string(),
+                ));
+            }
         }
         if let Some(l) = &t.lpips {
             if let Some(missing) = l.missing().first() {

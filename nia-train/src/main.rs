@@ -15,7 +15,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
-use nia_model::device::Backend;
+use nia_model::device::{Backend, DeviceSpec};
 use nia_model::store::checkpoint;
 use nia_train::config::TrainConfig;
 use nia_train::curves::RunCurves;
@@ -72,6 +72,12 @@ struct TrainArgs {
     /// Override `train.steps`.
     #[arg(long, allow_negative_numbers = true)]
     steps: Option<u64>,
+    /// Which GPU of a GPU backend (`--backend wgpu --device 1`: the second discrete GPU).
+    #[arg(long, conflicts_with = "devices")]
+    device: Option<usize>,
+    /// Override `train.devices`: the devices of a step, one scene each, e.g. `wgpu:0,wgpu:1`.
+    #[arg(long, value_delimiter = ',', value_parser = str::parse::<DeviceSpec>)]
+    devices: Vec<DeviceSpec>,
     /// Override any config key, e.g. `--set train.mask_loss_weight=0.3` or
     /// `--set 'model.ray_sampler={ kind = "band" }'` (repeatable; TOML values, bare words are
     /// strings).
@@ -134,6 +140,26 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
     }
     if let Some(steps) = args.steps {
         config.train.steps = steps;
+    }
+    if !args.devices.is_empty() {
+        config.train.devices = args.devices.clone();
+    }
+    if let Some(index) = args.device {
+        if !config.train.devices.is_empty() {
+            anyhow::bail!(
+                "--device {index}: the config lists train.devices; pass --devices instead"
+            );
+        }
+        if !config.train.backend.is_gpu() {
+            anyhow::bail!(
+                "--device {index}: {} is a CPU backend with a single device",
+                config.train.backend.name()
+            );
+        }
+        config.train.devices = vec![DeviceSpec {
+            backend: config.train.backend,
+            index: Some(index),
+        }];
     }
     pin_default_device(config.train.backend);
     let out = args

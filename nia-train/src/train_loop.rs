@@ -20,7 +20,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use burn::module::{Module, ModuleVisitor, Param};
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::{AdamConfig, GradientsParams, MultiGradientsParams};
 use burn::prelude::*;
 use nia_data::dataset::loader::{Scene, SceneLoader, SceneTarget};
 use nia_data::dataset::protocol::EvalSplit;
@@ -55,6 +55,8 @@ pub enum TrainError {
     Loader(#[from] nia_data::dataset::loader::LoaderError),
     #[error("{0}")]
     Backend(#[from] nia_model::device::BackendUnavailable),
+    #[error("train.devices: {0}")]
+    Device(#[from] nia_model::device::DeviceError),
     #[error("step {step} ({subject}, frame {frame}): {source}")]
     Model {
         step: u64,
@@ -128,7 +130,15 @@ pub fn train(
         generated: data.generated,
     });
     let t = &config.train;
-    let device = t.backend.device()?.autodiff();
+    // Data parallelism: K devices, K scenes per step, one per device; the first device holds
+    // the model and the optimiser.
+    let specs = t.device_specs();
+    let devices = specs
+        .iter()
+        .map(|s| s.device().map(|d| d.autodiff()))
+        .collect::<Result<Vec<_>, _>>()?;
+    let k = devices.len() as u64;
+    let device = devices[0].clone();
     device.seed(t.seed);
     let mut model = config.model.init(&device);
     let mut optimizer = adam(config).init();
@@ -159,10 +169,12 @@ pub fn train(
         first_step,
         steps: t.steps,
     });
+    // Scene `step * K + i` of the run goes to device i (K = 1: scene `step`).
     let requests = (first_step..t.steps)
-        .map(|step| data.request_for_step(t.seed, step, t.source_views))
+        .flat_map(|step| (0..k).map(move |i| step * k + i))
+        .map(|scene| data.request_for_step(t.seed, scene, t.source_views))
         .collect();
-    let loader = SceneLoader::new(data.dataset.source.clone(), requests, data.dataset.loader)?;
+    let mut loader = SceneLoader::new(data.dataset.source.clone(), requests, data.dataset.loader)?;
     let run_start = Instant::now();
     let mut summary = TrainSummary {
         steps: first_step,
@@ -171,17 +183,20 @@ pub fn train(
         last_loss: None,
         last_checkpoint,
     };
-    for (step, scene) in (first_step..t.steps).zip(loader) {
-        let scene = scene?;
+    for step in first_step..t.steps {
+        let scenes = loader
+            .by_ref()
+            .take(devices.len())
+            .collect::<Result<Vec<_>, _>>()?;
         let started = Instant::now();
         let lr = config.optim.lr_at(step);
         let outcome = train_step(
             &model,
-            &scene,
+            &scenes,
             &data.dataset.source.faces,
             config,
             step,
-            &device,
+            &devices,
         )?;
         match outcome {
             StepOutcome::Skipped(reason) => {
@@ -366,12 +381,115 @@ enum StepOutcome {
 
 fn train_step(
     model: &NiaModel,
+    scenes: &[Scene],
+    faces: &[[u32; 3]],
+    config: &TrainConfig,
+    step: u64,
+    devices: &[Device],
+) -> Result<StepOutcome, TrainError> {
+    if scenes.len() != devices.len() {
+        return Err(TrainError::NoRays(step));
+    }
+    let k = devices.len() as u64;
+    // The devices take their scenes one after the other, each on its replica of the model
+    // (forked to it; the first is the model itself). Running the replicas' backward passes
+    // on threads at once gave other gradients than one at a time with burn 0.22's autodiff
+    // (weights 0.76 apart after 2 steps, nia-train/tests/multi_device.rs), so this build
+    // does not overlap devices.
+    let mut outcomes = Vec::with_capacity(scenes.len());
+    for (i, (scene, device)) in scenes.iter().zip(devices).enumerate() {
+        let replica = if i == 0 {
+            model.clone()
+        } else {
+            model.clone().fork(device)
+        };
+        let index = step * k + i as u64;
+        outcomes.push(scene_gradients(
+            &replica, scene, faces, config, step, index, device,
+        ));
+    }
+    combine(model, outcomes, devices, config)
+}
+
+/// The step of the devices' `outcomes`: skipped if any scene was, else the summed, clipped
+/// gradient and the scenes' mean losses.
+fn combine(
+    model: &NiaModel,
+    outcomes: Vec<Result<SceneOutcome, TrainError>>,
+    devices: &[Device],
+    config: &TrainConfig,
+) -> Result<StepOutcome, TrainError> {
+    let main = &devices[0];
+    let mut parts = Vec::with_capacity(outcomes.len());
+    for (outcome, device) in outcomes.into_iter().zip(devices) {
+        match outcome? {
+            SceneOutcome::Skipped(reason) => return Ok(StepOutcome::Skipped(reason)),
+            SceneOutcome::Taken(part) => parts.push((part, device.clone())),
+        }
+    }
+    let n = parts.len() as f64;
+    let loss = parts.iter().map(|(p, _)| p.loss).sum::<f64>() / n;
+    let mse = parts.iter().map(|(p, _)| p.mse).sum::<f64>() / n;
+    let mse0 = parts.iter().map(|(p, _)| p.mse0).sum::<f64>() / n;
+    let rays = parts.iter().map(|(p, _)| p.rays).sum();
+    // The gradient of the summed loss: burn's MultiGradientsParams adds each parameter's
+    // gradients from every device; the sum is moved to the model's device.
+    let mut grads = if parts.len() == 1 {
+        parts.pop().expect("one part").0.grads
+    } else {
+        let mut multi = MultiGradientsParams {
+            grads: parts.into_iter().map(|(p, d)| (p.grads, d)).collect(),
+        };
+        let mut merge = Merge {
+            multi: &mut multi,
+            out: GradientsParams::new(),
+            device: main,
+        };
+        model.visit(&mut merge);
+        merge.out
+    };
+    let norm = global_norm(model, &grads);
+    if !norm.is_finite() {
+        return Ok(StepOutcome::Skipped(format!("gradient norm is {norm}")));
+    }
+    let max_norm = config.optim.grad_clip_norm as f64;
+    if max_norm > 0.0 && norm > max_norm {
+        scale_gradients(model, &mut grads, (max_norm / norm) as f32);
+    }
+    Ok(StepOutcome::Taken {
+        grads,
+        loss,
+        mse,
+        mse0,
+        rays,
+    })
+}
+
+/// One scene's share of a step.
+struct ScenePart {
+    grads: GradientsParams,
+    loss: f64,
+    mse: f64,
+    mse0: f64,
+    rays: usize,
+}
+
+enum SceneOutcome {
+    Taken(ScenePart),
+    Skipped(String),
+}
+
+/// The loss of one scene on `device` (the model's replica there) and its raw gradients.
+/// `index` (the scene's number in the run) seeds the sample jitter.
+fn scene_gradients(
+    model: &NiaModel,
     scene: &Scene,
     faces: &[[u32; 3]],
     config: &TrainConfig,
     step: u64,
+    index: u64,
     device: &Device,
-) -> Result<StepOutcome, TrainError> {
+) -> Result<SceneOutcome, TrainError> {
     let SceneTarget::Rays(rays) = &scene.target else {
         return Err(TrainError::NoRays(step));
     };
@@ -386,7 +504,7 @@ fn train_step(
         .encode(&input, None, device, None)
         .map_err(model_err)?;
     let samples = config.train.samples;
-    let mut jitter_rng = Rng::new(config.train.seed).fork(step).fork(JITTER_STREAM);
+    let mut jitter_rng = Rng::new(config.train.seed).fork(index).fork(JITTER_STREAM);
     let jitter: Vec<f32> = (0..rays.len() * samples)
         .map(|_| jitter_rng.uniform())
         .collect();
@@ -429,28 +547,36 @@ fn train_step(
     .unwrap_or_default();
     let [total, mse, mse0] = match values.as_slice() {
         [a, b, c] => [*a as f64, *b as f64, *c as f64],
-        _ => return Ok(StepOutcome::Skipped("the loss could not be read".into())),
+        _ => return Ok(SceneOutcome::Skipped("the loss could not be read".into())),
     };
     if !total.is_finite() {
-        return Ok(StepOutcome::Skipped(format!("loss is {total}")));
+        return Ok(SceneOutcome::Skipped(format!("loss is {total}")));
     }
     let grads = loss.total.backward();
-    let mut grads = GradientsParams::from_grads(grads, model);
-    let norm = global_norm(model, &grads);
-    if !norm.is_finite() {
-        return Ok(StepOutcome::Skipped(format!("gradient norm is {norm}")));
-    }
-    let max_norm = config.optim.grad_clip_norm as f64;
-    if max_norm > 0.0 && norm > max_norm {
-        scale_gradients(model, &mut grads, (max_norm / norm) as f32);
-    }
-    Ok(StepOutcome::Taken {
+    let grads = GradientsParams::from_grads(grads, model);
+    Ok(SceneOutcome::Taken(ScenePart {
         grads,
         loss: total,
         mse,
         mse0,
         rays: rays.len(),
-    })
+    }))
+}
+
+/// Every parameter's gradient summed over the devices of a [`MultiGradientsParams`], on
+/// `device`.
+struct Merge<'a> {
+    multi: &'a mut MultiGradientsParams,
+    out: GradientsParams,
+    device: &'a Device,
+}
+
+impl ModuleVisitor for Merge<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if let Some((g, _)) = self.multi.remove::<D>(param.id) {
+            self.out.register(param.id, g.to_device(self.device));
+        }
+    }
 }
 
 /// Sum of squares of every parameter gradient, as one tensor read.

@@ -77,6 +77,7 @@ const KEYS: &[(&str, &str)] = &[
     ("train", "validation_images"),
     ("train", "evaluate_at_end"),
     ("train", "backend"),
+    ("train", "devices"),
     ("train", "init_from"),
     ("train", "encoder_weights"),
     ("train", "mask_loss_weight"),
@@ -412,6 +413,10 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
         "root" => (&["\"data/g\"", "\".\""], &["\"no/such/dir\"", "\"\""]),
         "visibility_cache" => (&["\"data/g/cache\"", "\"\""], &["\"/\""]),
         "init_from" => (&[], &["\"no/such/run\"", "\".\""]),
+        "devices" => (
+            &["[\"flex\"]", "[\"ndarray\", \"flex\"]", "[]"],
+            &["[\"flex:1\"]", "[\"cuda\"]", "\"flex\""],
+        ),
         "encoder_weights" => (&["\"Cargo.toml\""], &["\"no_such.pth\"", "\".\""]),
         "smpl_model" => (&["\"Cargo.toml\""], &["\"no_such.pkl\"", "\".\""]),
         "format" => (&["\"zju\"", "\"monocap\""], &["\"MonoCap\"", "\"h36m\""]),
@@ -499,6 +504,10 @@ fn check_invariants(c: &TrainConfig, path: &Path) {
     if let Some(w) = &t.encoder_weights {
         assert!(w.is_file());
     }
+    assert!(t
+        .devices
+        .iter()
+        .all(|d| d.index.is_none() || d.backend.is_gpu()));
     // The network configuration of any accepted config is buildable.
     assert!(c.model.check().is_ok());
     let _ = c.optim.lr_at(t.steps);

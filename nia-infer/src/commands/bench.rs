@@ -15,7 +15,7 @@ use nia_data::geometry::rays::{near_far, pixel_ray, Aabb, RayBundle};
 use nia_data::geometry::visibility::visibility;
 use nia_data::rng::Rng;
 use nia_data::scene::{SceneBody, SceneInput, SourceView, RAY_BOX_PADDING_M};
-use nia_model::device::Backend;
+use nia_model::device::{Backend, DeviceSpec};
 use nia_model::loss::render_loss;
 use nia_model::timing::{Stage, StageTimes};
 use nia_model::ModelConfig;
@@ -28,6 +28,9 @@ pub struct BenchArgs {
     /// Backend: ndarray, flex or wgpu.
     #[arg(long, value_parser = str::parse::<Backend>, default_value = "ndarray")]
     pub backend: Backend,
+    /// Which GPU of a GPU backend (`--backend wgpu --device 1`).
+    #[arg(long)]
+    pub device: Option<usize>,
     /// Rays per batch.
     #[arg(long, default_value_t = 1024)]
     pub rays: usize,
@@ -129,7 +132,11 @@ fn bench_scene(args: &BenchArgs) -> anyhow::Result<(SceneInput, RayBundle)> {
 
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let backend = args.backend;
-    let device = backend.device()?;
+    let device = DeviceSpec {
+        backend,
+        index: args.device,
+    }
+    .device()?;
     let config = if args.tiny {
         ModelConfig::tiny()
     } else {
