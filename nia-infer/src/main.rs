@@ -7,6 +7,7 @@ mod commands;
 mod model_load;
 mod output;
 mod subject_scene;
+mod viewer;
 
 use std::process::ExitCode;
 
@@ -44,6 +45,10 @@ enum Cli {
     /// samples per ray, source views, resolution and empty-space skipping (sweep.csv,
     /// sweep.md, sweep.svg with the Pareto front).
     Sweep(commands::sweep::SweepArgs),
+    /// Orbit an unseen person in the browser: a local server with the page, renders on demand
+    /// (drag to orbit, wheel to zoom, pose slider, colour / NeRF colour / blend / opacity /
+    /// depth), the source views and the cost of every frame.
+    View(commands::view::ViewArgs),
 }
 
 /// Runs the subcommand; on failure prints the error and its causes on one line to stderr
@@ -59,6 +64,7 @@ fn main() -> ExitCode {
         Cli::Orbit(args) => commands::orbit::run(&args),
         Cli::Eval(args) => commands::eval::run(&args),
         Cli::Sweep(args) => commands::sweep::run(&args),
+        Cli::View(args) => commands::view::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -67,10 +67,25 @@ pub fn render_image(
     model: &NiaModel,
     scene: &SceneEncoding,
     rays: &RayBundle,
-    [w, h]: [usize; 2],
+    size: [usize; 2],
     options: ImageRenderOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RenderedImage, ModelError> {
+    render_image_cancellable(model, scene, rays, size, options, progress, &|| false)
+        .and_then(|image| image.ok_or_else(|| ModelError::Input("rendering was cancelled".into())))
+}
+
+/// [`render_image`] that asks `cancelled` before every chunk and gives up (`Ok(None)`) as soon
+/// as it answers true: an interactive viewer drops a frame a newer request made stale.
+pub fn render_image_cancellable(
+    model: &NiaModel,
+    scene: &SceneEncoding,
+    rays: &RayBundle,
+    [w, h]: [usize; 2],
+    options: ImageRenderOptions,
+    progress: &mut dyn FnMut(usize, usize),
+    cancelled: &dyn Fn() -> bool,
+) -> Result<Option<RenderedImage>, ModelError> {
     let k = scene.num_views() + 1;
     if let Some(&p) = rays.pixels.iter().find(|&&p| p as usize >= w * h) {
         return Err(ModelError::Rays(format!(
@@ -95,6 +110,9 @@ pub fn render_image(
     let chunk = options.chunk.max(1);
     let mut times = StageTimes::default();
     for start in (0..total).step_by(chunk) {
+        if cancelled() {
+            return Ok(None);
+        }
         let end = (start + chunk).min(total);
         let batch = rays.slice(start..end);
         let RenderOutput {
@@ -156,5 +174,5 @@ pub fn render_image(
         )));
     }
     out.times = times;
-    Ok(out)
+    Ok(Some(out))
 }

@@ -90,6 +90,39 @@ impl Ring {
             + self.radius * (angle.cos() * self.start + angle.sin() * self.turn)
     }
 
+    /// A camera at `azimuth` radians around the ring from the first camera and `elevation`
+    /// radians above the ring's own elevation (seen from the target), at `zoom` times the
+    /// ring's distance, looking at the target; `like`'s focal lengths and image size scaled by
+    /// `scale` (a reduced preview keeps the field of view). The interactive viewer's camera.
+    pub fn view(
+        &self,
+        azimuth: f32,
+        elevation: f32,
+        zoom: f32,
+        like: &Camera,
+        scale: f32,
+    ) -> Result<Camera, OrbitError> {
+        let distance = self.radius.hypot(self.height) * zoom;
+        let base = self.height.atan2(self.radius);
+        // Keep clear of the poles, where the up vector and the view direction meet.
+        let limit = 85f32.to_radians();
+        let tilt = (base + elevation).clamp(-limit, limit);
+        let around = azimuth.cos() * self.start + azimuth.sin() * self.turn;
+        let eye = self.target + distance * (tilt.cos() * around + tilt.sin() * self.up);
+        let width = ((like.width as f32 * scale).round() as u32).max(1);
+        let height = ((like.height as f32 * scale).round() as u32).max(1);
+        let s = width as f32 / like.width as f32;
+        Ok(Camera::look_at(
+            eye,
+            self.target,
+            self.up,
+            like.fx() * s,
+            like.fy() * s,
+            width,
+            height,
+        )?)
+    }
+
     /// `views` cameras evenly around the ring (the first at the first camera's place), looking
     /// at the target with `like`'s focal lengths and image size, without distortion.
     pub fn orbit(&self, views: usize, like: &Camera) -> Result<Vec<Camera>, OrbitError> {
@@ -157,6 +190,33 @@ mod tests {
         // It turns the way the cameras are numbered: view 1 is nearer camera 1 than view 11.
         let near = |k: usize| (orbit[k].centre() - cams[1].centre()).length();
         assert!(near(1) < near(11));
+    }
+
+    #[test]
+    fn the_viewer_camera_turns_tilts_zooms_and_scales() {
+        let (cams, target) = ring_cameras(6);
+        let ring = Ring::of(&cams, target).unwrap();
+        // At rest it is the first camera's place (up to the lens).
+        let rest = ring.view(0.0, 0.0, 1.0, &cams[0], 1.0).unwrap();
+        assert!((rest.centre() - cams[0].centre()).length() < 1e-3);
+        // Half a turn: the opposite side, same height.
+        let back = ring
+            .view(std::f32::consts::PI, 0.0, 1.0, &cams[0], 1.0)
+            .unwrap();
+        let (a, b) = (rest.centre() - target, back.centre() - target);
+        assert!((a.truncate() + b.truncate()).length() < 1e-3 && (a.z - b.z).abs() < 1e-3);
+        // Tilting up raises the eye; zoom 0.5 halves the distance; scale shrinks the image
+        // and the focal length together.
+        let up = ring.view(0.0, 0.3, 0.5, &cams[0], 0.25).unwrap();
+        let d = up.centre() - target;
+        assert!(d.z > a.z * 0.5);
+        assert!((d.length() - 0.5 * a.length()).abs() < 1e-3);
+        assert_eq!((up.width, up.height), (16, 12));
+        assert!((up.fx() - 125.0).abs() < 1e-3);
+        let p = up.project_camera(up.world_to_camera(target)).unwrap();
+        assert!((p.x - 8.0).abs() < 1e-2 && (p.y - 6.0).abs() < 1e-2);
+        // Straight up is clamped short of the pole: still a valid camera.
+        assert!(ring.view(0.0, 10.0, 1.0, &cams[0], 1.0).is_ok());
     }
 
     #[test]

@@ -7,3 +7,4 @@ pub mod metrics;
 pub mod orbit;
 pub mod render;
 pub mod sweep;
+pub mod view;

@@ -1,0 +1,344 @@
+//! `nia-infer view`: an unseen person in the browser. The scene of the reference frame (its
+//! source images, visibility and body volume) is encoded once; a pose of another frame is
+//! the reposing path from it (cached for the last few poses); every request renders one
+//! image from the orbit camera ([`nia_data::geometry::orbit::Ring::view`]) and can be dropped
+//! between chunks when a newer request of the same client arrives.
+//!
+//! [`server`] serves the page ([`PAGE`]), the state, the renders and the source thumbnails.
+
+pub mod server;
+
+use std::collections::{BTreeMap, VecDeque};
+use std::io::Cursor;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use image::RgbImage;
+use nia_data::body::reposing::Reposer;
+use nia_data::body::SmplParams;
+use nia_data::dataset::loader::Scene;
+use nia_data::dataset::sampling::BoxPadding;
+use nia_data::geometry::camera::Camera;
+use nia_data::geometry::orbit::Ring;
+use nia_data::geometry::rays::{Aabb, RayBundle};
+use nia_data::scene::SceneInput;
+use nia_infer::pictures::{grey8, rgb8};
+use nia_model::image::{render_image_cancellable, ImageRenderOptions, RenderedImage};
+use nia_model::sampler::AdaptiveConfig;
+use nia_model::scene_encoding::SceneEncoding;
+use nia_model::timing::StageTimes;
+use serde::Serialize;
+
+use crate::model_load::LoadedModel;
+use crate::subject_scene::OpenedSubject;
+
+/// The page, served at `/`.
+pub const PAGE: &str = include_str!("page.html");
+
+/// Pose encodings kept besides the reference frame's (each holds a body volume).
+const POSE_CACHE: usize = 2;
+/// Limits of the view parameters (radians for angles).
+pub const MAX_ELEVATION: f32 = 1.4;
+pub const ZOOM_RANGE: (f32, f32) = (0.3, 3.0);
+pub const SCALE_RANGE: (f32, f32) = (0.05, 1.0);
+
+/// What the view shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// The blended colour C.
+    Color,
+    /// The NeRF colour C0.
+    Nerf,
+    /// The blend weights: C0's in white, each source view's in its colour.
+    Blend,
+    /// Accumulated opacity.
+    Opacity,
+    /// Expected depth, near bright.
+    Depth,
+}
+
+impl Mode {
+    pub const ALL: [Mode; 5] = [
+        Mode::Color,
+        Mode::Nerf,
+        Mode::Blend,
+        Mode::Opacity,
+        Mode::Depth,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Color => "color",
+            Mode::Nerf => "nerf",
+            Mode::Blend => "blend",
+            Mode::Opacity => "opacity",
+            Mode::Depth => "depth",
+        }
+    }
+}
+
+/// The colours of the source views in the blend mode (and the thumbnails' borders).
+pub const VIEW_COLOURS: [[f32; 3]; 6] = [
+    [1.0, 0.25, 0.25],
+    [0.25, 1.0, 0.25],
+    [0.3, 0.45, 1.0],
+    [1.0, 0.85, 0.2],
+    [1.0, 0.3, 1.0],
+    [0.2, 1.0, 1.0],
+];
+
+/// One render request, checked.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViewRequest {
+    /// Radians around the ring from the first camera.
+    pub azimuth: f32,
+    /// Radians above the cameras' own elevation, |e| <= [`MAX_ELEVATION`].
+    pub elevation: f32,
+    /// Distance relative to the ring's, in [`ZOOM_RANGE`].
+    pub zoom: f32,
+    /// The frame whose pose is shown (sources stay those of the reference frame).
+    pub frame: usize,
+    pub mode: Mode,
+    /// Image size relative to the cameras', in [`SCALE_RANGE`].
+    pub scale: f32,
+}
+
+/// A rendered view and what it cost.
+pub struct ViewFrame {
+    pub png: Vec<u8>,
+    pub stats: ViewStats,
+}
+
+/// What a view cost: shown under the picture.
+#[derive(Debug, Clone, Serialize)]
+pub struct ViewStats {
+    pub width: u32,
+    pub height: u32,
+    pub rays: usize,
+    pub point_evaluations: u64,
+    /// Milliseconds of the whole request, of reposing set-up (0 for the reference pose or a
+    /// cached one) and of each network stage.
+    pub total_ms: f64,
+    pub pose_ms: f64,
+    pub stage_ms: BTreeMap<String, f64>,
+}
+
+/// The subject, the model and the encoded reference scene.
+pub struct ViewerScene {
+    pub loaded: LoadedModel,
+    pub opened: OpenedSubject,
+    pub reference_frame: usize,
+    pub views: Vec<usize>,
+    scene: Scene,
+    base: SceneEncoding,
+    pub ring: Ring,
+    like: Camera,
+    samples: usize,
+    chunk: usize,
+    adaptive: AdaptiveConfig,
+    poses: VecDeque<(usize, SceneEncoding, Aabb)>,
+    /// Seconds to encode the reference scene.
+    pub encode_seconds: f64,
+}
+
+impl ViewerScene {
+    /// Opens and encodes the reference frame's scene from `views`.
+    pub fn new(
+        loaded: LoadedModel,
+        opened: OpenedSubject,
+        reference_frame: usize,
+        views: Vec<usize>,
+        samples: usize,
+        chunk: usize,
+        adaptive: AdaptiveConfig,
+    ) -> anyhow::Result<Self> {
+        let scene = opened.scene(reference_frame, &views)?;
+        let cameras = &opened.subject().cameras;
+        let ring = Ring::of(cameras, scene.body_box.centre())
+            .with_context(|| format!("the camera ring of {}", opened.dir.display()))?;
+        let like = cameras[0];
+        let started = Instant::now();
+        let input = SceneInput::from_loaded(&scene, &opened.source.faces);
+        let occupancy = adaptive.occupancy(&scene.vertices, &opened.source.faces)?;
+        let base = loaded
+            .model
+            .encode(&input, None, &loaded.device, None)?
+            .with_occupancy(occupancy);
+        Ok(ViewerScene {
+            encode_seconds: started.elapsed().as_secs_f64(),
+            loaded,
+            opened,
+            reference_frame,
+            views,
+            scene,
+            base,
+            ring,
+            like,
+            samples,
+            chunk,
+            adaptive,
+            poses: VecDeque::new(),
+        })
+    }
+
+    /// Frames of the subject (the pose slider's range).
+    pub fn num_frames(&self) -> usize {
+        self.opened.subject().num_frames()
+    }
+
+    /// The source images as thumbnails (`index` into [`Self::views`]).
+    pub fn source_png(&self, index: usize) -> Option<Vec<u8>> {
+        let view = &self.scene.sources.get(index)?.image;
+        let img = rgb8(&view.image, view.width() as usize, view.height() as usize);
+        png_bytes(&img).ok()
+    }
+
+    /// The encoding and body box of `frame`'s pose (the reference frame's own, or reposed
+    /// from it), and the milliseconds it took to set up.
+    fn pose(&mut self, frame: usize) -> anyhow::Result<(SceneEncoding, Aabb, f64)> {
+        if frame == self.reference_frame {
+            return Ok((self.base.clone(), self.scene.body_box, 0.0));
+        }
+        if let Some((_, e, b)) = self.poses.iter().find(|(f, _, _)| *f == frame) {
+            return Ok((e.clone(), *b, 0.0));
+        }
+        let started = Instant::now();
+        let params = self.opened.subject().load_params(frame)?;
+        let target = SmplParams {
+            shapes: self.scene.params.shapes.clone(),
+            ..params
+        };
+        let reposer = Arc::new(
+            Reposer::new(&self.opened.body, &self.scene.params, &target)
+                .with_context(|| format!("reposing to frame {frame}"))?,
+        );
+        let body_box = BoxPadding::nhp()
+            .body_box(reposer.target_vertices())
+            .with_context(|| format!("frame {frame}: the posed body has no finite vertices"))?;
+        let occupancy = self
+            .adaptive
+            .occupancy(reposer.target_vertices(), &self.opened.source.faces)?;
+        let encoding = self
+            .loaded
+            .model
+            .encode_pose(&self.base, reposer, None)?
+            .with_occupancy(occupancy);
+        if self.poses.len() >= POSE_CACHE {
+            self.poses.pop_front();
+        }
+        self.poses.push_back((frame, encoding.clone(), body_box));
+        Ok((encoding, body_box, started.elapsed().as_secs_f64() * 1e3))
+    }
+
+    /// Renders `request`, or `None` when `cancelled` said so before it was done.
+    pub fn render(
+        &mut self,
+        request: &ViewRequest,
+        cancelled: &dyn Fn() -> bool,
+    ) -> anyhow::Result<Option<ViewFrame>> {
+        let started = Instant::now();
+        let camera = self.ring.view(
+            request.azimuth,
+            request.elevation,
+            request.zoom,
+            &self.like,
+            request.scale,
+        )?;
+        let (encoding, body_box, pose_ms) = self.pose(request.frame)?;
+        let rays = RayBundle::through_pixels(&camera, &body_box, None);
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let Some(img) = render_image_cancellable(
+            &self.loaded.model,
+            &encoding,
+            &rays,
+            [w, h],
+            ImageRenderOptions {
+                samples: self.samples,
+                chunk: self.chunk,
+                timed: true,
+            },
+            &mut |_, _| {},
+            cancelled,
+        )?
+        else {
+            return Ok(None);
+        };
+        let picture = picture(&img, request.mode);
+        let png = png_bytes(&picture)?;
+        let times: StageTimes = img.times.clone();
+        Ok(Some(ViewFrame {
+            png,
+            stats: ViewStats {
+                width: camera.width,
+                height: camera.height,
+                rays: img.rays,
+                point_evaluations: img.point_evaluations,
+                total_ms: started.elapsed().as_secs_f64() * 1e3,
+                pose_ms,
+                stage_ms: times.milliseconds(),
+            },
+        }))
+    }
+}
+
+/// The picture of a mode.
+pub fn picture(img: &RenderedImage, mode: Mode) -> RgbImage {
+    let (w, h) = (img.width, img.height);
+    match mode {
+        Mode::Color => rgb8(&img.rgb, w, h),
+        Mode::Nerf => rgb8(&img.rgb0, w, h),
+        Mode::Opacity => grey8(&img.acc, w, h),
+        Mode::Depth => {
+            // Near bright, far dark, over the 2nd..98th percentile of the opaque pixels'
+            // depths (a few hazy pixels would flatten a min..max scale).
+            let mut seen: Vec<f32> = img
+                .depth
+                .iter()
+                .zip(&img.acc)
+                .filter(|(_, &a)| a > 0.5)
+                .map(|(&d, _)| d)
+                .collect();
+            seen.sort_by(f32::total_cmp);
+            let at = |q: f32| seen.get(((seen.len() as f32 - 1.0) * q) as usize).copied();
+            let (near, far) = (at(0.02).unwrap_or(0.0), at(0.98).unwrap_or(1.0));
+            let span = (far - near).max(1e-3);
+            let v: Vec<f32> = img
+                .depth
+                .iter()
+                .zip(&img.acc)
+                .map(|(&d, &a)| {
+                    if a > 0.05 {
+                        0.15 + 0.85 * (1.0 - ((d - near) / span).clamp(0.0, 1.0))
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            grey8(&v, w, h)
+        }
+        Mode::Blend => {
+            let k = img.blend_channels;
+            let mut rgb = vec![0.0f32; w * h * 3];
+            for p in 0..w * h {
+                let weights = &img.blend_weights[p * k..p * k + k];
+                for c in 0..3 {
+                    let mut v = weights[0];
+                    for (n, wv) in weights.iter().enumerate().skip(1) {
+                        v += wv * VIEW_COLOURS[(n - 1) % VIEW_COLOURS.len()][c];
+                    }
+                    rgb[3 * p + c] = v;
+                }
+            }
+            rgb8(&rgb, w, h)
+        }
+    }
+}
+
+fn png_bytes(img: &RgbImage) -> anyhow::Result<Vec<u8>> {
+    let mut out = Vec::new();
+    img.write_to(&mut Cursor::new(&mut out), image::ImageFormat::Png)
+        .context("encoding a PNG")?;
+    Ok(out)
+}
