@@ -25,6 +25,9 @@ pub struct SceneEncoding {
     pub images: Tensor<4>,
     /// [N, C_img, H/2, W/2] encoder features.
     pub feature_maps: Tensor<4>,
+    /// [N, d, H/2, W/2] the feature maps through the pixel-feature reduction's weights
+    /// (`PixelFeature::reduce_maps`), sampled per point.
+    pub pixel_maps: Tensor<4>,
     /// The body volume and its geometry (`None` for variant (a), which has no body).
     pub volume: Option<(BodyVolumeGeometry, BodyVolume)>,
     /// Pose animation: maps query points of the rendered (target) pose to the scene's pose.
@@ -74,6 +77,7 @@ impl NiaModel {
         }
         let images = Tensor::<4>::from_data(TensorData::new(pixels, [n, 3, h, w]), device);
         let feature_maps = self.encoder.forward(images.clone());
+        let pixel_maps = self.pixel_feature.reduce_maps(feature_maps.clone())?;
         watch.mark(Stage::Encoder);
         let reposer = reposer.filter(|r| !r.is_identity());
         let volume = self.body_volume_of(&feature_maps, &geometry, reposer.as_deref(), device)?;
@@ -85,6 +89,7 @@ impl NiaModel {
             geometry,
             images,
             feature_maps,
+            pixel_maps,
             volume,
             reposer,
             occupancy: None,
@@ -122,6 +127,7 @@ impl NiaModel {
             geometry: scene.geometry.clone(),
             images: scene.images.clone(),
             feature_maps: scene.feature_maps.clone(),
+            pixel_maps: scene.pixel_maps.clone(),
             volume,
             reposer,
             occupancy: None,

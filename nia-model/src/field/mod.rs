@@ -165,7 +165,7 @@ impl NiaModel {
     ) -> Result<PointOutput, ModelError> {
         let l = self
             .pixel_feature
-            .forward(scene.feature_maps.clone(), points.proj_grid.clone())?; // [N, M, d]
+            .sample_reduced(scene.pixel_maps.clone(), points.proj_grid.clone())?; // [N, M, d]
         let source_colours = fetch_source_colours(scene.images.clone(), points.proj_grid.clone())?; // [N, M, 3]
         let body = match (&scene.volume, self.variant.uses_body()) {
             (Some((_, volume)), true) => Some(volume.sample(&points.corners)?),
