@@ -812,3 +812,91 @@ fn variant_colour_rules() {
     assert!(!Variant::NoBody.uses_body() && Variant::Full.uses_body());
     assert!(Variant::NoBody.uses_blender() && !Variant::SimpleAverage.uses_blender());
 }
+
+/// F_B written out independently of `Blender::forward`, from the paper's token definition: the
+/// tokens `[p_n, d_hat_n, o_n, 0 (, c_n)]` and the NeRF token `[mean p, (0,0,0,1), mean o, 1
+/// (, c0)]`, each concatenated with the per-point `[h, psi (, statistics)]`, through the eight
+/// layers with ReLU between them.
+fn blender_reference(b: &Blender, i: &BlendInputs, stats: bool) -> Tensor<2> {
+    use burn::tensor::activation::relu;
+    let [n, m, _] = i.pixel_feature.dims();
+    let dev = i.c0.device();
+    let vis = i.visibility.clone().reshape([n, m, 1]);
+    let mut view_parts = vec![
+        i.pixel_feature.clone(),
+        i.view_dir_features.clone(),
+        vis.clone(),
+        Tensor::zeros([n, m, 1], &dev),
+    ];
+    let dir = Tensor::<1>::from_floats([0.0, 0.0, 0.0, 1.0], &dev)
+        .reshape([1, 1, 4])
+        .expand([1, m, 4]);
+    let mut nerf_parts = vec![
+        i.pixel_feature.clone().mean_dim(0),
+        dir,
+        vis.clone().mean_dim(0),
+        Tensor::ones([1, m, 1], &dev),
+    ];
+    let mut point_parts = vec![i.h.clone(), i.confidence.clone()];
+    if stats {
+        let w = vis.clone().add_scalar(0.01);
+        let w = w.clone() / w.sum_dim(0);
+        let st = |x: Tensor<3>| {
+            let k = x.dims()[2];
+            let mean = (x.clone() * w.clone()).sum_dim(0);
+            let var = ((x - mean.clone()).square() * w.clone()).sum_dim(0);
+            [mean.reshape([m, k]), var.reshape([m, k])]
+        };
+        point_parts.extend(st(i.pixel_feature.clone()));
+        point_parts.extend(st(i.source_colours.clone()));
+        view_parts.push(i.source_colours.clone());
+        nerf_parts.push(i.c0.clone().unsqueeze_dim::<3>(0));
+    }
+    let tokens = Tensor::cat(
+        vec![Tensor::cat(nerf_parts, 2), Tensor::cat(view_parts, 2)],
+        0,
+    );
+    let point = b
+        .point_input
+        .forward(Tensor::cat(point_parts, 1))
+        .unsqueeze_dim::<3>(0);
+    let mut x = relu(b.token_input.forward(tokens) + point);
+    let last = b.layers.len() - 1;
+    for (k, layer) in b.layers.iter().enumerate() {
+        x = layer.forward(x);
+        if k < last {
+            x = relu(x);
+        }
+    }
+    x.reshape([n + 1, m]).transpose()
+}
+
+#[test]
+fn blender_logits_equal_the_papers_token_formula() {
+    let dev = device();
+    let mut rng = Rng::new(31);
+    for stats in [false, true] {
+        let b = BlenderConfig::new()
+            .with_d_pixel(D_PIXEL)
+            .with_d_h(D_H)
+            .with_d_hidden(16)
+            .with_view_statistics(stats)
+            .init(&dev);
+        for n in [1, 3] {
+            let i = blend_inputs(&mut rng, 9, n, &dev);
+            let fast = b
+                .forward(
+                    i.pixel_feature.clone(),
+                    i.view_dir_features.clone(),
+                    i.visibility.clone(),
+                    i.h.clone(),
+                    i.confidence.clone(),
+                    Some((i.c0.clone(), i.source_colours.clone())),
+                )
+                .unwrap();
+            let reference = blender_reference(&b, &i, stats);
+            // f32 sums of ~20 products in another order.
+            assert_close(&values(fast), &values(reference), 1e-5, "blend logits");
+        }
+    }
+}

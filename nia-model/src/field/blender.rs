@@ -33,6 +33,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 
 use super::ibr::{cosine_weights, simple_average_weights};
+use super::view_statistics::{mean_and_variance, view_weights};
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
 use crate::variant::Variant;
@@ -60,10 +61,6 @@ pub struct BlenderConfig {
     #[config(default = false)]
     pub view_statistics: bool,
 }
-
-/// Weight of an invisible view in the across-view statistics, relative to a visible one's 1
-/// (so a point no view sees gets the plain mean, not 0/0).
-const STATISTICS_FLOOR: f32 = 0.01;
 
 /// F_B: N + 1 blend logits per point from per-view tokens and the NeRF token.
 #[derive(Module, Debug)]
@@ -232,16 +229,10 @@ impl Blender {
                 &[Some(n), Some(m), Some(3)],
             )?;
             // Visibility-weighted across-view statistics, [M, k] each.
-            let weight = visibility.clone().add_scalar(STATISTICS_FLOOR);
-            let weight = weight.clone() / weight.sum_dim(0); // [N, M, 1], sums to 1 over N
-            let statistics = |x: Tensor<3>| {
-                let k = x.dims()[2];
-                let mean = (x.clone() * weight.clone()).sum_dim(0); // [1, M, k]
-                let var = ((x - mean.clone()).square() * weight.clone()).sum_dim(0);
-                [mean.reshape([m, k]), var.reshape([m, k])]
-            };
-            point_parts.extend(statistics(pixel_feature));
-            point_parts.extend(statistics(source_colours.clone()));
+            let omega = view_weights(visibility.clone().reshape([n, m]));
+            let (mean_p, var_p) = mean_and_variance(pixel_feature.clone(), omega.clone())?;
+            let (mean_c, var_c) = mean_and_variance(source_colours.clone(), omega)?;
+            point_parts.extend([mean_p, var_p, mean_c, var_c]);
             view_parts.push(source_colours);
             nerf_parts.push(c0.unsqueeze_dim::<3>(0));
         }

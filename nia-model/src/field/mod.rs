@@ -8,7 +8,8 @@
 //!   phi_v(L) + S`;
 //! - [`heads`]: `sigma = F_sigma(mean_n z_n)`, `(c0, psi, h) = F_c0([mean_n z_n ; gamma(d)])`
 //!   with [`positional_encoding`] gamma;
-//! - [`blender`]: F_B's blend weights over `[c0, c_1..c_N]` and the colour c.
+//! - [`blender`]: F_B's blend weights over `[c0, c_1..c_N]` and the colour c (with
+//!   [`view_statistics`] when switched on).
 //!
 //! [`NiaModel::field`] takes world points (in the rendered pose), computes their CPU inputs
 //! ([`PointInputs`]: projections, d_hat_n, o_n, trilinear corners; reposed into the scene's pose
@@ -22,6 +23,7 @@ pub mod encoder_import;
 pub mod heads;
 pub mod ibr;
 pub mod positional_encoding;
+pub mod view_statistics;
 
 use burn::prelude::*;
 use glam::Vec3;
