@@ -431,6 +431,63 @@ fn logits_of(blender: &Blender, x: &BlendInputs) -> Tensor<2> {
         .unwrap()
 }
 
+/// F_B's logits `[M, N + 1]` as the paper writes them: every token `[p_n, d_hat_n, o_n, 0 (,
+/// c_n) ; h, psi (, mean p, var p, mean c, var c)]` and the NeRF token `[mean p, (0,0,0,1),
+/// mean o, 1 (, c0) ; ...]` concatenated in full, one linear layer with the two first-layer
+/// weights stacked, then the remaining layers.
+fn concatenated_token_logits(blender: &Blender, x: &BlendInputs) -> Vec<f32> {
+    use burn::tensor::activation::relu;
+    use nia_model::field::view_statistics::{mean_and_variance, view_weights};
+    let [n, m, _] = x.pixel_feature.dims();
+    let dev = x.c0.device();
+    let weight = Tensor::cat(
+        vec![
+            blender.token_input.weight.val(),
+            blender.point_input.weight.val(),
+        ],
+        0,
+    );
+    let bias = blender.token_input.bias.as_ref().unwrap().val();
+    let mut point_parts = vec![x.h.clone(), x.confidence.clone()];
+    let mut view_colour = vec![];
+    let mut nerf_colour = vec![];
+    if blender.view_statistics {
+        let omega = view_weights(x.visibility.clone());
+        let (mean_p, var_p) = mean_and_variance(x.pixel_feature.clone(), omega.clone()).unwrap();
+        let (mean_c, var_c) = mean_and_variance(x.source_colours.clone(), omega).unwrap();
+        point_parts.extend([mean_p, var_p, mean_c, var_c]);
+        view_colour.push(x.source_colours.clone());
+        nerf_colour.push(x.c0.clone().unsqueeze_dim::<3>(0));
+    }
+    let point = Tensor::cat(point_parts, 1).unsqueeze_dim::<3>(0);
+    let mut views = vec![
+        x.pixel_feature.clone(),
+        x.view_dir_features.clone(),
+        x.visibility.clone().reshape([n, m, 1]),
+        Tensor::zeros([n, m, 1], &dev),
+    ];
+    views.extend(view_colour);
+    views.push(point.clone().repeat_dim(0, n));
+    let mut nerf = vec![
+        x.pixel_feature.clone().mean_dim(0),
+        tensor(vec![0.0, 0.0, 0.0, 1.0], [1, 1, 4], &dev).repeat_dim(1, m),
+        x.visibility.clone().reshape([n, m, 1]).mean_dim(0),
+        Tensor::ones([1, m, 1], &dev),
+    ];
+    nerf.extend(nerf_colour);
+    nerf.push(point);
+    let tokens = Tensor::cat(vec![Tensor::cat(nerf, 2), Tensor::cat(views, 2)], 0);
+    let hidden = bias.dims()[0];
+    let mut y = relu(tokens.matmul(weight.unsqueeze_dim::<3>(0)) + bias.reshape([1, 1, hidden]));
+    for (i, layer) in blender.layers.iter().enumerate() {
+        y = layer.forward(y);
+        if i + 1 < blender.layers.len() {
+            y = relu(y);
+        }
+    }
+    values(y.reshape([n + 1, m]).transpose())
+}
+
 #[test]
 fn blender_any_view_count_and_token_layout() {
     let dev = device();
@@ -445,51 +502,24 @@ fn blender_any_view_count_and_token_layout() {
     let (m, n) = (2, 3);
     let x = blend_inputs(&mut rng, m, n, &dev);
     let logits = values(logits_of(&blender, &x));
-    let weight = Tensor::cat(
-        vec![
-            blender.token_input.weight.val(),
-            blender.point_input.weight.val(),
-        ],
-        0,
-    );
-    let bias = blender.token_input.bias.as_ref().unwrap().val();
-    let point = Tensor::cat(vec![x.h.clone(), x.confidence.clone()], 1).unsqueeze_dim::<3>(0);
-    let views = Tensor::cat(
-        vec![
-            x.pixel_feature.clone(),
-            x.view_dir_features.clone(),
-            x.visibility.clone().reshape([n, m, 1]),
-            Tensor::zeros([n, m, 1], &dev),
-            point.clone().repeat_dim(0, n),
-        ],
-        2,
-    );
-    let nerf = Tensor::cat(
-        vec![
-            x.pixel_feature.clone().mean_dim(0),
-            tensor(vec![0.0, 0.0, 0.0, 1.0], [1, 1, 4], &dev).repeat_dim(1, m),
-            x.visibility.clone().reshape([n, m, 1]).mean_dim(0),
-            Tensor::ones([1, m, 1], &dev),
-            point,
-        ],
-        2,
-    );
-    let tokens = Tensor::cat(vec![nerf, views], 0);
-    let mut y = burn::tensor::activation::relu(
-        tokens.matmul(weight.unsqueeze_dim::<3>(0)) + bias.reshape([1, 1, 16]),
-    );
-    for (i, layer) in blender.layers.iter().enumerate() {
-        y = layer.forward(y);
-        if i + 1 < blender.layers.len() {
-            y = burn::tensor::activation::relu(y);
-        }
-    }
-    let expected = values(y.reshape([n + 1, m]).transpose());
     assert_close(
         &logits,
-        &expected,
+        &concatenated_token_logits(&blender, &x),
         MLP_TOL,
         "F_B vs concatenated-token reference",
+    );
+    // The same with the tokens' colours and the across-view statistics.
+    let with_statistics = BlenderConfig::new()
+        .with_d_pixel(D_PIXEL)
+        .with_d_h(D_H)
+        .with_d_hidden(16)
+        .with_view_statistics(true)
+        .init(&dev);
+    assert_close(
+        &values(logits_of(&with_statistics, &x)),
+        &concatenated_token_logits(&with_statistics, &x),
+        MLP_TOL,
+        "F_B with view statistics vs concatenated-token reference",
     );
 
     // Permuting the views permutes logits 1..N and keeps logit 0.
@@ -811,92 +841,4 @@ fn variant_colour_rules() {
     assert_eq!(Variant::default(), Variant::Full);
     assert!(!Variant::NoBody.uses_body() && Variant::Full.uses_body());
     assert!(Variant::NoBody.uses_blender() && !Variant::SimpleAverage.uses_blender());
-}
-
-/// F_B written out independently of `Blender::forward`, from the paper's token definition: the
-/// tokens `[p_n, d_hat_n, o_n, 0 (, c_n)]` and the NeRF token `[mean p, (0,0,0,1), mean o, 1
-/// (, c0)]`, each concatenated with the per-point `[h, psi (, statistics)]`, through the eight
-/// layers with ReLU between them.
-fn blender_reference(b: &Blender, i: &BlendInputs, stats: bool) -> Tensor<2> {
-    use burn::tensor::activation::relu;
-    let [n, m, _] = i.pixel_feature.dims();
-    let dev = i.c0.device();
-    let vis = i.visibility.clone().reshape([n, m, 1]);
-    let mut view_parts = vec![
-        i.pixel_feature.clone(),
-        i.view_dir_features.clone(),
-        vis.clone(),
-        Tensor::zeros([n, m, 1], &dev),
-    ];
-    let dir = Tensor::<1>::from_floats([0.0, 0.0, 0.0, 1.0], &dev)
-        .reshape([1, 1, 4])
-        .expand([1, m, 4]);
-    let mut nerf_parts = vec![
-        i.pixel_feature.clone().mean_dim(0),
-        dir,
-        vis.clone().mean_dim(0),
-        Tensor::ones([1, m, 1], &dev),
-    ];
-    let mut point_parts = vec![i.h.clone(), i.confidence.clone()];
-    if stats {
-        let w = vis.clone().add_scalar(0.01);
-        let w = w.clone() / w.sum_dim(0);
-        let st = |x: Tensor<3>| {
-            let k = x.dims()[2];
-            let mean = (x.clone() * w.clone()).sum_dim(0);
-            let var = ((x - mean.clone()).square() * w.clone()).sum_dim(0);
-            [mean.reshape([m, k]), var.reshape([m, k])]
-        };
-        point_parts.extend(st(i.pixel_feature.clone()));
-        point_parts.extend(st(i.source_colours.clone()));
-        view_parts.push(i.source_colours.clone());
-        nerf_parts.push(i.c0.clone().unsqueeze_dim::<3>(0));
-    }
-    let tokens = Tensor::cat(
-        vec![Tensor::cat(nerf_parts, 2), Tensor::cat(view_parts, 2)],
-        0,
-    );
-    let point = b
-        .point_input
-        .forward(Tensor::cat(point_parts, 1))
-        .unsqueeze_dim::<3>(0);
-    let mut x = relu(b.token_input.forward(tokens) + point);
-    let last = b.layers.len() - 1;
-    for (k, layer) in b.layers.iter().enumerate() {
-        x = layer.forward(x);
-        if k < last {
-            x = relu(x);
-        }
-    }
-    x.reshape([n + 1, m]).transpose()
-}
-
-#[test]
-fn blender_logits_equal_the_papers_token_formula() {
-    let dev = device();
-    let mut rng = Rng::new(31);
-    for stats in [false, true] {
-        let b = BlenderConfig::new()
-            .with_d_pixel(D_PIXEL)
-            .with_d_h(D_H)
-            .with_d_hidden(16)
-            .with_view_statistics(stats)
-            .init(&dev);
-        for n in [1, 3] {
-            let i = blend_inputs(&mut rng, 9, n, &dev);
-            let fast = b
-                .forward(
-                    i.pixel_feature.clone(),
-                    i.view_dir_features.clone(),
-                    i.visibility.clone(),
-                    i.h.clone(),
-                    i.confidence.clone(),
-                    Some((i.c0.clone(), i.source_colours.clone())),
-                )
-                .unwrap();
-            let reference = blender_reference(&b, &i, stats);
-            // f32 sums of ~20 products in another order.
-            assert_close(&values(fast), &values(reference), 1e-5, "blend logits");
-        }
-    }
 }

@@ -230,7 +230,7 @@ impl Blender {
             )?;
             // Visibility-weighted across-view statistics, [M, k] each.
             let omega = view_weights(visibility.clone().reshape([n, m]));
-            let (mean_p, var_p) = mean_and_variance(pixel_feature.clone(), omega.clone())?;
+            let (mean_p, var_p) = mean_and_variance(pixel_feature, omega.clone())?;
             let (mean_c, var_c) = mean_and_variance(source_colours.clone(), omega)?;
             point_parts.extend([mean_p, var_p, mean_c, var_c]);
             view_parts.push(source_colours);
