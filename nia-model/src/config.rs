@@ -10,6 +10,7 @@ use crate::field::heads::{ColourHeadConfig, DensityHeadConfig};
 use crate::field::ibr::PixelFeatureConfig;
 use crate::field::positional_encoding::PositionalEncodingConfig;
 use crate::sampler::RaySampler;
+use crate::surface_ibr::SourceColoursAt;
 use crate::variant::Variant;
 
 /// The whole network. `ModelConfig::new()` is the paper setting.
@@ -51,6 +52,10 @@ pub struct ModelConfig {
     /// `field::blender`).
     #[config(default = false)]
     pub blend_view_statistics: bool,
+    /// Where the source colours c_n are read: at every sample (the paper; also `None`, which
+    /// model files and checkpoints written before this switch carry) or once per ray at the
+    /// expected surface point (not in the paper; see `surface_ibr`).
+    pub source_colours_at: Option<SourceColoursAt>,
 }
 
 /// Largest layer width [`ModelConfig::check`] accepts (the paper's widest is 512 channels).

@@ -7,6 +7,7 @@
 //! - [`sampler`]: stratified samples along each ray, empty-space skipping;
 //! - [`field`]: encoder, body volume, IBR inputs, attention, heads, blender;
 //! - [`renderer`]: NeRF quadrature;
+//! - [`surface_ibr`]: source colours per sample (the paper) or at the expected surface point;
 //! - [`image`]: whole target images in chunks of rays;
 //! - [`loss`]: the training loss (NIA eq. 6);
 //! - [`store`]: the `.nia` model file and training checkpoints.
@@ -24,6 +25,7 @@ pub mod scene_encoding;
 pub mod shape;
 pub mod softmax;
 pub mod store;
+pub mod surface_ibr;
 pub mod timing;
 pub mod variant;
 

@@ -30,6 +30,7 @@ use crate::renderer::{render_rays_delta, RenderOutput};
 use crate::sampler::{RaySampler, RaySamples, SamplerError};
 use crate::scene_encoding::SceneEncoding;
 use crate::shape::ShapeError;
+use crate::surface_ibr::{surface_colours, surface_composite, SourceColoursAt};
 use crate::timing::{Stage, StageTimes, Stopwatch};
 use crate::variant::Variant;
 
@@ -94,6 +95,9 @@ pub struct NiaModel {
     /// How rays are sampled.
     #[module(skip)]
     pub ray_sampler: RaySampler,
+    /// Where the source colours are read.
+    #[module(skip)]
+    pub source_colours_at: SourceColoursAt,
 }
 
 impl ModelConfig {
@@ -116,6 +120,7 @@ impl ModelConfig {
             voxel_size_m: self.voxel_size_m,
             box_enlarge: self.box_enlarge,
             ray_sampler: self.ray_sampler,
+            source_colours_at: self.source_colours_at.unwrap_or_default(),
         }
     }
 }
@@ -132,8 +137,9 @@ impl NiaModel {
     /// Renders `rays` of `scene` with `samples` stratified samples each: sampler -> field ->
     /// renderer. `jitter` ([R * S] in [0, 1]) is the training-time offset inside each bin;
     /// `None` samples bin centres. Samples the occupancy grid of `scene` marks empty keep zero
-    /// density without reaching the field. `times` charges sampling, MLPs, blending and
-    /// compositing.
+    /// density without reaching the field. With `source_colours_at = surface` the source views'
+    /// part of the colour is read once per ray at the expected surface point (`surface_ibr`).
+    /// `times` charges sampling, MLPs, blending and compositing.
     pub fn render(
         &self,
         scene: &SceneEncoding,
@@ -203,6 +209,11 @@ impl NiaModel {
                 }
             }
         };
+        // The NeRF part of the colour, kept for the surface form (sum_i w_i b0_i c0_i).
+        let surface = self.source_colours_at == SourceColoursAt::Surface
+            && self.variant != Variant::NoIbr
+            && ray_samples.evaluated() > 0;
+        let nerf_colour = surface.then(|| blend.clone().slice(s![.., 0..1]) * c0.clone());
         let t = Tensor::<2>::from_data(
             TensorData::new(ray_samples.t.clone(), [r, samples]),
             &device,
@@ -219,12 +230,33 @@ impl NiaModel {
             delta,
             Some(blend.reshape([r, samples, n1])),
         )?;
-        rendered.rgb_ibr = Some(
-            (ibr.reshape([r, samples, 3])
-                * rendered.weights.clone().detach().reshape([r, samples, 1]))
-            .sum_dim(1)
-            .reshape([r, 3]),
-        );
+        match nerf_colour {
+            None => {
+                rendered.rgb_ibr = Some(
+                    (ibr.reshape([r, samples, 3])
+                        * rendered.weights.clone().reshape([r, samples, 1]))
+                    .sum_dim(1)
+                    .reshape([r, 3]),
+                );
+            }
+            Some(nerf_colour) => {
+                let nerf_part = (nerf_colour.reshape([r, samples, 3])
+                    * rendered.weights.clone().reshape([r, samples, 1]))
+                .sum_dim(1)
+                .reshape([r, 3]);
+                let view_weights = rendered
+                    .blend_weights
+                    .clone()
+                    .map(|b| b.slice(s![.., 1..n1]))
+                    .ok_or_else(|| ModelError::Input("render without blend weights".into()))?;
+                let colours =
+                    surface_colours(scene, rays, rendered.depth.clone(), rendered.acc.clone())?;
+                let (rgb, rgb_ibr) =
+                    surface_composite(nerf_part, view_weights, colours, rendered.acc.clone());
+                rendered.rgb = rgb;
+                rendered.rgb_ibr = Some(rgb_ibr);
+            }
+        }
         rendered.point_evaluations = ray_samples.evaluated();
         watch.mark(Stage::Compositing);
         Ok(rendered)

@@ -8,7 +8,8 @@ mod common;
 use std::sync::Arc;
 
 use burn::prelude::*;
-use nia_model::loss::render_loss;
+use nia_model::loss::{ibr_loss, render_loss};
+use nia_model::surface_ibr::SourceColoursAt;
 use nia_model::{ModelConfig, Variant};
 
 const SAMPLES: usize = 8;
@@ -99,9 +100,19 @@ fn any_number_of_source_views_runs_with_the_same_weights() {
 
 #[test]
 fn a_training_step_has_finite_gradients_everywhere_it_should() {
+    training_step_gradients(None, false);
+}
+
+/// The same with source colours read at the expected surface point and the IBR-only loss.
+#[test]
+fn a_surface_training_step_with_the_ibr_loss_has_finite_gradients() {
+    training_step_gradients(Some(SourceColoursAt::Surface), true);
+}
+
+fn training_step_gradients(at: Option<SourceColoursAt>, with_ibr_loss: bool) {
     let device = Device::ndarray().autodiff();
     device.seed(4);
-    let config = ModelConfig::tiny();
+    let config = ModelConfig::tiny().with_source_colours_at(at);
     let model = config.init(&device);
     let input = common::scene(3, 32);
     let scene = model.encode(&input, None, &device, None).unwrap();
@@ -113,8 +124,12 @@ fn a_training_step_has_finite_gradients_everywhere_it_should() {
         .render(&scene, &rays, SAMPLES, Some(&jitter), None)
         .unwrap();
     let gt = Tensor::<2>::ones([rays.len(), 3], &device).mul_scalar(0.5);
-    let loss = render_loss(out.rgb, out.rgb0, gt).unwrap();
-    let grads = loss.total.backward();
+    let rgb_ibr = out.rgb_ibr.clone().unwrap();
+    let mut loss = render_loss(out.rgb, out.rgb0, gt.clone()).unwrap().total;
+    if with_ibr_loss {
+        loss = loss + ibr_loss(rgb_ibr, gt).unwrap();
+    }
+    let grads = loss.backward();
     fn check<const D: usize>(name: &str, w: Tensor<D>, grads: &burn::tensor::Gradients) {
         let g = w
             .grad(grads)
@@ -151,8 +166,8 @@ fn wgpu_matches_ndarray() {
     let cpu = Device::ndarray();
     cpu.seed(5);
     let config = ModelConfig::tiny();
-    let model = config.init(&cpu);
-    let model_gpu = model.clone().to_device(&gpu);
+    let mut model = config.init(&cpu);
+    let mut model_gpu = model.clone().to_device(&gpu);
     let input = common::scene(3, 32);
     let rays = common::target_rays(&input, 3);
     let run = |m: &nia_model::NiaModel, d: &Device| {
@@ -163,18 +178,23 @@ fn wgpu_matches_ndarray() {
             out.acc.into_data().try_to_vec::<f32>().unwrap(),
         )
     };
-    let (rgb_cpu, acc_cpu) = run(&model, &cpu);
-    let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu);
-    let max_diff = rgb_cpu
-        .iter()
-        .zip(&rgb_gpu)
-        .chain(acc_cpu.iter().zip(&acc_gpu))
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
-    assert!(
-        max_diff <= BACKEND_TOLERANCE,
-        "ndarray vs wgpu max difference {max_diff}"
-    );
+    // Source colours per sample (the paper) and at the expected surface point.
+    for at in [SourceColoursAt::Samples, SourceColoursAt::Surface] {
+        model.source_colours_at = at;
+        model_gpu.source_colours_at = at;
+        let (rgb_cpu, acc_cpu) = run(&model, &cpu);
+        let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu);
+        let max_diff = rgb_cpu
+            .iter()
+            .zip(&rgb_gpu)
+            .chain(acc_cpu.iter().zip(&acc_gpu))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            max_diff <= BACKEND_TOLERANCE,
+            "{at:?}: ndarray vs wgpu max difference {max_diff}"
+        );
+    }
 }
 
 #[test]
@@ -265,4 +285,18 @@ fn model_config_round_trips_through_json_with_paper_defaults() {
         512,
         "ResNet-18 pyramid: 64 + 64 + 128 + 256"
     );
+}
+
+/// Model files and checkpoints written before `source_colours_at` existed have no such key:
+/// they still load, reading source colours per sample (the paper's form).
+#[test]
+fn configs_without_the_surface_switch_load_as_the_papers_per_sample_form() {
+    let config = ModelConfig::tiny().with_source_colours_at(Some(SourceColoursAt::Surface));
+    let mut value = serde_json::to_value(&config).unwrap();
+    assert_eq!(value["source_colours_at"], "surface");
+    value.as_object_mut().unwrap().remove("source_colours_at");
+    let old: ModelConfig = serde_json::from_value(value).unwrap();
+    assert_eq!(old.source_colours_at, None);
+    let model = old.init(&common::device());
+    assert_eq!(model.source_colours_at, SourceColoursAt::Samples);
 }

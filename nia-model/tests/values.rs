@@ -1,7 +1,8 @@
 //! Value tests of the image-based path, beyond shapes and finiteness: a point on a vertex's
 //! line of sight reads that view's own pixel (colour and encoder feature), and the whole
 //! forward (sampler -> field -> renderer) renders a source view's own pixels with the values
-//! the quadrature and the colour rule predict.
+//! the quadrature and the colour rule predict, with source colours per sample and at the
+//! expected surface point.
 
 mod common;
 
@@ -13,6 +14,7 @@ use nia_data::geometry::rays::{pixel_ray, Aabb, RayBundle};
 use nia_data::scene::{PointInputs, RAY_BOX_PADDING_M};
 use nia_model::field::ibr::fetch_source_colours;
 use nia_model::field::PointTensors;
+use nia_model::surface_ibr::{surface_colours, SourceColoursAt, SURFACE_ACC_FLOOR};
 use nia_model::variant::Variant;
 use nia_model::ModelConfig;
 
@@ -143,5 +145,144 @@ fn the_whole_forward_renders_a_source_views_own_pixels() {
     assert!(
         acc.iter().any(|&a| a > 0.05),
         "no ray gathered opacity: the check would be vacuous"
+    );
+}
+
+/// The surface form of the colour (`source_colours_at = surface`): every view's colour is read
+/// once per ray at x_s = o + d depth / acc. With variant (c) over three views every sample's
+/// blend weight is 1 / 4, so W_n = acc / 4 and `rgb = (rgb0 + acc sum_n I_n(x_s)) / 4`, with
+/// I_n(x_s) read here independently of the renderer (projection + bilinear fetch of x_s).
+#[test]
+fn the_surface_form_reads_every_view_once_at_the_expected_surface_point() {
+    let dev = device();
+    let input = scene(3, SIZE);
+    let mut config = ModelConfig::tiny();
+    config.variant = Variant::SimpleAverage;
+    config.source_colours_at = Some(SourceColoursAt::Surface);
+    let model = config.init(&dev);
+    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    let view = &input.views[0];
+    let ray_box = Aabb::from_points(&input.body.vertices)
+        .unwrap()
+        .padded(RAY_BOX_PADDING_M);
+    let rays = RayBundle::through_pixels(&view.camera, &ray_box, None);
+    let out = model.render(&encoded, &rays, 16, None, None).unwrap();
+    let (rgb, rgb0) = (values(out.rgb), values(out.rgb0));
+    let (acc, depth) = (values(out.acc), values(out.depth));
+    assert!(
+        acc.iter().any(|&a| a > 0.05),
+        "no ray gathered opacity: the check would be vacuous"
+    );
+    let points: Vec<Vec3> = (0..rays.len())
+        .map(|r| {
+            let t = if acc[r] >= SURFACE_ACC_FLOOR {
+                depth[r] / acc[r]
+            } else {
+                0.5 * (rays.near[r] + rays.far[r])
+            };
+            rays.origins[r] + rays.dirs[r] * t
+        })
+        .collect();
+    let inputs = PointInputs::compute(&encoded.geometry, &points, &rays.dirs, None);
+    let tensors = PointTensors::upload(&inputs, &dev);
+    let colours = values(fetch_source_colours(encoded.images.clone(), tensors.proj_grid).unwrap());
+    let r_count = rays.len();
+    let mut expected = Vec::with_capacity(rgb.len());
+    for r in 0..r_count {
+        for c in 0..3 {
+            let sum: f32 = (0..3).map(|n| colours[(n * r_count + r) * 3 + c]).sum();
+            expected.push((rgb0[r * 3 + c] + acc[r] * sum) / 4.0);
+        }
+    }
+    assert_close(
+        &rgb,
+        &expected,
+        VALUE_TOL,
+        "rgb = (rgb0 + acc sum_n I_n(x_s)) / 4",
+    );
+    // The IBR-only composite is the plain mean of the three surface colours, over black.
+    let ibr = values(out.rgb_ibr.unwrap());
+    let mean: Vec<f32> = (0..r_count)
+        .flat_map(|r| {
+            let (colours, acc) = (&colours, &acc);
+            (0..3).map(move |c| {
+                acc[r]
+                    * (0..3)
+                        .map(|n| colours[(n * r_count + r) * 3 + c])
+                        .sum::<f32>()
+                    / 3.0
+            })
+        })
+        .collect();
+    assert_close(&ibr, &mean, VALUE_TOL, "IBR-only = acc mean_n I_n(x_s)");
+}
+
+/// The surface read is differentiable in the expected depth: d/dt of the colours read at
+/// x_s = o + d t (autodiff through the linearised projection and the bilinear fetch) matches
+/// a central finite difference of the colours read at t +- h, ray by ray.
+#[test]
+fn the_surface_read_has_the_finite_difference_gradient_in_depth() {
+    let ad = device().autodiff();
+    let input = scene(3, SIZE);
+    let model = ModelConfig::tiny().init(&ad);
+    let encoded = model.encode(&input, None, &ad, None).unwrap();
+    let view = &input.views[0];
+    let ray_box = Aabb::from_points(&input.body.vertices)
+        .unwrap()
+        .padded(RAY_BOX_PADDING_M);
+    let rays = RayBundle::through_pixels(&view.camera, &ray_box, None);
+    let r = rays.len();
+    // Depths off the middle of each ray's box interval (the middle of a central ray lies on the
+    // ring's axis, which projects onto pixel centres of the other views, where the bilinear
+    // fetch has a kink and no derivative), acc = 1.
+    let t: Vec<f32> = (0..r)
+        .map(|i| rays.near[i] + 0.37 * (rays.far[i] - rays.near[i]))
+        .collect();
+    let ones = Tensor::<1>::ones([r], &ad);
+    let weights: Vec<f32> = (0..3 * r * 3)
+        .map(|i| ((i * 7919) % 13) as f32 / 13.0 - 0.4)
+        .collect();
+    let weights_t = Tensor::<3>::from_data(TensorData::new(weights.clone(), [3, r, 3]), &ad);
+    let depth = Tensor::<1>::from_data(TensorData::new(t.clone(), [r]), &ad).require_grad();
+    let colours = surface_colours(&encoded, &rays, depth.clone(), ones.clone()).unwrap();
+    let grads = (colours * weights_t).sum().backward();
+    let got = values(depth.grad(&grads).unwrap());
+    // Per-ray weighted sums at t +- h.
+    let h = 1e-4f32;
+    let per_ray = |shift: f32| -> Vec<f32> {
+        let shifted: Vec<f32> = t.iter().map(|&x| x + shift).collect();
+        let depth = Tensor::<1>::from_data(TensorData::new(shifted, [r]), &ad);
+        let c = values(surface_colours(&encoded, &rays, depth, ones.clone()).unwrap());
+        (0..r)
+            .map(|ray| {
+                (0..3)
+                    .flat_map(|n| (0..3).map(move |ch| (n * r + ray) * 3 + ch))
+                    .map(|i| c[i] * weights[i])
+                    .sum()
+            })
+            .collect()
+    };
+    let (plus, minus) = (per_ray(h), per_ray(-h));
+    let expected: Vec<f32> = plus
+        .iter()
+        .zip(&minus)
+        .map(|(p, m)| (p - m) / (2.0 * h))
+        .collect();
+    assert!(got.iter().all(|g| g.is_finite()));
+    let informative = expected.iter().filter(|e| e.abs() > 0.05).count();
+    assert!(
+        informative > 10,
+        "only {informative} rays see an image slope"
+    );
+    // A bilinear fetch is piecewise linear: rays whose +-h step crosses a pixel-cell edge have
+    // a one-sided slope that differs from the central difference; allow a few of them.
+    let off = got
+        .iter()
+        .zip(&expected)
+        .filter(|(g, e)| (*g - *e).abs() > 0.05 * (1.0 + e.abs()))
+        .count();
+    assert!(
+        off * 50 <= informative,
+        "{off} of {informative} informative rays ({r} in all) disagree with the finite difference"
     );
 }

@@ -269,6 +269,11 @@ pub struct TrainSection {
     /// `nia_model::loss::distortion_loss`).
     #[serde(default)]
     pub distortion_loss_weight: f32,
+    /// Weight of the IBR-only loss `mean |C_ibr - C_gt|^2`: the source colours under the view
+    /// weights alone (renormalised, without c0) are supervised as the paper supervises C0 alone
+    /// (0: the paper's loss only; see `nia_model::loss::ibr_loss`).
+    #[serde(default)]
+    pub ibr_loss_weight: f32,
 }
 
 impl TrainSection {
@@ -434,6 +439,13 @@ impl TrainConfig {
                 "train.distortion_loss_weight",
                 "a finite value >= 0",
                 t.distortion_loss_weight.to_string(),
+            ));
+        }
+        if !(t.ibr_loss_weight.is_finite() && t.ibr_loss_weight >= 0.0) {
+            return Err(bad(
+                "train.ibr_loss_weight",
+                "a finite value >= 0",
+                t.ibr_loss_weight.to_string(),
             ));
         }
         if t.checkpoint_every == 0 {

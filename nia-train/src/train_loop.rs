@@ -30,7 +30,7 @@ use nia_infer::eval::{
     eval_items, evaluate_images, evaluate_items, EvalError, EvalOptions, EvalSummary, EvalTask,
 };
 use nia_infer::pictures::{comparison_grid, save_evaluated};
-use nia_model::loss::{distortion_loss, mask_loss, psnr_from_mse, render_loss};
+use nia_model::loss::{distortion_loss, ibr_loss, mask_loss, psnr_from_mse, render_loss};
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::{ModelError, NiaModel};
 
@@ -522,8 +522,17 @@ fn scene_gradients(
     } else {
         None
     };
+    let ibr = match (config.train.ibr_loss_weight > 0.0, &out.rgb_ibr) {
+        (true, Some(rgb_ibr)) => Some(
+            ibr_loss(rgb_ibr.clone(), gt.clone()).map_err(|e| model_err(ModelError::Shape(e)))?,
+        ),
+        _ => None,
+    };
     let mut loss =
         render_loss(out.rgb, out.rgb0, gt).map_err(|e| model_err(ModelError::Shape(e)))?;
+    if let Some(ibr) = ibr {
+        loss.total = loss.total + ibr.mul_scalar(config.train.ibr_loss_weight);
+    }
     if config.train.mask_loss_weight > 0.0 {
         let on_body: Vec<f32> = rays.on_body.iter().map(|&b| b as u8 as f32).collect();
         let on_body = Tensor::<1>::from_data(TensorData::new(on_body, [rays.len()]), device);

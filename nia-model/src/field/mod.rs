@@ -50,7 +50,8 @@ pub struct PointOutput {
     pub blend_weights: Tensor<2>,
     /// [M, 3] the image-based part of the colour alone: the source colours under the blend
     /// weights renormalised over the views (the plain mean where they are all ~0). An
-    /// instrument (what the source views say at the point), not used by the loss.
+    /// instrument (what the source views say at the point), and the input of the switchable
+    /// IBR-only loss (`loss::ibr_loss`).
     pub ibr_colour: Tensor<2>,
 }
 
@@ -205,10 +206,7 @@ impl NiaModel {
                 visibility: points.visibility.clone(),
             },
         )?;
-        let ibr_colour = ibr_only_colour(
-            blended.blend_weights.clone().detach(),
-            source_colours.detach(),
-        );
+        let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
         watch.mark(Stage::Blending);
         Ok(PointOutput {
             sigma,
