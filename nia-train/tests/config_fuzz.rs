@@ -60,6 +60,7 @@ const KEYS: &[(&str, &str)] = &[
     ("model", "dir_frequencies"),
     ("model", "voxel_size_m"),
     ("model", "box_enlarge"),
+    ("model", "source_colours_at"),
     ("optim", "lr"),
     ("optim", "beta1"),
     ("optim", "beta2"),
@@ -82,6 +83,7 @@ const KEYS: &[(&str, &str)] = &[
     ("train", "encoder_weights"),
     ("train", "mask_loss_weight"),
     ("train", "distortion_loss_weight"),
+    ("train", "ibr_loss_weight"),
     ("synth", "subjects"),
     ("synth", "frames"),
     ("synth", "cameras"),
@@ -422,6 +424,10 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
         "format" => (&["\"zju\"", "\"monocap\""], &["\"MonoCap\"", "\"h36m\""]),
         "protocol" => (&["\"synthetic\"", "\"nhp\"", "\"monocap\""], &["\"zju\""]),
         "preset" => (&["\"tiny\"", "\"paper\""], &["\"huge\""]),
+        "source_colours_at" => (
+            &["\"samples\"", "\"surface\""],
+            &["\"Surface\"", "\"expected\"", "1"],
+        ),
         "variant" => (
             &[
                 "\"full\"",
@@ -444,7 +450,7 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
             &["5e-4", "1e-9", "1.0", "1e30"],
             &["0.0", "-1.0", "nan", "inf", "-inf"],
         ),
-        "mask_loss_weight" | "distortion_loss_weight" => (
+        "mask_loss_weight" | "distortion_loss_weight" | "ibr_loss_weight" => (
             &["0.0", "-0.0", "0.1", "1e30"],
             &["-1.0", "nan", "inf", "-1e-9"],
         ),

@@ -26,6 +26,8 @@ fn overrides_write_over_the_file() {
             "optim.lr=1e-3",
             "optim.lr=2e-3",
             "render.skip_empty_space=false",
+            "model.source_colours_at=surface",
+            "train.ibr_loss_weight=0.5",
         ]),
     )
     .unwrap();
@@ -36,6 +38,11 @@ fn overrides_write_over_the_file() {
     assert_eq!(config.model.body_volume.full_convs, 2);
     assert_eq!(config.optim.lr, 2e-3, "the last of two overrides wins");
     assert!(!config.render.skip_empty_space);
+    assert_eq!(
+        config.model.source_colours_at,
+        Some(nia_model::surface_ibr::SourceColoursAt::Surface)
+    );
+    assert_eq!(config.train.ibr_loss_weight, 0.5);
     // Keys the overrides do not touch keep the file's values.
     assert_eq!(config.train.rays_per_step, 32);
     assert_eq!(
@@ -74,5 +81,9 @@ fn bad_overrides_name_the_setting_or_the_key() {
     assert!(m.contains("steps"), "{m}");
     let (_, m) = message(&["train.mask_loss_weight=-1"]);
     assert!(m.contains("train.mask_loss_weight"), "{m}");
+    let (_, m) = message(&["train.ibr_loss_weight=nan"]);
+    assert!(m.contains("train.ibr_loss_weight"), "{m}");
+    let (_, m) = message(&["model.source_colours_at=\"expected\""]);
+    assert!(m.contains("source_colours_at") || m.contains("expected"), "{m}");
     let _ = std::fs::remove_dir_all(&dir);
 }
