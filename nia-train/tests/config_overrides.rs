@@ -84,6 +84,9 @@ fn bad_overrides_name_the_setting_or_the_key() {
     let (_, m) = message(&["train.ibr_loss_weight=nan"]);
     assert!(m.contains("train.ibr_loss_weight"), "{m}");
     let (_, m) = message(&["model.source_colours_at=\"expected\""]);
-    assert!(m.contains("source_colours_at") || m.contains("expected"), "{m}");
+    assert!(
+        m.contains("model.source_colours_at") && m.contains("`samples` or `surface`"),
+        "{m}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
