@@ -11,9 +11,11 @@ use common::{assert_close, device, scene, values};
 use glam::{Vec2, Vec3};
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::rays::{pixel_ray, Aabb, RayBundle};
-use nia_data::scene::{PointInputs, RAY_BOX_PADDING_M};
+use nia_data::scene::{PointInputs, SceneInput, RAY_BOX_PADDING_M};
 use nia_model::field::ibr::fetch_source_colours;
 use nia_model::field::PointTensors;
+use nia_model::renderer::RenderOutput;
+use nia_model::scene_encoding::SceneEncoding;
 use nia_model::surface_ibr::{surface_colours, SourceColoursAt, SURFACE_ACC_FLOOR};
 use nia_model::variant::Variant;
 use nia_model::ModelConfig;
@@ -33,6 +35,31 @@ fn point_at_pixel(camera: &Camera, pixel: Vec2, z: f32) -> Vec3 {
 fn pixel(image: &[f32], c: usize, x: usize, y: usize) -> f32 {
     let s = SIZE as usize;
     image[(c * s + y) * s + x]
+}
+
+/// The rays through every pixel of source view 0 that cross the body's box.
+fn rays_through_view_0(input: &SceneInput) -> RayBundle {
+    let ray_box = Aabb::from_points(&input.body.vertices)
+        .unwrap()
+        .padded(RAY_BOX_PADDING_M);
+    RayBundle::through_pixels(&input.views[0].camera, &ray_box, None)
+}
+
+/// Variant (c) over `views` source views, rendering the rays of view 0 with 16 samples.
+fn variant_c_renders_view_0(
+    views: usize,
+    at: SourceColoursAt,
+) -> (SceneInput, SceneEncoding, RayBundle, RenderOutput) {
+    let dev = device();
+    let input = scene(views, SIZE);
+    let mut config = ModelConfig::tiny();
+    config.variant = Variant::SimpleAverage;
+    config.source_colours_at = Some(at);
+    let model = config.init(&dev);
+    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    let rays = rays_through_view_0(&input);
+    let out = model.render(&encoded, &rays, 16, None, None).unwrap();
+    (input, encoded, rays, out)
 }
 
 #[test]
@@ -117,19 +144,9 @@ fn a_vertex_projected_into_a_view_reads_its_own_pixel_colour_and_feature() {
 /// The check is not vacuous: some rays gather opacity, and the source pixels vary.
 #[test]
 fn the_whole_forward_renders_a_source_views_own_pixels() {
-    let dev = device();
-    let input = scene(1, SIZE);
-    let mut config = ModelConfig::tiny();
-    config.variant = Variant::SimpleAverage;
-    let model = config.init(&dev);
-    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    let (input, _, rays, out) = variant_c_renders_view_0(1, SourceColoursAt::Samples);
     let view = &input.views[0];
-    let ray_box = Aabb::from_points(&input.body.vertices)
-        .unwrap()
-        .padded(RAY_BOX_PADDING_M);
-    let rays = RayBundle::through_pixels(&view.camera, &ray_box, None);
     assert!(rays.len() > 50, "{} rays cross the box", rays.len());
-    let out = model.render(&encoded, &rays, 16, None, None).unwrap();
     let rgb = values(out.rgb);
     let rgb0 = values(out.rgb0);
     let acc = values(out.acc);
@@ -155,18 +172,7 @@ fn the_whole_forward_renders_a_source_views_own_pixels() {
 #[test]
 fn the_surface_form_reads_every_view_once_at_the_expected_surface_point() {
     let dev = device();
-    let input = scene(3, SIZE);
-    let mut config = ModelConfig::tiny();
-    config.variant = Variant::SimpleAverage;
-    config.source_colours_at = Some(SourceColoursAt::Surface);
-    let model = config.init(&dev);
-    let encoded = model.encode(&input, None, &dev, None).unwrap();
-    let view = &input.views[0];
-    let ray_box = Aabb::from_points(&input.body.vertices)
-        .unwrap()
-        .padded(RAY_BOX_PADDING_M);
-    let rays = RayBundle::through_pixels(&view.camera, &ray_box, None);
-    let out = model.render(&encoded, &rays, 16, None, None).unwrap();
+    let (_, encoded, rays, out) = variant_c_renders_view_0(3, SourceColoursAt::Surface);
     let (rgb, rgb0) = (values(out.rgb), values(out.rgb0));
     let (acc, depth) = (values(out.acc), values(out.depth));
     assert!(
@@ -226,11 +232,7 @@ fn the_surface_read_has_the_finite_difference_gradient_in_depth() {
     let input = scene(3, SIZE);
     let model = ModelConfig::tiny().init(&ad);
     let encoded = model.encode(&input, None, &ad, None).unwrap();
-    let view = &input.views[0];
-    let ray_box = Aabb::from_points(&input.body.vertices)
-        .unwrap()
-        .padded(RAY_BOX_PADDING_M);
-    let rays = RayBundle::through_pixels(&view.camera, &ray_box, None);
+    let rays = rays_through_view_0(&input);
     let r = rays.len();
     // Depths off the middle of each ray's box interval (the middle of a central ray lies on the
     // ring's axis, which projects onto pixel centres of the other views, where the bilinear
