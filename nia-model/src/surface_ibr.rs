@@ -88,7 +88,8 @@ const GRID_INSIDE_BOUND: f32 = 2.0;
 /// and `J = d grid / d t` by a finite difference of [`SURFACE_GRID_STEP_M`] (exact values
 /// forward; the slope of the source images at the projection pulls the expected depth towards
 /// where the views agree with the target pixel). Rays without a surface point
-/// (acc < [`SURFACE_ACC_FLOOR`]) and views whose projection leaves the image get J = 0.
+/// (acc < [`SURFACE_ACC_FLOOR`]) and views whose projection leaves the image get J = 0. Off an
+/// autodiff device (inference) the slope is not computed.
 ///
 /// # Shapes
 /// - `depth`, `acc`: `[R]` (sum_i w_i t_i and sum_i w_i, with their gradients)
@@ -108,25 +109,33 @@ pub fn surface_colours(
     };
     let (depth_v, acc_v) = (read(&depth)?, read(&acc)?);
     let points = surface_points(rays, &depth_v, &acc_v);
+    let to_grid = |points: Vec<Vec3>| -> Result<Vec<f32>, ModelError> {
+        let points = match &scene.reposer {
+            None => points,
+            Some(reposer) => {
+                reposer
+                    .map_points(&points, &rays.dirs)
+                    .map_err(|e| ModelError::Input(format!("reposing: {e}")))?
+                    .points
+            }
+        };
+        Ok(projection_grid(&scene.geometry, &points))
+    };
+    let n = scene.num_views();
+    let r = points.len();
+    let device = scene.images.device();
+    if !depth.is_autodiff() {
+        // No gradient can flow (inference): the read alone, without the slope's second
+        // projection (and reposing) of every ray.
+        let grid = Tensor::<3>::from_data(TensorData::new(to_grid(points)?, [n, r, 2]), &device);
+        return Ok(fetch_source_colours(scene.images.clone(), grid)?);
+    }
     let stepped: Vec<Vec3> = points
         .iter()
         .zip(&rays.dirs)
         .map(|(&p, &d)| p + d * SURFACE_GRID_STEP_M)
         .collect();
-    let to_images = |points: Vec<Vec3>| -> Result<Vec<Vec3>, ModelError> {
-        match &scene.reposer {
-            None => Ok(points),
-            Some(reposer) => Ok(reposer
-                .map_points(&points, &rays.dirs)
-                .map_err(|e| ModelError::Input(format!("reposing: {e}")))?
-                .points),
-        }
-    };
-    let (image_points, image_stepped) = (to_images(points)?, to_images(stepped)?);
-    let n = scene.num_views();
-    let r = image_points.len();
-    let grid = projection_grid(&scene.geometry, &image_points);
-    let grid_stepped = projection_grid(&scene.geometry, &image_stepped);
+    let (grid, grid_stepped) = (to_grid(points)?, to_grid(stepped)?);
     let inside = |g: &[f32]| g.iter().all(|v| v.abs() < GRID_INSIDE_BOUND);
     let mut slope = vec![0.0f32; n * r * 2];
     for view in 0..n {
@@ -139,7 +148,6 @@ pub fn surface_colours(
             }
         }
     }
-    let device = scene.images.device();
     let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, r, 2]), &device);
     let slope = Tensor::<3>::from_data(TensorData::new(slope, [n, r, 2]), &device);
     // t_s - t0: zero forward, the gradient of t_s backward.
