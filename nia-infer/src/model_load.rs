@@ -147,10 +147,18 @@ impl LoadedModel {
         data
     }
 
-    /// Opens the subjects of `split` of `data` with the run's split protocol.
+    /// Opens the subjects of `split` of `data` with the run's split protocol; a synthetic set
+    /// other than the run's own (`--data` elsewhere) brings its own split (its `synth.json`),
+    /// so a model trained on 8 synthetic people evaluates on a set of 4 from another seed.
     pub fn open_split(&self, data: &DataConfig, split: EvalSplit) -> anyhow::Result<OpenedDataset> {
-        let spec = self.run.synth.as_ref().map(|s| s.spec());
         let open = || -> anyhow::Result<OpenedDataset> {
+            let run_spec = self.run.synth.as_ref().map(|s| s.spec());
+            let spec = match run_spec {
+                Some(run_spec) if data.root != self.run.data.root => {
+                    Some(data.own_synth_spec()?.unwrap_or(run_spec))
+                }
+                other => other,
+            };
             let protocol = data.protocol(spec.as_ref())?;
             Ok(OpenedDataset::open_split(data, protocol, split)?)
         };

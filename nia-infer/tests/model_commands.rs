@@ -237,6 +237,61 @@ fn eval_reproduces_the_numbers_training_printed() {
     assert!(report.contains(&format!("**{psnr:.2}**")), "{report}");
 }
 
+/// A synthetic set other than the model's own (another seed, another number of people) is
+/// evaluated with its own split, from its `synth.json`; a broken description is named.
+#[test]
+fn eval_on_another_synthetic_set_uses_that_sets_split() {
+    let t = trained();
+    let dir = scratch("eval-other-set");
+    let other = dir.join("data");
+    let spec = nia_data::synth::SynthSpec {
+        subjects: 3,
+        frames: 2,
+        cameras: 4,
+        size: 40,
+        seed: 5,
+        supersample: 1,
+        test_fraction: 0.34,
+        ..Default::default()
+    };
+    nia_data::synth::generate(&spec, &other, &mut |_| {}).unwrap();
+    let out_dir = dir.join("out");
+    let eval = |data: &Path| {
+        nia_infer(&[
+            "eval",
+            "--model",
+            s(&t.model),
+            "--backend",
+            "ndarray",
+            "--data",
+            s(data),
+            "--split",
+            "test",
+            "--no-pictures",
+            "--out",
+            s(&out_dir),
+        ])
+    };
+    ok(&eval(&other));
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("metrics.json")).unwrap())
+            .unwrap();
+    // The model's own set has 2 people (1 unseen); this one 3, of which CoreView_3 is unseen.
+    let subjects: Vec<&String> = metrics["subjects"].as_object().unwrap().keys().collect();
+    assert_eq!(subjects, vec!["CoreView_3"]);
+    assert!(metrics["overall"]["psnr"].as_f64().unwrap().is_finite());
+    // A description without its `spec` is an error naming the file.
+    let description = other.join("synth.json");
+    std::fs::write(&description, "{\"generator\": \"nia-data synth\"}").unwrap();
+    let out = eval(&other);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("synth.json") && err.contains("`spec`"),
+        "{err}"
+    );
+}
+
 #[test]
 fn novel_pose_eval_reposes_from_the_reference_frame() {
     let t = trained();

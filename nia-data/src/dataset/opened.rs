@@ -119,6 +119,22 @@ impl DataConfig {
         }
     }
 
+    /// The spec a synthetic set under `root` was generated with (its `synth.json`), `None`
+    /// where `root` holds no such description (real data). A model evaluated on another
+    /// synthetic set than its own uses that set's split, whatever the run's `[synth]` says.
+    pub fn own_synth_spec(&self) -> Result<Option<SynthSpec>, OpenError> {
+        let path = self.root.join(DESCRIPTION_FILE);
+        if !path.is_file() {
+            return Ok(None);
+        }
+        let spec = read_description(&path)?;
+        let spec: SynthSpec = serde_json::from_value(spec).map_err(|e| OpenError::Description {
+            path: path.clone(),
+            message: format!("`spec`: {e}"),
+        })?;
+        Ok(Some(spec))
+    }
+
     /// The split protocol: the synthetic set's own (`synth`: the spec it was generated with,
     /// checked against its `synth.json`), NHP's or MonoCap's.
     pub fn protocol(&self, synth: Option<&SynthSpec>) -> Result<Protocol, OpenError> {
@@ -274,16 +290,7 @@ impl OpenedDataset {
 /// depends on (subjects, frames, cameras, test fraction); the image size may differ (the same
 /// subjects rendered at another resolution).
 fn check_description(path: &Path, spec: &SynthSpec) -> Result<(), OpenError> {
-    let text = std::fs::read_to_string(path).map_err(|e| OpenError::Description {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
-    let json: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| OpenError::Description {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
-    let data = &json["spec"];
+    let data = &read_description(path)?;
     let fields: [(&'static str, serde_json::Value); 4] = [
         ("synth.subjects", spec.subjects.into()),
         ("synth.frames", spec.frames.into()),
@@ -307,6 +314,23 @@ fn check_description(path: &Path, spec: &SynthSpec) -> Result<(), OpenError> {
         }
     }
     Ok(())
+}
+
+/// The `spec` object of a synthetic set's `synth.json`.
+fn read_description(path: &Path) -> Result<serde_json::Value, OpenError> {
+    let bad = |message: String| OpenError::Description {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+    let mut json: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    match json.get_mut("spec") {
+        Some(spec) if spec.is_object() => Ok(spec.take()),
+        _ => Err(bad(
+            "no `spec` object (expected the generator's settings)".into()
+        )),
+    }
 }
 
 /// Opens a subject and checks that its stored vertices (frame 0) fit the SMPL model.
