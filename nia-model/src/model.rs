@@ -230,20 +230,16 @@ impl NiaModel {
             delta,
             Some(blend.reshape([r, samples, n1])),
         )?;
-        match nerf_colour {
-            None => {
-                rendered.rgb_ibr = Some(
-                    (ibr.reshape([r, samples, 3])
-                        * rendered.weights.clone().reshape([r, samples, 1]))
-                    .sum_dim(1)
-                    .reshape([r, 3]),
-                );
-            }
-            Some(nerf_colour) => {
-                let nerf_part = (nerf_colour.reshape([r, samples, 3])
-                    * rendered.weights.clone().reshape([r, samples, 1]))
+        // sum_i w_i x_i of a per-sample colour [R * S, 3] -> [R, 3].
+        let composite = |x: Tensor<2>| {
+            (x.reshape([r, samples, 3]) * rendered.weights.clone().reshape([r, samples, 1]))
                 .sum_dim(1)
-                .reshape([r, 3]);
+                .reshape([r, 3])
+        };
+        match nerf_colour {
+            None => rendered.rgb_ibr = Some(composite(ibr)),
+            Some(nerf_colour) => {
+                let nerf_part = composite(nerf_colour);
                 let view_weights = rendered
                     .blend_weights
                     .clone()
