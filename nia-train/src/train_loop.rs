@@ -522,11 +522,17 @@ fn scene_gradients(
     } else {
         None
     };
-    let ibr = match (config.train.ibr_loss_weight > 0.0, &out.rgb_ibr) {
-        (true, Some(rgb_ibr)) => Some(
-            ibr_loss(rgb_ibr.clone(), gt.clone()).map_err(|e| model_err(ModelError::Shape(e)))?,
-        ),
-        _ => None,
+    let ibr = if config.train.ibr_loss_weight > 0.0 {
+        // NiaModel::render always fills the IBR-only composite; its absence is an error, not a
+        // loss term silently left out.
+        let rgb_ibr = out.rgb_ibr.clone().ok_or_else(|| {
+            model_err(ModelError::Input(
+                "train.ibr_loss_weight > 0 but the render has no IBR-only composite".into(),
+            ))
+        })?;
+        Some(ibr_loss(rgb_ibr, gt.clone()).map_err(|e| model_err(ModelError::Shape(e)))?)
+    } else {
+        None
     };
     let mut loss =
         render_loss(out.rgb, out.rgb0, gt).map_err(|e| model_err(ModelError::Shape(e)))?;
