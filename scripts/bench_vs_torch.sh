@@ -67,7 +67,7 @@ def cpu():
     return platform.processor() or "unknown CPU"
 commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
 dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True).stdout.strip()
-print(f"machine: {cpu()}, {os.cpu_count()} cores; nia-rs commit {commit}{' (modified)' if dirty else ''}, backend {backend}")
+print(f"machine: {cpu()}, {os.cpu_count()} cores; nia-rs commit {commit}{' (modified)' if dirty else ''}, backend {backend}, heap {nia.get('heap', '?')}")
 print(f"dimensions: {nia['rays']} rays x {nia['samples']} samples, {nia['views']} views of {nia['size']}x{nia['size']}")
 if ref:
     print(f"reference: PyTorch {ref['torch']} + spconv, {ref['threads']} threads")

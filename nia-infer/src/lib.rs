@@ -4,6 +4,7 @@
 //!   and NeRF-only PSNR, depth error, opacity off the person);
 //! - [`eval`]: held-out evaluation (render and score a split's images), used by `nia-infer
 //!   eval`/`sweep` and by the trainer's validation and final evaluation;
+//! - [`heap`]: the process heap's policy for tensor buffers (binaries set it first thing);
 //! - [`perceptual`]: LPIPS weight files and the distance on SSIM's crop;
 //! - [`pictures`]: comparison grids, error maps and blend-weight maps as images;
 //! - [`plot`]: SVG plots (the sweep's accuracy-time scatter, training curves);
@@ -13,6 +14,7 @@
 
 pub mod diagnostics;
 pub mod eval;
+pub mod heap;
 pub mod perceptual;
 pub mod pictures;
 pub mod plot;

@@ -54,6 +54,7 @@ enum Cli {
 /// Runs the subcommand; on failure prints the error and its causes on one line to stderr
 /// (no backtrace, whatever `RUST_BACKTRACE` says) and exits with status 1.
 fn main() -> ExitCode {
+    nia_infer::heap::keep_freed_memory();
     let result = match Cli::parse() {
         Cli::Inspect(args) => commands::inspect::run(&args),
         Cli::Metrics(args) => commands::metrics::run(&args),

@@ -57,6 +57,8 @@ pub struct BenchArgs {
 #[derive(Serialize)]
 struct Report {
     backend: String,
+    /// The heap policy of this process ([`nia_infer::heap`]).
+    heap: String,
     rays: usize,
     samples: usize,
     views: usize,
@@ -229,6 +231,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let report = Report {
         backend: args.backend.name().to_string(),
+        heap: nia_infer::heap::current()
+            .map_or("system (policy not set)", |p| p.name())
+            .to_string(),
         rays: rays.len(),
         samples: args.samples,
         views: args.views,
