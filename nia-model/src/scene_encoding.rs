@@ -1,7 +1,7 @@
 //! The per-scene pass, done once and reused by every target view and ray chunk: the scene's
-//! CPU geometry, the ResNet-18 feature maps of the N source views, the per-vertex
-//! pixel-aligned features (zero where the vertex is invisible) and the sparse-convolution body
-//! volume. For pose animation the body volume is built on the target pose's vertices and the
+//! CPU geometry, the ResNet-18 feature maps of the N source views (reduced to the widths their
+//! consumers read), the per-vertex pixel-aligned features (zero where the vertex is invisible)
+//! and the sparse-convolution body volume. For pose animation the body volume is built on the target pose's vertices and the
 //! encoding carries the [`Reposer`] that maps query points back to the scene's pose.
 
 use std::sync::Arc;
@@ -23,8 +23,10 @@ pub struct SceneEncoding {
     pub geometry: Arc<SceneGeometry>,
     /// [N, 3, H, W] source images in [0, 1].
     pub images: Tensor<4>,
-    /// [N, C_img, H/2, W/2] encoder features.
-    pub feature_maps: Tensor<4>,
+    /// [N, C_v, H/2, W/2] the encoder's feature maps through the vertex reduction's weights
+    /// (`W_v^T F`, without the bias): what the body volume's vertex features sample, kept for
+    /// rebuilding the volume in other poses.
+    pub vertex_maps: Tensor<4>,
     /// [N, d, H/2, W/2] the feature maps through the pixel-feature reduction's weights
     /// (`PixelFeature::reduce_maps`), sampled per point.
     pub pixel_maps: Tensor<4>,
@@ -76,11 +78,15 @@ impl NiaModel {
             pixels.extend_from_slice(&view.image);
         }
         let images = Tensor::<4>::from_data(TensorData::new(pixels, [n, 3, h, w]), device);
-        let feature_maps = self.encoder.forward(images.clone());
-        let pixel_maps = self.pixel_feature.reduce_maps(feature_maps.clone())?;
+        // The encoder's pyramid is reduced level by level before upsampling, once per
+        // consumer (pixel features, vertex features): the 512-channel map F is never built.
+        let pyramid = self.encoder.forward_pyramid(images.clone());
+        let pixel_maps = self.pixel_feature.reduce_maps(&pyramid)?;
+        let vertex_maps = pyramid.reduce(self.vertex_reduce.weight.val())?;
+        drop(pyramid);
         watch.mark(Stage::Encoder);
         let reposer = reposer.filter(|r| !r.is_identity());
-        let volume = self.body_volume_of(&feature_maps, &geometry, reposer.as_deref(), device)?;
+        let volume = self.body_volume_of(&vertex_maps, &geometry, reposer.as_deref(), device)?;
         if volume.is_some() {
             watch.mark(Stage::BodyVolume);
         }
@@ -88,7 +94,7 @@ impl NiaModel {
         Ok(SceneEncoding {
             geometry,
             images,
-            feature_maps,
+            vertex_maps,
             pixel_maps,
             volume,
             reposer,
@@ -114,7 +120,7 @@ impl NiaModel {
         let device = scene.images.device();
         let mut watch = Stopwatch::new(times, &device);
         let volume = self.body_volume_of(
-            &scene.feature_maps,
+            &scene.vertex_maps,
             &scene.geometry,
             reposer.as_deref(),
             &device,
@@ -126,7 +132,7 @@ impl NiaModel {
         Ok(SceneEncoding {
             geometry: scene.geometry.clone(),
             images: scene.images.clone(),
-            feature_maps: scene.feature_maps.clone(),
+            vertex_maps: scene.vertex_maps.clone(),
             pixel_maps: scene.pixel_maps.clone(),
             volume,
             reposer,
@@ -149,12 +155,12 @@ impl NiaModel {
         Ok(self.ray_sampler.band(vertices, &geometry.faces)?)
     }
 
-    /// Vertex features from the feature maps and the sparse-convolution body volume, built on
-    /// the scene's own vertices or, with `reposer`, on the target pose's (with the features of
-    /// the scene's vertices of the same index); `None` for variant (a).
+    /// Vertex features from the vertex maps (`W_v^T F`) and the sparse-convolution body volume,
+    /// built on the scene's own vertices or, with `reposer`, on the target pose's (with the
+    /// features of the scene's vertices of the same index); `None` for variant (a).
     fn body_volume_of(
         &self,
-        feature_maps: &Tensor<4>,
+        vertex_maps: &Tensor<4>,
         geometry: &SceneGeometry,
         reposer: Option<&Reposer>,
         device: &Device,
@@ -162,12 +168,17 @@ impl NiaModel {
         if !self.variant.uses_body() {
             return Ok(None);
         }
-        let n = feature_maps.dims()[0];
+        let n = vertex_maps.dims()[0];
         let v = geometry.vertices_world.len();
         // Vertex projections: the same projection rule as the query points.
         let grid = projection_grid(geometry, &geometry.vertices_world);
         let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, v, 2]), device);
-        let raw = sample_views(feature_maps.clone(), grid)?; // [N, V, C_img]
+        // Linear(sample(F)) = sample(W_v^T F) + b: [N, V, C_v].
+        let sampled = sample_views(vertex_maps.clone(), grid)?;
+        let features = match &self.vertex_reduce.bias {
+            Some(b) => sampled + b.val().unsqueeze::<3>(),
+            None => sampled,
+        };
         let vis: Vec<f32> = geometry
             .vertex_visibility
             .iter()
@@ -176,7 +187,7 @@ impl NiaModel {
             .collect();
         let vis = Tensor::<3>::from_data(TensorData::new(vis, [n, v, 1]), device);
         // Zero where the vertex is invisible in that view (after the bias).
-        let vertex_features = self.vertex_reduce.forward(raw) * vis;
+        let vertex_features = features * vis;
         let (at, voxel_box) = match reposer {
             None => (geometry.vertices_smpl.clone(), geometry.voxel_box),
             Some(reposer) => {

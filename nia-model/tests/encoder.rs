@@ -56,3 +56,51 @@ fn encoder_gives_the_four_scale_pyramid_at_half_resolution() {
         "ReLU features are not all zero"
     );
 }
+
+/// The model's reduction of the pyramid, level by level before upsampling, equals the channel
+/// reduction of the concatenated map `W^T F` (upsampling and the reduction commute), on
+/// patterned images (not constants) and sizes whose levels do not divide evenly.
+#[test]
+fn pyramid_reduction_equals_reducing_the_concatenated_map() {
+    let device = Device::ndarray();
+    device.seed(4);
+    let config = ImageEncoderConfig::new().with_base_width(8);
+    let encoder = config.init(&device);
+    let images = Tensor::<4>::random(
+        [2, 3, 40, 56],
+        burn::tensor::Distribution::Uniform(0.0, 1.0),
+        &device,
+    );
+    let pyramid = encoder.forward_pyramid(images.clone());
+    assert_eq!(pyramid.channels(), config.out_channels());
+    let d = 5;
+    let weight = Tensor::<2>::random(
+        [config.out_channels(), d],
+        burn::tensor::Distribution::Uniform(-1.0, 1.0),
+        &device,
+    );
+    let ours = pyramid.reduce(weight.clone()).unwrap();
+    let f = encoder.forward(images);
+    let [n, c, h, w] = f.dims();
+    // W^T F per pixel: [N, H W, C] x [C, d] -> [N, d, H, W].
+    let reference = f
+        .reshape([n, c, h * w])
+        .swap_dims(1, 2)
+        .matmul(weight.unsqueeze::<3>())
+        .swap_dims(1, 2)
+        .reshape([n, d, h, w]);
+    assert_eq!(ours.dims(), [n, d, h, w]);
+    let scale = reference.clone().abs().max().into_scalar::<f32>();
+    assert!(scale > 0.1, "the reduction is not trivially zero ({scale})");
+    let diff = (ours - reference).abs().max().into_scalar::<f32>();
+    assert!(
+        diff <= 1e-5 * scale.max(1.0) * 10.0,
+        "max difference {diff} against a magnitude of {scale}"
+    );
+    // A weight of the wrong height is refused with the input named.
+    let err = pyramid
+        .reduce(Tensor::<2>::zeros([c + 1, d], &device))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("feature pyramid"), "{err}");
+}

@@ -31,9 +31,10 @@ fn forward_renders_finite_colours_of_the_right_shape() {
     let config = ModelConfig::tiny();
     let model = config.init(&device);
     let scene = model.encode(&input, None, &device, None).unwrap();
+    assert_eq!(scene.pixel_maps.dims(), [3, config.d_model, 16, 16]);
     assert_eq!(
-        scene.feature_maps.dims(),
-        [3, config.image_channels(), 16, 16]
+        scene.vertex_maps.dims(),
+        [3, config.body_volume.vertex_channels, 16, 16]
     );
     let rays = common::target_rays(&input, 4);
     assert!(rays.len() >= 8, "most test rays hit the body box");

@@ -102,13 +102,14 @@ fn a_vertex_projected_into_a_view_reads_its_own_pixel_colour_and_feature() {
         let p = point_at_pixel(camera, block, z);
         let inputs = PointInputs::compute(&encoded.geometry, &[p], &[Vec3::Z], None);
         let tensors = PointTensors::upload(&inputs, &dev);
+        // The concatenated feature map F (the model itself only builds its reductions).
+        let feature_maps = model.encoder.forward(encoded.images.clone());
         let l = model
             .pixel_feature
-            .forward(encoded.feature_maps.clone(), tensors.proj_grid.clone())
+            .forward(feature_maps.clone(), tensors.proj_grid.clone())
             .unwrap();
-        let channels = encoded.feature_maps.dims()[1];
-        let own = encoded
-            .feature_maps
+        let channels = feature_maps.dims()[1];
+        let own = feature_maps
             .clone()
             .slice(s![0..1, .., j..j + 1, k..k + 1])
             .reshape([1, 1, channels]);

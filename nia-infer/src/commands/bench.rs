@@ -66,6 +66,10 @@ struct Report {
     forward_s: f64,
     forward_rays_per_s: f64,
     train_step_s: Option<f64>,
+    /// Of the training step: the forward on the autodiff device (graph recording included).
+    train_forward_s: Option<f64>,
+    /// Of the training step: backward and the Adam update.
+    train_backward_s: Option<f64>,
     train_rays_per_s: Option<f64>,
     stages_s: Vec<(String, f64)>,
 }
@@ -193,8 +197,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     forward_s /= reps;
 
     // Training step (autodiff device): forward, loss, backward, Adam.
-    let (train_step_s, train_rays_per_s) = if args.no_train {
-        (None, None)
+    let (train_step_s, train_forward_s, train_rays_per_s) = if args.no_train {
+        (None, None, None)
     } else {
         let ad = device.clone().autodiff();
         ad.seed(0);
@@ -202,6 +206,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
         let gt = Tensor::<2>::ones([rays.len(), 3], &ad).mul_scalar(0.5);
         let mut total = 0.0;
+        let mut total_forward = 0.0;
         let mut rng = Rng::new(3);
         for rep in 0..=args.reps {
             let jitter: Vec<f32> = (0..rays.len() * args.samples)
@@ -211,21 +216,28 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             let scene = model.encode(&input, None, &ad, None)?;
             let out = model.render(&scene, &rays, args.samples, Some(&jitter), None)?;
             let loss = render_loss(out.rgb, out.rgb0, gt.clone())?;
+            let forward_dt = start.elapsed().as_secs_f64();
             let grads = GradientsParams::from_grads(loss.total.backward(), &model);
             model = optim.step(5e-4, model, grads);
             ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
             let dt = start.elapsed().as_secs_f64();
             note(format!(
-                "train rep {rep}{}: {dt:.2} s",
-                if rep == 0 { " (warm-up)" } else { "" }
+                "train rep {rep}{}: {dt:.2} s (forward {forward_dt:.2} s, backward + Adam {:.2} s)",
+                if rep == 0 { " (warm-up)" } else { "" },
+                dt - forward_dt
             ));
             bar.inc(1);
             if rep > 0 {
                 total += dt;
+                total_forward += forward_dt;
             }
         }
         let step = total / reps;
-        (Some(step), Some(rays.len() as f64 / step))
+        (
+            Some(step),
+            Some(total_forward / reps),
+            Some(rays.len() as f64 / step),
+        )
     };
 
     bar.finish_and_clear();
@@ -241,6 +253,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         forward_s,
         forward_rays_per_s: rays.len() as f64 / forward_s,
         train_step_s,
+        train_forward_s,
+        train_backward_s: train_step_s.zip(train_forward_s).map(|(s, f)| s - f),
         train_rays_per_s,
         stages_s: Stage::ALL
             .iter()
@@ -259,8 +273,15 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         "\nforward: {:.3} s per batch, {:.0} rays/s; training step: {}",
         report.forward_s,
         report.forward_rays_per_s,
-        match (report.train_step_s, report.train_rays_per_s) {
-            (Some(s), Some(r)) => format!("{s:.3} s, {r:.0} rays/s"),
+        match (
+            report.train_step_s,
+            report.train_rays_per_s,
+            report.train_forward_s,
+        ) {
+            (Some(s), Some(r), Some(f)) => format!(
+                "{s:.3} s, {r:.0} rays/s (forward {f:.3} s, backward + Adam {:.3} s)",
+                s - f
+            ),
             _ => "skipped".into(),
         }
     );

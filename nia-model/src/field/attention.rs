@@ -79,11 +79,19 @@ impl ViewCrossAttention {
         let queries = self.phi_k.forward(body_feature.clone());
         let keys = self.phi_k.forward(pixel_feature.clone());
         let values = self.phi_v.forward(pixel_feature);
-        // [M, N, N]: row i = view i's body feature against every view's pixel feature.
-        let scores = queries
-            .matmul(keys.swap_dims(1, 2))
+        // [M, N, N]: row i = view i's body feature against every view's pixel feature. Written
+        // as broadcast products and sums over d, not as a batched matmul: with M batches of
+        // N x d x N (N = 3) the CPU backends run M tiny GEMMs forward and twice that backward,
+        // which took more of the training step than all of the MLPs' GEMMs.
+        let scores = (queries.unsqueeze_dim::<4>(2) * keys.unsqueeze_dim::<4>(1)) // [M, N, N, d]
+            .sum_dim(3)
+            .reshape([m, n, n])
             .div_scalar((self.d_model as f64).sqrt());
         let attention = stable_softmax(scores, 2);
-        Ok(attention.matmul(values) + body_feature)
+        // Z_i = sum_j a_ij V_j + S_i: [M, N, N, 1] * [M, 1, N, d] summed over j.
+        let fused = (attention.unsqueeze_dim::<4>(3) * values.unsqueeze_dim::<4>(1))
+            .sum_dim(2)
+            .reshape([m, n, d]);
+        Ok(fused + body_feature)
     }
 }

@@ -17,6 +17,7 @@ use burn::tensor::ops::GridSampleOptions;
 
 use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 
+use super::encoder::FeaturePyramid;
 use crate::shape::ShapeError;
 
 /// Bilinearly samples N maps at M points each.
@@ -94,23 +95,14 @@ impl PixelFeature {
     /// [`Self::forward`]'s `Linear(sample(F))` (zero padding included: the bias is added after
     /// sampling), and reducing the maps once per scene makes every point's gather 4x narrower
     /// (128 channels instead of 512) and lets every ray chunk of an image reuse the reduction.
+    /// The reduction is taken on the encoder's pyramid before upsampling
+    /// ([`FeaturePyramid::reduce`]), so F itself is never built.
     ///
     /// # Shapes
-    /// - `feature_maps`: `[N, d_image, H/2, W/2]`
+    /// - `pyramid`: levels with `d_image` channels in all
     /// - output: `[N, d_model, H/2, W/2]`
-    pub fn reduce_maps(&self, feature_maps: Tensor<4>) -> Result<Tensor<4>, ShapeError> {
-        let [d_image, d_model] = self.reduce.weight.dims();
-        let [n, c, h, w] = feature_maps.dims();
-        ShapeError::check(
-            "IBR `feature_maps` [N, C_img, H/2, W/2]",
-            &[n, c, h, w],
-            &[None, Some(d_image), None, None],
-        )?;
-        // [1, d, C] x [N, C, HW] -> [N, d, HW]: no permute of the (large) maps.
-        let weight_t = self.reduce.weight.val().transpose().unsqueeze::<3>();
-        Ok(weight_t
-            .matmul(feature_maps.reshape([n, c, h * w]))
-            .reshape([n, d_model, h, w]))
+    pub fn reduce_maps(&self, pyramid: &FeaturePyramid) -> Result<Tensor<4>, ShapeError> {
+        pyramid.reduce(self.reduce.weight.val())
     }
 
     /// l_n from maps reduced by [`Self::reduce_maps`]: sampled, plus the bias.
@@ -220,11 +212,18 @@ mod reduced_maps_tests {
             .with_d_image(24)
             .with_d_model(8)
             .init(&device);
-        let maps = Tensor::<4>::random(
-            [2, 24, 5, 7],
-            burn::tensor::Distribution::Normal(0.0, 1.0),
-            &device,
-        );
+        // Four levels of 6 channels at one resolution: F is their concatenation.
+        let level = || {
+            Tensor::<4>::random(
+                [2, 6, 5, 7],
+                burn::tensor::Distribution::Normal(0.0, 1.0),
+                &device,
+            )
+        };
+        let pyramid = FeaturePyramid {
+            levels: [level(), level(), level(), level()],
+        };
+        let maps = pyramid.clone().concatenated();
         // Inside, on the border, outside (zero padding, where the bias still counts once).
         let grid = Tensor::<3>::from_floats(
             [
@@ -234,7 +233,7 @@ mod reduced_maps_tests {
             &device,
         );
         let reference = feature.forward(maps.clone(), grid.clone()).unwrap();
-        let reduced = feature.reduce_maps(maps).unwrap();
+        let reduced = feature.reduce_maps(&pyramid).unwrap();
         assert_eq!(reduced.dims(), [2, 8, 5, 7]);
         let fast = feature.sample_reduced(reduced, grid).unwrap();
         let diff = (reference - fast).abs().max().into_scalar::<f32>();

@@ -84,10 +84,11 @@ pub fn sample_in_chunks(
     if m == 0 {
         return Ok(Tensor::zeros([n, 0, c], &features.device()));
     }
+    // Row gathers of the corners in blocks of points (`GATHER_CHUNK_BYTES`), then the 8-term
+    // weighted sum of every (view, point) as one broadcast product summed over the corners
+    // (`[N, M, 8, C] * [1, M, 8, 1]`). Not a batched [1, 8] x [8, C] matmul: that is N M tiny
+    // GEMMs forward and again backward, which cost more than the gathers in the training step.
     let rows = rows_with_zero_row(features); // [N * (P_s + 1), C]
-                                             // Row gathers of the corners in blocks of points (`GATHER_CHUNK_BYTES`), then the 8-term
-                                             // weighted sum of every (view, point) as a batched [1, 8] x [8, C] matmul (on flex ~4x
-                                             // faster than 8 separate multiply-adds over [N M, C]).
     let chunk = points_per_chunk.max(1);
     let mut parts = Vec::with_capacity(m.div_ceil(chunk));
     for start in (0..m).step_by(chunk) {
@@ -104,10 +105,9 @@ pub fn sample_in_chunks(
             .weight
             .clone()
             .narrow(0, start, len)
-            .reshape([1, len, CORNERS])
-            .expand([n, len, CORNERS])
-            .reshape([n * len, 1, CORNERS]);
-        parts.push(weight.matmul(values).reshape([n, len, c]));
+            .reshape([1, len, CORNERS, 1]);
+        let values = values.reshape([n, len, CORNERS, c]);
+        parts.push((values * weight).sum_dim(2).reshape([n, len, c]));
     }
     Ok(cat_parts(parts, 1))
 }
