@@ -1,8 +1,9 @@
 //! The per-scene pass, done once and reused by every target view and ray chunk: the scene's
 //! CPU geometry, the ResNet-18 feature maps of the N source views (reduced to the widths their
 //! consumers read), the per-vertex pixel-aligned features (zero where the vertex is invisible)
-//! and the sparse-convolution body volume. For pose animation the body volume is built on the target pose's vertices and the
-//! encoding carries the [`Reposer`] that maps query points back to the scene's pose.
+//! and the sparse-convolution body volume. For pose animation the body volume is built on the
+//! target pose's vertices and the encoding carries the [`Reposer`] that maps query points back
+//! to the scene's pose.
 
 use std::sync::Arc;
 

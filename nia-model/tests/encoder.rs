@@ -94,7 +94,8 @@ fn pyramid_reduction_equals_reducing_the_concatenated_map() {
     assert!(scale > 0.1, "the reduction is not trivially zero ({scale})");
     let diff = (ours - reference).abs().max().into_scalar::<f32>();
     assert!(
-        diff <= 1e-5 * scale.max(1.0) * 10.0,
+        // f32 sums over up to 32 channels and 4 levels in another order.
+        diff <= 1e-4 * scale.max(1.0),
         "max difference {diff} against a magnitude of {scale}"
     );
     // A weight of the wrong height is refused with the input named.
