@@ -13,7 +13,7 @@ use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::scene::{projection_grid, SceneGeometry, SceneInput};
 
 use crate::field::body_volume::{BodyVolume, BodyVolumeGeometry};
-use crate::field::ibr::sample_views;
+use crate::field::ibr::sample_reduced_through;
 use crate::model::{ModelError, NiaModel};
 use crate::timing::{Stage, StageTimes, Stopwatch};
 
@@ -175,11 +175,7 @@ impl NiaModel {
         let grid = projection_grid(geometry, &geometry.vertices_world);
         let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, v, 2]), device);
         // Linear(sample(F)) = sample(W_v^T F) + b: [N, V, C_v].
-        let sampled = sample_views(vertex_maps.clone(), grid)?;
-        let features = match &self.vertex_reduce.bias {
-            Some(b) => sampled + b.val().unsqueeze::<3>(),
-            None => sampled,
-        };
+        let features = sample_reduced_through(&self.vertex_reduce, vertex_maps.clone(), grid)?;
         let vis: Vec<f32> = geometry
             .vertex_visibility
             .iter()

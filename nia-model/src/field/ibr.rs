@@ -43,6 +43,25 @@ pub fn sample_views(maps: Tensor<4>, proj_grid: Tensor<3>) -> Result<Tensor<3>, 
     Ok(sampled.reshape([n, c, m]).swap_dims(1, 2))
 }
 
+/// `Linear(sample(F))` from maps already through the linear map's weights (`W^T F`): the
+/// sampled maps plus the bias (sampling is linear, and the bias counts once also where the
+/// projection falls outside the map).
+///
+/// # Shapes
+/// - `reduced_maps`: `[N, d_out, H, W]`; `proj_grid`: `[N, M, 2]`
+/// - output: `[N, M, d_out]`
+pub fn sample_reduced_through(
+    linear: &Linear,
+    reduced_maps: Tensor<4>,
+    proj_grid: Tensor<3>,
+) -> Result<Tensor<3>, ShapeError> {
+    let sampled = sample_views(reduced_maps, proj_grid)?;
+    Ok(match &linear.bias {
+        Some(b) => sampled + b.val().unsqueeze::<3>(),
+        None => sampled,
+    })
+}
+
 /// Source colours c_n: the source images sampled at the projections of x.
 ///
 /// # Shapes
@@ -122,11 +141,7 @@ impl PixelFeature {
             &reduced_maps.dims(),
             &[None, Some(d_model), None, None],
         )?;
-        let sampled = sample_views(reduced_maps, proj_grid)?;
-        Ok(match &self.reduce.bias {
-            Some(b) => sampled + b.val().unsqueeze::<3>(),
-            None => sampled,
-        })
+        sample_reduced_through(&self.reduce, reduced_maps, proj_grid)
     }
 
     /// Samples and reduces the per-view feature maps (the reference form of
