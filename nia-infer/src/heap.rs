@@ -12,7 +12,8 @@
 //! blocks (they come from the heap, which then grows once and is reused) and no trimming of the
 //! heap's top. What it costs: the heap stays at its high-water mark and fragments, so the peak
 //! resident memory is higher (measured in the README's Speed section). Only binaries call it,
-//! first thing in `main`; `NIA_HEAP=system` leaves malloc as it is.
+//! first thing in `main`; `NIA_HEAP=system` leaves malloc as it is, and any other value of
+//! `NIA_HEAP` is refused ([`HeapError`]) rather than silently ignored.
 
 /// What [`keep_freed_memory`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -39,19 +40,46 @@ impl HeapPolicy {
     }
 }
 
+/// A value of [`HEAP_ENV`] that names no policy.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("environment variable {HEAP_ENV}={value:?}: expected `system` (leave malloc as it is) or `keep_freed` (the default; also when unset)")]
+pub struct HeapError {
+    /// The value found (lossy UTF-8).
+    pub value: String,
+}
+
+/// Whether `value` of [`HEAP_ENV`] asks for the system's malloc settings (`Ok(true)`), for the
+/// default policy (`Ok(false)`: unset, empty or `keep_freed`), or names nothing (`Err`).
+/// Case-insensitive.
+pub fn system_requested(value: Option<&str>) -> Result<bool, HeapError> {
+    match value.map(str::trim) {
+        None | Some("") => Ok(false),
+        Some(v) if v.eq_ignore_ascii_case("system") => Ok(true),
+        Some(v) if v.eq_ignore_ascii_case("keep_freed") => Ok(false),
+        Some(v) => Err(HeapError {
+            value: v.to_string(),
+        }),
+    }
+}
+
 static POLICY: std::sync::OnceLock<HeapPolicy> = std::sync::OnceLock::new();
 
 /// Sets the heap policy of this process (see the module docs) on the first call and returns
 /// it (later calls return the same). Call before any tensor is allocated, from a binary's
-/// `main`.
-pub fn keep_freed_memory() -> HeapPolicy {
-    *POLICY.get_or_init(|| {
-        if std::env::var(HEAP_ENV).is_ok_and(|v| v.eq_ignore_ascii_case("system")) {
+/// `main`. A value of `NIA_HEAP` that names no policy is an error, and nothing is changed.
+pub fn keep_freed_memory() -> Result<HeapPolicy, HeapError> {
+    if let Some(policy) = POLICY.get() {
+        return Ok(*policy);
+    }
+    let value = std::env::var_os(HEAP_ENV).map(|v| v.to_string_lossy().into_owned());
+    let system = system_requested(value.as_deref())?;
+    Ok(*POLICY.get_or_init(|| {
+        if system {
             HeapPolicy::SystemByRequest
         } else {
             set_glibc_keep_freed()
         }
-    })
+    }))
 }
 
 /// The policy [`keep_freed_memory`] set, if it was called.
@@ -89,6 +117,21 @@ fn set_glibc_keep_freed() -> HeapPolicy {
 mod tests {
     use super::*;
 
+    #[test]
+    fn nia_heap_values_name_a_policy_or_are_refused() {
+        assert_eq!(system_requested(None), Ok(false));
+        assert_eq!(system_requested(Some("")), Ok(false));
+        assert_eq!(system_requested(Some("keep_freed")), Ok(false));
+        assert_eq!(system_requested(Some("system")), Ok(true));
+        assert_eq!(system_requested(Some(" SYSTEM ")), Ok(true));
+        let err = system_requested(Some("sytem")).unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.contains("NIA_HEAP") && text.contains("sytem") && text.contains("`system`"),
+            "{text}"
+        );
+    }
+
     /// On glibc the settings are accepted, and memory freed and allocated again after them
     /// stays usable (a large block, then a smaller and a larger one in its place).
     #[test]
@@ -97,7 +140,7 @@ mod tests {
         if std::env::var(HEAP_ENV).is_ok() {
             return; // the caller chose the policy; nothing to check here
         }
-        assert_eq!(keep_freed_memory(), HeapPolicy::KeepFreed);
+        assert_eq!(keep_freed_memory(), Ok(HeapPolicy::KeepFreed));
         for len in [64usize << 20, 16 << 20, 96 << 20] {
             let v = vec![1.5f32; len / 4];
             assert_eq!(v.len(), len / 4);

@@ -54,7 +54,10 @@ enum Cli {
 /// Runs the subcommand; on failure prints the error and its causes on one line to stderr
 /// (no backtrace, whatever `RUST_BACKTRACE` says) and exits with status 1.
 fn main() -> ExitCode {
-    nia_infer::heap::keep_freed_memory();
+    if let Err(e) = nia_infer::heap::keep_freed_memory() {
+        eprintln!("error: {e}");
+        return ExitCode::FAILURE;
+    }
     let result = match Cli::parse() {
         Cli::Inspect(args) => commands::inspect::run(&args),
         Cli::Metrics(args) => commands::metrics::run(&args),

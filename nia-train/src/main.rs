@@ -116,7 +116,7 @@ const CURVES_FILE: &str = "curves.svg";
 const TENSORBOARD_DIR: &str = "tensorboard";
 
 fn main() -> anyhow::Result<()> {
-    nia_infer::heap::keep_freed_memory();
+    nia_infer::heap::keep_freed_memory()?;
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Synth(args)) => synth_cmd::run(args),

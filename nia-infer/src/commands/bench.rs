@@ -277,11 +277,10 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             report.train_step_s,
             report.train_rays_per_s,
             report.train_forward_s,
+            report.train_backward_s,
         ) {
-            (Some(s), Some(r), Some(f)) => format!(
-                "{s:.3} s, {r:.0} rays/s (forward {f:.3} s, backward + Adam {:.3} s)",
-                s - f
-            ),
+            (Some(s), Some(r), Some(f), Some(b)) =>
+                format!("{s:.3} s, {r:.0} rays/s (forward {f:.3} s, backward + Adam {b:.3} s)"),
             _ => "skipped".into(),
         }
     );
