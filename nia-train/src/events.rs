@@ -58,6 +58,11 @@ pub enum TrainEvent {
         /// PSNR of the IBR-only and NeRF-only composites (`nia_infer::diagnostics`).
         psnr_ibr: f64,
         psnr_nerf: f64,
+        /// The PSNR split into the pixels next to the person's outline and the rest.
+        #[serde(default)]
+        psnr_silhouette: Option<f64>,
+        #[serde(default)]
+        psnr_interior: Option<f64>,
         /// Folder with grids and blend maps of a few of the evaluated images.
         pictures: PathBuf,
     },

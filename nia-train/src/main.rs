@@ -294,17 +294,23 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     c0_share_seen,
                     psnr_ibr,
                     psnr_nerf,
+                    psnr_silhouette,
+                    psnr_interior,
                     pictures,
                     ..
                 } => {
                     let share = c0_share_seen
                         .map(|s| format!("{s:.2}"))
                         .unwrap_or_else(|| "-".into());
+                    let db = |v: &Option<f64>| v.map_or("-".into(), |v| format!("{v:.2} dB"));
                     let line = format!(
                         "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}{}\n  \
                          IBR-only {psnr_ibr:.2} dB, NeRF-only {psnr_nerf:.2} dB, NeRF-colour share where a source sees {share}\n  \
+                         PSNR next to the outline {}, elsewhere {}\n  \
                          grids and blend maps: {}",
                         lpips_text(*lpips, config.train.lpips.as_ref()),
+                        db(psnr_silhouette),
+                        db(psnr_interior),
                         pictures.display()
                     );
                     log_lines::line(&bar, &line);
@@ -417,9 +423,19 @@ fn tensorboard_record(tb: &mut EventWriter, event: &TrainEvent) -> anyhow::Resul
             ssim,
             psnr_ibr,
             psnr_nerf,
+            psnr_silhouette,
+            psnr_interior,
             lpips,
             ..
         } => {
+            for (name, value) in [
+                ("psnr_silhouette", psnr_silhouette),
+                ("psnr_interior", psnr_interior),
+            ] {
+                if let Some(v) = value {
+                    tb.scalar(&format!("evaluation/{split}/{name}"), *step, *v as f32)?;
+                }
+            }
             if let Some(l) = lpips {
                 tb.scalar(&format!("evaluation/{split}/lpips"), *step, *l as f32)?;
             }

@@ -349,6 +349,8 @@ pub fn train(
                 c0_share_seen: m.diagnostics.c0_weight_seen,
                 psnr_ibr: m.diagnostics.psnr_ibr,
                 psnr_nerf: m.diagnostics.psnr_nerf,
+                psnr_silhouette: m.diagnostics.psnr_silhouette,
+                psnr_interior: m.diagnostics.psnr_interior,
                 pictures: pictures.clone(),
             });
         }
