@@ -299,7 +299,8 @@ pub fn evaluate_images(
                 options.timed.then_some(&mut times),
             )
             .map_err(model_err)?
-            .with_occupancy(occupancy);
+            .with_occupancy(occupancy)
+            .with_termination(options.adaptive.termination());
         let rays =
             RayBundle::through_pixels(&image.camera, &target_scene.body_box, Some(mask_at_box));
         let mut rendered = render_image(

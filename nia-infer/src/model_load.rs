@@ -44,6 +44,10 @@ pub struct ModelArgs {
     /// the model's `[render]` setting).
     #[arg(long)]
     pub empty_space_m: Option<f32>,
+    /// Early ray termination: a ray stops evaluating samples once its transmittance is below
+    /// this; 0 turns it off (default: the model's `[render]` setting, 1e-3).
+    #[arg(long)]
+    pub early_termination: Option<f32>,
 }
 
 pub fn parse_switch(s: &str) -> Result<bool, String> {
@@ -81,6 +85,12 @@ impl LoadedModel {
             .is_some_and(|m| !(m.is_finite() && m >= 0.0))
         {
             anyhow::bail!("--empty-space-m must be a distance >= 0 (metres)");
+        }
+        if args
+            .early_termination
+            .is_some_and(|e| !(0.0..1.0).contains(&e))
+        {
+            anyhow::bail!("--early-termination must be a transmittance in [0, 1) (0: off)");
         }
         let path = &args.model;
         let file = ModelFile::read(path)?;
@@ -126,6 +136,9 @@ impl LoadedModel {
         }
         if let Some(m) = args.empty_space_m {
             a.empty_space_m = m;
+        }
+        if let Some(e) = args.early_termination {
+            a.early_termination = e;
         }
         a
     }

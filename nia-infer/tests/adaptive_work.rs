@@ -242,6 +242,44 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
     let (p_full, p_skip) = (psnr(&full), psnr(&skip));
     eprintln!("PSNR full {p_full:.3} dB, skipping {p_skip:.3} dB");
     assert!(p_skip >= p_full - MAX_PSNR_LOSS_DB, "{p_skip} vs {p_full}");
+
+    // Early ray termination on top of skipping (the default `[render]`): the trained model's
+    // colours and opacities move by at most the transmittance threshold, with no more points.
+    let adaptive = AdaptiveConfig::default();
+    let epsilon = adaptive.termination().expect("on by default");
+    let terminated = render_image(
+        &model,
+        &full_encoding
+            .clone()
+            .with_occupancy(
+                adaptive
+                    .occupancy(&scene.vertices, &c.source.faces)
+                    .unwrap(),
+            )
+            .with_termination(Some(epsilon)),
+        &rays,
+        size,
+        ImageRenderOptions {
+            samples: 32,
+            chunk: 512,
+            timed: false,
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert!(terminated.point_evaluations <= skip.point_evaluations);
+    eprintln!(
+        "early termination: {} of {} points",
+        terminated.point_evaluations, skip.point_evaluations
+    );
+    for &p in &pixels {
+        for k in 0..3 {
+            let d = (terminated.rgb[3 * p + k] - skip.rgb[3 * p + k]).abs();
+            assert!(d <= epsilon + EXACT_TOL, "pixel {p}: colour moved by {d}");
+        }
+        let d = (terminated.acc[p] - skip.acc[p]).abs();
+        assert!(d <= epsilon + EXACT_TOL, "pixel {p}: opacity moved by {d}");
+    }
     // Pixels without a ray are black and empty in both.
     let no_ray = (0..w * h).find(|p| !pixels.contains(p)).unwrap();
     assert_eq!(full.rgb[3 * no_ray..3 * no_ray + 3], [0.0; 3]);

@@ -26,6 +26,7 @@ pub mod shape;
 pub mod softmax;
 pub mod store;
 pub mod surface_ibr;
+pub mod termination;
 pub mod timing;
 pub mod variant;
 

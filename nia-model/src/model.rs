@@ -137,8 +137,10 @@ impl NiaModel {
     /// Renders `rays` of `scene` with `samples` stratified samples each: sampler -> field ->
     /// renderer. `jitter` ([R * S] in [0, 1]) is the training-time offset inside each bin;
     /// `None` samples bin centres. Samples the occupancy grid of `scene` marks empty keep zero
-    /// density without reaching the field. With `source_colours_at = surface` the source views'
-    /// part of the colour is read once per ray at the expected surface point (`surface_ibr`).
+    /// density without reaching the field, and so do, without jitter, the samples behind what
+    /// a ray has made opaque when `scene` terminates rays early (`termination`). With
+    /// `source_colours_at = surface` the source views' part of the colour is read once per ray
+    /// at the expected surface point (`surface_ibr`).
     /// `times` charges sampling, MLPs, blending and compositing.
     pub fn render(
         &self,
@@ -159,6 +161,7 @@ impl NiaModel {
             None => RaySamples::new(rays, samples, jitter, scene.occupancy.as_deref())?,
         };
         let total = ray_samples.total();
+        let mut evaluated = ray_samples.evaluated();
         let n1 = scene.num_views() + 1;
         let (sigma, colour, c0, blend, ibr) = if ray_samples.evaluated() == 0 {
             (
@@ -169,8 +172,23 @@ impl NiaModel {
                 Tensor::<2>::zeros([total, 3], &device),
             )
         } else {
-            let out = self.field_with(scene, &ray_samples.points, &ray_samples.dirs, &mut watch)?;
-            match &ray_samples.kept {
+            // Early ray termination (inference: no jitter) evaluates front to back and skips
+            // what the front has hidden; otherwise every kept sample in one call.
+            let (out, kept) = match (scene.termination, jitter) {
+                (Some(epsilon), None) => {
+                    let (out, index) =
+                        self.field_front_to_back(scene, &ray_samples, epsilon, &mut watch)?;
+                    evaluated = index.len();
+                    let all_in_order =
+                        index.len() == total && index.iter().enumerate().all(|(i, &f)| i == f);
+                    (out, (!all_in_order).then_some(index))
+                }
+                _ => (
+                    self.field_with(scene, &ray_samples.points, &ray_samples.dirs, &mut watch)?,
+                    ray_samples.kept.clone(),
+                ),
+            };
+            match &kept {
                 None => (
                     out.sigma,
                     out.colour,
@@ -253,7 +271,7 @@ impl NiaModel {
                 rendered.rgb_ibr = Some(rgb_ibr);
             }
         }
-        rendered.point_evaluations = ray_samples.evaluated();
+        rendered.point_evaluations = evaluated;
         watch.mark(Stage::Compositing);
         Ok(rendered)
     }

@@ -28,6 +28,7 @@
 
 use std::sync::Arc;
 
+use crate::termination::DEFAULT_TERMINATION;
 use glam::Vec3;
 use nia_data::geometry::occupancy::{OccupancyError, OccupancyGrid};
 use nia_data::geometry::rays::RayBundle;
@@ -381,6 +382,9 @@ pub struct AdaptiveConfig {
     pub empty_space_m: f32,
     /// Occupancy grid cell edge, metres.
     pub occupancy_cell_m: f32,
+    /// Early ray termination: a ray evaluates no more samples once its transmittance is below
+    /// this (`termination`); 0 evaluates every kept sample.
+    pub early_termination: f32,
 }
 
 impl Default for AdaptiveConfig {
@@ -389,6 +393,7 @@ impl Default for AdaptiveConfig {
             skip_empty_space: true,
             empty_space_m: DEFAULT_EMPTY_SPACE_M,
             occupancy_cell_m: DEFAULT_OCCUPANCY_CELL_M,
+            early_termination: DEFAULT_TERMINATION,
         }
     }
 }
@@ -398,8 +403,15 @@ impl AdaptiveConfig {
     pub fn exhaustive() -> Self {
         AdaptiveConfig {
             skip_empty_space: false,
+            early_termination: 0.0,
             ..Self::default()
         }
+    }
+
+    /// The transmittance at which rays stop (`SceneEncoding::with_termination`); `None` when
+    /// early termination is off.
+    pub fn termination(&self) -> Option<f32> {
+        (self.early_termination > 0.0).then_some(self.early_termination)
     }
 
     /// The occupancy grid of the posed mesh (`vertices` [V] world metres) when skipping is on.

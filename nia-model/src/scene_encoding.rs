@@ -39,6 +39,9 @@ pub struct SceneEncoding {
     /// Empty-space skipping: the occupancy grid of the rendered pose's mesh (world frame).
     /// `None` (the default) evaluates every sample.
     pub occupancy: Option<Arc<OccupancyGrid>>,
+    /// Early ray termination (`termination`): the transmittance below which a ray evaluates no
+    /// more samples, at inference. `None` (the default) evaluates every kept sample.
+    pub termination: Option<f32>,
     /// Band sampling (`ModelConfig::ray_sampler`): the band's occupancy grid of the rendered
     /// pose's mesh; `None` for stratified sampling.
     pub band: Option<Arc<OccupancyGrid>>,
@@ -49,6 +52,12 @@ impl SceneEncoding {
     /// will be rendered: the scene's own for a novel view, the target pose's when reposing).
     pub fn with_occupancy(mut self, grid: Option<Arc<OccupancyGrid>>) -> Self {
         self.occupancy = grid;
+        self
+    }
+
+    /// This encoding with early ray termination below transmittance `epsilon` (`None`: off).
+    pub fn with_termination(mut self, epsilon: Option<f32>) -> Self {
+        self.termination = epsilon;
         self
     }
 
@@ -100,6 +109,7 @@ impl NiaModel {
             volume,
             reposer,
             occupancy: None,
+            termination: None,
             band,
         })
     }
@@ -138,6 +148,7 @@ impl NiaModel {
             volume,
             reposer,
             occupancy: None,
+            termination: scene.termination,
             band,
         })
     }

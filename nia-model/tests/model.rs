@@ -10,6 +10,7 @@ use std::sync::Arc;
 use burn::prelude::*;
 use nia_model::loss::{ibr_loss, render_loss};
 use nia_model::surface_ibr::SourceColoursAt;
+use nia_model::termination::TERMINATION_SEGMENTS;
 use nia_model::{ModelConfig, Variant};
 
 const SAMPLES: usize = 8;
@@ -300,4 +301,83 @@ fn configs_without_the_surface_switch_load_as_the_papers_per_sample_form() {
     assert_eq!(old.source_colours_at, None);
     let model = old.init(&common::device());
     assert_eq!(model.source_colours_at, SourceColoursAt::Samples);
+}
+
+/// Early ray termination: with densities that make rays opaque part-way (a density shift of
+/// the tiny network's F_sigma), rays stop evaluating once their transmittance is below epsilon;
+/// colour, opacity and depth change by at most about epsilon (times the largest colour or
+/// depth), and a jittered (training) render evaluates every sample.
+#[test]
+fn early_termination_skips_what_the_front_hides_within_epsilon() {
+    let device = common::device();
+    device.seed(6);
+    let mut model = ModelConfig::tiny().init(&device);
+    let input = common::scene(3, 32);
+    let rays = common::target_rays(&input, 4);
+    let samples = 32;
+    let to_vec = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap();
+    let to_vec2 = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
+    for (shift, expect_cut) in [(-1.0, false), (30.0, true), (2000.0, true)] {
+        model.density.density_shift = shift;
+        let scene = model.encode(&input, None, &device, None).unwrap();
+        let full = model.render(&scene, &rays, samples, None, None).unwrap();
+        let epsilon = 1e-3;
+        let terminated = scene.clone().with_termination(Some(epsilon));
+        let cut = model
+            .render(&terminated, &rays, samples, None, None)
+            .unwrap();
+        let all = rays.len() * samples;
+        assert_eq!(full.point_evaluations, all);
+        assert!(cut.point_evaluations <= all);
+        if expect_cut {
+            assert!(
+                cut.point_evaluations < all,
+                "shift {shift}: nothing skipped ({} of {all})",
+                cut.point_evaluations
+            );
+        }
+        if shift > 1000.0 {
+            // Opaque at the first sample: only the first segment is evaluated.
+            assert_eq!(
+                cut.point_evaluations,
+                all / TERMINATION_SEGMENTS,
+                "shift {shift}"
+            );
+        }
+        let far = rays.far.iter().cloned().fold(0.0f32, f32::max);
+        for (what, a, b, bound) in [
+            (
+                "rgb",
+                to_vec2(full.rgb.clone()),
+                to_vec2(cut.rgb.clone()),
+                epsilon,
+            ),
+            (
+                "acc",
+                to_vec(full.acc.clone()),
+                to_vec(cut.acc.clone()),
+                epsilon,
+            ),
+            (
+                "depth",
+                to_vec(full.depth.clone()),
+                to_vec(cut.depth.clone()),
+                epsilon * far,
+            ),
+        ] {
+            for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+                assert!(x.is_finite() && y.is_finite(), "{what}[{i}]");
+                assert!(
+                    (x - y).abs() <= bound + 1e-5,
+                    "shift {shift}: {what}[{i}] {x} vs {y}"
+                );
+            }
+        }
+        // Training renders (jittered) never terminate early.
+        let jitter = vec![0.5f32; all];
+        let trained = model
+            .render(&terminated, &rays, samples, Some(&jitter), None)
+            .unwrap();
+        assert_eq!(trained.point_evaluations, all);
+    }
 }

@@ -181,7 +181,8 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
         let encoding = loaded
             .model
             .encode_pose(&base, reposer.clone(), Some(&mut times))?
-            .with_occupancy(occupancy);
+            .with_occupancy(occupancy)
+            .with_termination(adaptive.termination());
         let rays = RayBundle::through_pixels(&camera, &body_box, None);
         let img = render_image(
             &loaded.model,

@@ -89,7 +89,8 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
     let encoding = loaded
         .model
         .encode(&input, None, &loaded.device, None)?
-        .with_occupancy(occupancy);
+        .with_occupancy(occupancy)
+        .with_termination(adaptive.termination());
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let bar = progress_bar(orbit.len() as u64, "orbit");

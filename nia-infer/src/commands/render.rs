@@ -89,7 +89,8 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let encoding = loaded
         .model
         .encode(&input, None, &loaded.device, Some(&mut encode_times))?
-        .with_occupancy(occupancy);
+        .with_occupancy(occupancy)
+        .with_termination(adaptive.termination());
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let mut images = Vec::new();

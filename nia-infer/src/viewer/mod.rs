@@ -165,7 +165,8 @@ impl ViewerScene {
         let base = loaded
             .model
             .encode(&input, None, &loaded.device, None)?
-            .with_occupancy(occupancy);
+            .with_occupancy(occupancy)
+            .with_termination(adaptive.termination());
         Ok(ViewerScene {
             encode_seconds: started.elapsed().as_secs_f64(),
             loaded,
