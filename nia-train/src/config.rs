@@ -495,6 +495,13 @@ impl TrainConfig {
                 r.occupancy_cell_m.to_string(),
             ));
         }
+        if !(0.0..1.0).contains(&r.early_termination) {
+            return Err(bad(
+                "render.early_termination",
+                "a transmittance in [0, 1) (0: off)",
+                r.early_termination.to_string(),
+            ));
+        }
         let o = &self.optim;
         for (key, beta) in [("optim.beta1", o.beta1), ("optim.beta2", o.beta2)] {
             if !(beta.is_finite() && (0.0..1.0).contains(&beta)) {

@@ -53,6 +53,15 @@ pub(super) fn cases() -> Vec<Case> {
             },
         ),
         case(
+            "config_early_termination_out_of_range",
+            &["tiny.toml", "render.early_termination", "[0, 1)", "1.5"],
+            |c| {
+                let config =
+                    c.config(&[("[train]", "[render]\nearly_termination = 1.5\n\n[train]")]);
+                c.train_args(&config, &[])
+            },
+        ),
+        case(
             "config_ratio_out_of_range",
             &["tiny.toml", "data.ratio", "(0, 1]", "1.5"],
             |c| {
