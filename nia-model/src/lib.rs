@@ -12,6 +12,7 @@
 //! - [`loss`]: the training loss (NIA eq. 6);
 //! - [`store`]: the `.nia` model file and training checkpoints.
 
+pub mod c0_shuffle;
 pub mod config;
 pub mod device;
 pub mod field;

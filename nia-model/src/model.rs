@@ -163,13 +163,14 @@ impl NiaModel {
         let total = ray_samples.total();
         let mut evaluated = ray_samples.evaluated();
         let n1 = scene.num_views() + 1;
-        let (sigma, colour, c0, blend, ibr) = if ray_samples.evaluated() == 0 {
+        let (sigma, colour, c0, blend, ibr, blend_c0) = if ray_samples.evaluated() == 0 {
             (
                 Tensor::<1>::zeros([total], &device),
                 Tensor::<2>::zeros([total, 3], &device),
                 Tensor::<2>::zeros([total, 3], &device),
                 Tensor::<2>::zeros([total, n1], &device),
                 Tensor::<2>::zeros([total, 3], &device),
+                None,
             )
         } else {
             // Early ray termination (inference: no jitter) evaluates front to back and skips
@@ -195,6 +196,7 @@ impl NiaModel {
                     out.c0,
                     out.blend_weights,
                     out.ibr_colour,
+                    out.blend_c0,
                 ),
                 // Skipped samples keep zero density (and zero colour and weights).
                 Some(kept) => {
@@ -223,6 +225,7 @@ impl NiaModel {
                         scatter2(out.c0, 3),
                         scatter2(out.blend_weights, n1),
                         scatter2(out.ibr_colour, 3),
+                        out.blend_c0.map(|c| scatter2(c, 3)),
                     )
                 }
             }
@@ -231,7 +234,9 @@ impl NiaModel {
         let surface = self.source_colours_at == SourceColoursAt::Surface
             && self.variant != Variant::NoIbr
             && ray_samples.evaluated() > 0;
-        let nerf_colour = surface.then(|| blend.clone().slice(s![.., 0..1]) * c0.clone());
+        // With c0 shuffling (training) the part is made of the c0 that F_B blended.
+        let nerf_colour = surface
+            .then(|| blend.clone().slice(s![.., 0..1]) * blend_c0.unwrap_or_else(|| c0.clone()));
         let t = Tensor::<2>::from_data(
             TensorData::new(ray_samples.t.clone(), [r, samples]),
             &device,

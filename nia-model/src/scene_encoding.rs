@@ -12,6 +12,7 @@ use nia_data::body::reposing::Reposer;
 use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::scene::{projection_grid, SceneGeometry, SceneInput};
 
+use crate::c0_shuffle::C0Shuffle;
 use crate::field::body_volume::{BodyVolume, BodyVolumeGeometry};
 use crate::field::ibr::sample_reduced_through;
 use crate::model::{ModelError, NiaModel};
@@ -42,6 +43,9 @@ pub struct SceneEncoding {
     /// Early ray termination (`termination`): the transmittance below which a ray evaluates no
     /// more samples, at inference. `None` (the default) evaluates every kept sample.
     pub termination: Option<f32>,
+    /// Training augmentation: F_B blends some points' c0 from other points (`c0_shuffle`).
+    /// `None` (the default, and always at inference) blends every point's own c0.
+    pub c0_shuffle: Option<C0Shuffle>,
     /// Band sampling (`ModelConfig::ray_sampler`): the band's occupancy grid of the rendered
     /// pose's mesh; `None` for stratified sampling.
     pub band: Option<Arc<OccupancyGrid>>,
@@ -58,6 +62,12 @@ impl SceneEncoding {
     /// This encoding with early ray termination below transmittance `epsilon` (`None`: off).
     pub fn with_termination(mut self, epsilon: Option<f32>) -> Self {
         self.termination = epsilon;
+        self
+    }
+
+    /// This encoding with c0 shuffling in the blend (training only; `None`: off).
+    pub fn with_c0_shuffle(mut self, shuffle: Option<C0Shuffle>) -> Self {
+        self.c0_shuffle = shuffle;
         self
     }
 
@@ -110,6 +120,7 @@ impl NiaModel {
             reposer,
             occupancy: None,
             termination: None,
+            c0_shuffle: None,
             band,
         })
     }
@@ -149,6 +160,7 @@ impl NiaModel {
             reposer,
             occupancy: None,
             termination: scene.termination,
+            c0_shuffle: scene.c0_shuffle,
             band,
         })
     }

@@ -99,6 +99,8 @@ impl NiaModel {
             sigma: cat1(|o| o.sigma.clone()),
             colour: cat2(|o| o.colour.clone()),
             c0: cat2(|o| o.c0.clone()),
+            // c0 shuffling is a training augmentation; early termination runs at inference.
+            blend_c0: None,
             blend_weights: cat2(|o| o.blend_weights.clone()),
             ibr_colour: cat2(|o| o.ibr_colour.clone()),
         };

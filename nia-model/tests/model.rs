@@ -381,3 +381,55 @@ fn early_termination_skips_what_the_front_hides_within_epsilon() {
         assert_eq!(trained.point_evaluations, all);
     }
 }
+
+/// c0 shuffling (training augmentation): the blend reads other points' c0, so the colour
+/// changes while the NeRF-only composite (the true c0) does not, and gradients stay finite and
+/// reach F_c0 and F_B.
+#[test]
+fn c0_shuffling_changes_the_blend_but_not_the_nerf_composite() {
+    use nia_model::c0_shuffle::C0Shuffle;
+    let device = Device::ndarray().autodiff();
+    device.seed(8);
+    let config = ModelConfig::tiny().with_source_colours_at(Some(SourceColoursAt::Surface));
+    let model = config.init(&device);
+    let input = common::scene(3, 32);
+    let scene = model.encode(&input, None, &device, None).unwrap();
+    let rays = common::target_rays(&input, 3);
+    let jitter = vec![0.5f32; rays.len() * SAMPLES];
+    let plain = model
+        .render(&scene, &rays, SAMPLES, Some(&jitter), None)
+        .unwrap();
+    let shuffled_scene = scene.clone().with_c0_shuffle(Some(C0Shuffle {
+        fraction: 1.0,
+        seed: 5,
+    }));
+    let shuffled = model
+        .render(&shuffled_scene, &rays, SAMPLES, Some(&jitter), None)
+        .unwrap();
+    let v = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
+    assert_eq!(v(plain.rgb0.clone()), v(shuffled.rgb0.clone()));
+    let moved = v(plain.rgb.clone())
+        .iter()
+        .zip(v(shuffled.rgb.clone()))
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(moved > 1e-6, "shuffling did not change the blend");
+    let gt = Tensor::<2>::ones([rays.len(), 3], &device).mul_scalar(0.5);
+    let grads = render_loss(shuffled.rgb, shuffled.rgb0, gt)
+        .unwrap()
+        .total
+        .backward();
+    for (name, w) in [
+        ("colour head", model.colour.layers[0].weight.val()),
+        ("blender", model.blender.token_input.weight.val()),
+    ] {
+        let g = w
+            .grad(&grads)
+            .unwrap()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        assert!(g.iter().all(|x| x.is_finite()), "{name}");
+        assert!(g.iter().any(|&x| x != 0.0), "{name}: no gradient");
+    }
+}

@@ -274,6 +274,10 @@ pub struct TrainSection {
     /// (0: the paper's loss only; see `nia_model::loss::ibr_loss`).
     #[serde(default)]
     pub ibr_loss_weight: f32,
+    /// Fraction of training points whose c0 in the blend is another point's (0: off, the
+    /// paper's training; see `nia_model::c0_shuffle`).
+    #[serde(default)]
+    pub c0_shuffle: f32,
 }
 
 impl TrainSection {
@@ -426,6 +430,13 @@ impl TrainConfig {
         }
         if t.source_views == 0 {
             return Err(bad("train.source_views", ">= 1", "0".into()));
+        }
+        if !(0.0..=1.0).contains(&t.c0_shuffle) {
+            return Err(bad(
+                "train.c0_shuffle",
+                "a fraction in [0, 1]",
+                t.c0_shuffle.to_string(),
+            ));
         }
         if !(t.mask_loss_weight.is_finite() && t.mask_loss_weight >= 0.0) {
             return Err(bad(

@@ -30,6 +30,7 @@ use nia_infer::eval::{
     eval_items, evaluate_images, evaluate_items, EvalError, EvalOptions, EvalSummary, EvalTask,
 };
 use nia_infer::pictures::{comparison_grid, save_evaluated};
+use nia_model::c0_shuffle::C0Shuffle;
 use nia_model::loss::{distortion_loss, ibr_loss, mask_loss, psnr_from_mse, render_loss};
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::{ModelError, NiaModel};
@@ -40,6 +41,8 @@ use crate::events::{Phase, TrainEvent};
 
 /// Label of the jitter stream forked from a step's RNG (the loader uses the request seed).
 const JITTER_STREAM: u64 = 1;
+/// Label of the c0-shuffling stream forked from a step's RNG (`train.c0_shuffle`).
+const C0_SHUFFLE_STREAM: u64 = 2;
 
 /// Images of the final evaluation whose grids and blend maps are written (`<out>/evaluation/`).
 pub const FINAL_PICTURES: usize = 4;
@@ -502,9 +505,17 @@ fn scene_gradients(
         source,
     };
     let input = SceneInput::from_loaded(scene, faces);
+    let c0_shuffle = (config.train.c0_shuffle > 0.0).then(|| C0Shuffle {
+        fraction: config.train.c0_shuffle,
+        seed: Rng::new(config.train.seed)
+            .fork(index)
+            .fork(C0_SHUFFLE_STREAM)
+            .next_u64(),
+    });
     let encoded = model
         .encode(&input, None, device, None)
-        .map_err(model_err)?;
+        .map_err(model_err)?
+        .with_c0_shuffle(c0_shuffle);
     let samples = config.train.samples;
     let mut jitter_rng = Rng::new(config.train.seed).fork(index).fork(JITTER_STREAM);
     let jitter: Vec<f32> = (0..rays.len() * samples)

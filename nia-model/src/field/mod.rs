@@ -46,6 +46,9 @@ pub struct PointOutput {
     pub colour: Tensor<2>,
     /// [M, 3] NeRF colour c0.
     pub c0: Tensor<2>,
+    /// [M, 3] the c0 F_B blended where it is not c0 itself (training with c0 shuffling,
+    /// `SceneEncoding::c0_shuffle`); `None` otherwise.
+    pub blend_c0: Option<Tensor<2>>,
     /// [M, N + 1] blend weights (index 0 = c0).
     pub blend_weights: Tensor<2>,
     /// [M, 3] the image-based part of the colour alone: the source colours under the blend
@@ -193,11 +196,12 @@ impl NiaModel {
         let gamma = self.direction_encoding.forward(points.dirs.clone())?;
         let heads = self.colour.forward(mean_z, gamma)?;
         let c0 = heads.c0.clone();
+        let blend_c0 = scene.c0_shuffle.map(|s| s.apply(heads.c0.clone()));
         watch.mark(Stage::Mlps);
         let blended = self.blender.colour(
             self.variant,
             BlendInputs {
-                c0: heads.c0,
+                c0: blend_c0.clone().unwrap_or(heads.c0),
                 confidence: heads.confidence,
                 h: heads.h,
                 source_colours: source_colours.clone(),
@@ -212,6 +216,7 @@ impl NiaModel {
             sigma,
             colour: blended.colour,
             c0,
+            blend_c0,
             blend_weights: blended.blend_weights,
             ibr_colour,
         })

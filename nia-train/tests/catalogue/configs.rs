@@ -62,6 +62,14 @@ pub(super) fn cases() -> Vec<Case> {
             },
         ),
         case(
+            "config_c0_shuffle_out_of_range",
+            &["tiny.toml", "train.c0_shuffle", "[0, 1]", "2"],
+            |c| {
+                let config = c.config(&[("samples = 4", "samples = 4\nc0_shuffle = 2.0")]);
+                c.train_args(&config, &[])
+            },
+        ),
+        case(
             "config_ratio_out_of_range",
             &["tiny.toml", "data.ratio", "(0, 1]", "1.5"],
             |c| {
