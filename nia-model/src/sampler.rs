@@ -31,6 +31,7 @@ use std::sync::Arc;
 use crate::termination::DEFAULT_TERMINATION;
 use glam::Vec3;
 use nia_data::geometry::occupancy::{OccupancyError, OccupancyGrid};
+use nia_data::geometry::occupancy_memo::shared_grid;
 use nia_data::geometry::rays::RayBundle;
 use serde::{Deserialize, Serialize};
 
@@ -341,7 +342,7 @@ impl RaySampler {
         match *self {
             RaySampler::Stratified => Ok(None),
             RaySampler::Band { margin_m, cell_m } => {
-                OccupancyGrid::build(vertices, faces, margin_m, cell_m).map(|g| Some(Arc::new(g)))
+                shared_grid(vertices, faces, margin_m, cell_m).map(Some)
             }
         }
     }
@@ -423,7 +424,6 @@ impl AdaptiveConfig {
         if !self.skip_empty_space {
             return Ok(None);
         }
-        OccupancyGrid::build(vertices, faces, self.empty_space_m, self.occupancy_cell_m)
-            .map(|g| Some(Arc::new(g)))
+        shared_grid(vertices, faces, self.empty_space_m, self.occupancy_cell_m).map(Some)
     }
 }

@@ -8,11 +8,13 @@
 //! - [`visibility`]: per-vertex visibility in a view by rasterisation.
 //! - [`surface`]: nearest point on a triangle mesh (BVH) with barycentric weights.
 //! - [`occupancy`]: the occupancy grid of a posed mesh (which samples can be skipped).
+//! - [`occupancy_memo`]: grids of recently seen meshes, shared instead of rebuilt.
 //! - [`orbit`]: a 360-degree camera path on the ring of a dataset's calibrated cameras.
 //! - [`sparse`]: voxel boxes, active sites, convolution rulebooks and trilinear corners.
 
 pub mod camera;
 pub mod occupancy;
+pub mod occupancy_memo;
 pub mod orbit;
 pub mod raster;
 pub mod rays;
