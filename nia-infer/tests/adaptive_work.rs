@@ -134,11 +134,16 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
     let rays = RayBundle::through_pixels(&image.camera, &scene.body_box, Some(mask_at_box));
     let size = [image.width() as usize, image.height() as usize];
     let pixels: Vec<usize> = rays.pixels.iter().map(|&p| p as usize).collect();
-    let render = |adaptive: AdaptiveConfig| -> RenderedImage {
+    // Skipping as `adaptive` says; early termination only when asked (the exactness checks
+    // below are of skipping alone).
+    let render_with = |adaptive: AdaptiveConfig, termination: Option<f32>| -> RenderedImage {
         let grid = adaptive
             .occupancy(&scene.vertices, &c.source.faces)
             .unwrap();
-        let encoding = full_encoding.clone().with_occupancy(grid);
+        let encoding = full_encoding
+            .clone()
+            .with_occupancy(grid)
+            .with_termination(termination);
         render_image(
             &model,
             &encoding,
@@ -153,6 +158,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
         )
         .unwrap()
     };
+    let render = |adaptive: AdaptiveConfig| render_with(adaptive, None);
     let full = render(AdaptiveConfig::exhaustive());
     let skip = render(AdaptiveConfig::default());
     assert_eq!(full.point_evaluations, (rays.len() * 32) as u64);
@@ -247,26 +253,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
     // colours and opacities move by at most the transmittance threshold, with no more points.
     let adaptive = AdaptiveConfig::default();
     let epsilon = adaptive.termination().expect("on by default");
-    let terminated = render_image(
-        &model,
-        &full_encoding
-            .clone()
-            .with_occupancy(
-                adaptive
-                    .occupancy(&scene.vertices, &c.source.faces)
-                    .unwrap(),
-            )
-            .with_termination(Some(epsilon)),
-        &rays,
-        size,
-        ImageRenderOptions {
-            samples: 32,
-            chunk: 512,
-            timed: false,
-        },
-        &mut |_, _| {},
-    )
-    .unwrap();
+    let terminated = render_with(adaptive, Some(epsilon));
     assert!(terminated.point_evaluations <= skip.point_evaluations);
     eprintln!(
         "early termination: {} of {} points",
