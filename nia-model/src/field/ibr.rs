@@ -5,42 +5,30 @@
 //!
 //! Sampling: `proj_grid[n, m] = (u_norm, v_norm)` with `u_norm = 2 u / W - 1`,
 //! `v_norm = 2 v / H - 1` (u, v in pixels of the full-resolution source image, pixel centres at
-//! i + 0.5). `grid_sample_2d` with bilinear interpolation, zero padding and
-//! `align_corners = false` reads pixel (u - 0.5, v - 0.5) of a W x H map, and the same
+//! i + 0.5). The bilinear read ([`super::bilinear`]; `grid_sample_2d`'s with zero padding and
+//! `align_corners = false`) reads pixel (u - 0.5, v - 0.5) of a W x H map, and the same
 //! normalised coordinates address the half-resolution feature maps consistently (the feature
 //! map covers the same image extent). Points outside a view (or behind its camera, which the
 //! CPU precompute maps far outside [-1, 1]) read zeros.
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::ops::GridSampleOptions;
 
 use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 
 use super::encoder::FeaturePyramid;
 use crate::shape::ShapeError;
 
-/// Bilinearly samples N maps at M points each.
+/// Bilinearly samples N maps at M points each ([`super::bilinear::sample`]: the read of
+/// `grid_sample_2d` with bilinear interpolation, zero padding and `align_corners = false`, as
+/// four row gathers).
 ///
 /// # Shapes
 /// - `maps`: `[N, C, H, W]` (source images or feature maps of view n)
 /// - `proj_grid`: `[N, M, 2]`, (x, y) in [-1, 1] (see the module docs)
 /// - output: `[N, M, C]`, zeros where the projection falls outside the map
 pub fn sample_views(maps: Tensor<4>, proj_grid: Tensor<3>) -> Result<Tensor<3>, ShapeError> {
-    let [n, c, h, w] = maps.dims();
-    let [n_grid, m, two] = proj_grid.dims();
-    ShapeError::check(
-        "IBR `proj_grid` [N, M, 2]",
-        &[n_grid, m, two],
-        &[Some(n), None, Some(2)],
-    )?;
-    if n == 0 || h == 0 || w == 0 {
-        return Err(ShapeError::empty("IBR `maps` [N, C, H, W]"));
-    }
-    let options = GridSampleOptions::default().with_align_corners(false);
-    // [N, 1, M, 2] -> [N, C, 1, M] -> [N, C, M] -> [N, M, C]
-    let sampled = maps.grid_sample_2d(proj_grid.reshape([n, 1, m, 2]), options);
-    Ok(sampled.reshape([n, c, m]).swap_dims(1, 2))
+    super::bilinear::sample(maps, proj_grid)
 }
 
 /// `Linear(sample(F))` from maps already through the linear map's weights (`W^T F`): the

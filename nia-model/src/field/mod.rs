@@ -3,7 +3,8 @@
 //!
 //! - [`encoder`]: ResNet-18 feature maps of the source views (per scene, once);
 //! - [`body_volume`]: the sparse-convolution body volume, sampled trilinearly into s_n;
-//! - [`ibr`]: pixel-aligned features l_n = p_n and source colours c_n at the projections of x;
+//! - [`ibr`]: pixel-aligned features l_n = p_n and source colours c_n at the projections of x
+//!   (read by [`bilinear`]);
 //! - [`attention`]: the view-wise cross-attention `Z = softmax(phi_k(S) phi_k(L)^T / sqrt(d))
 //!   phi_v(L) + S`;
 //! - [`heads`]: `sigma = F_sigma(mean_n z_n)`, `(c0, psi, h) = F_c0([mean_n z_n ; gamma(d)])`
@@ -16,6 +17,7 @@
 //! first when the scene renders another pose) and runs [`NiaModel::query`], the network proper.
 
 pub mod attention;
+pub mod bilinear;
 pub mod blender;
 pub mod body_volume;
 pub mod encoder;
