@@ -55,34 +55,31 @@ pub fn sample(maps: Tensor<4>, proj_grid: Tensor<3>) -> Result<Tensor<3>, ShapeE
         .float()
         .mul_scalar((h * w) as f32)
         .reshape([n, 1]);
-    let mut out: Option<Tensor<2>> = None;
-    for (dy, wy) in [(0.0, fy.clone().neg() + 1.0), (1.0, fy)] {
-        for (dx, wx) in [(0.0, fx.clone().neg() + 1.0), (1.0, fx.clone())] {
-            let xi = x0.clone() + dx;
-            let yi = y0.clone() + dy;
-            // Comparisons with NaN are false: a non-finite coordinate is outside.
-            let inside = xi
-                .clone()
-                .greater_equal_elem(0.0)
-                .bool_and(xi.clone().lower_equal_elem((w - 1) as f32))
-                .bool_and(yi.clone().greater_equal_elem(0.0))
-                .bool_and(yi.clone().lower_equal_elem((h - 1) as f32));
-            let outside = inside.bool_not();
-            let index = (yi * (w as f32) + xi + view_base.clone())
-                .mask_fill(outside.clone(), zero_row)
-                .int()
-                .reshape([n * m]);
-            let weight = (wy.clone() * wx)
-                .mask_fill(outside, 0.0)
-                .reshape([n * m, 1]);
-            let term = rows.clone().select(0, index) * weight;
-            out = Some(match out {
-                None => term,
-                Some(acc) => acc + term,
-            });
-        }
-    }
-    let out = out.expect("four corners");
+    // One corner (x0 + dx, y0 + dy) with its weight: a row gather times the weight, zero off
+    // the map.
+    let corner = |dx: f32, dy: f32, wx: Tensor<2>, wy: Tensor<2>| -> Tensor<2> {
+        let xi = x0.clone() + dx;
+        let yi = y0.clone() + dy;
+        // Comparisons with NaN are false: a non-finite coordinate is outside.
+        let inside = xi
+            .clone()
+            .greater_equal_elem(0.0)
+            .bool_and(xi.clone().lower_equal_elem((w - 1) as f32))
+            .bool_and(yi.clone().greater_equal_elem(0.0))
+            .bool_and(yi.clone().lower_equal_elem((h - 1) as f32));
+        let outside = inside.bool_not();
+        let index = (yi * (w as f32) + xi + view_base.clone())
+            .mask_fill(outside.clone(), zero_row)
+            .int()
+            .reshape([n * m]);
+        let weight = (wy * wx).mask_fill(outside, 0.0).reshape([n * m, 1]);
+        rows.clone().select(0, index) * weight
+    };
+    let (gx, gy) = (fx.clone().neg() + 1.0, fy.clone().neg() + 1.0);
+    let out = corner(0.0, 0.0, gx.clone(), gy.clone())
+        + corner(1.0, 0.0, fx.clone(), gy)
+        + corner(0.0, 1.0, gx, fy.clone())
+        + corner(1.0, 1.0, fx, fy);
     Ok(out.reshape([n, m, c]))
 }
 
