@@ -133,6 +133,8 @@ pub struct ImageResult {
     pub rays: usize,
     /// Points evaluated by the network.
     pub point_evaluations: u64,
+    /// Of those, the points whose colour was evaluated (colour culling skips the rest).
+    pub colour_evaluations: u64,
     /// Wall time of the image (encoding, reposing set-up and rendering; not loading).
     pub seconds: f64,
     /// The hybrid's instruments ([`BlendDiagnostics`]).
@@ -300,7 +302,8 @@ pub fn evaluate_images(
             )
             .map_err(model_err)?
             .with_occupancy(occupancy)
-            .with_termination(options.adaptive.termination());
+            .with_termination(options.adaptive.termination())
+            .with_colour_culling(options.adaptive.culling());
         let rays =
             RayBundle::through_pixels(&image.camera, &target_scene.body_box, Some(mask_at_box));
         let mut rendered = render_image(
@@ -355,6 +358,7 @@ pub fn evaluate_images(
             lpips,
             rays: rendered.rays,
             point_evaluations: rendered.point_evaluations,
+            colour_evaluations: rendered.colour_evaluations,
             seconds,
             diagnostics,
             times,

@@ -48,6 +48,10 @@ pub struct ModelArgs {
     /// this; 0 turns it off (default: the model's `[render]` setting, 1e-3).
     #[arg(long)]
     pub early_termination: Option<f32>,
+    /// Colour culling: per ray, samples whose weights sum to at most this get no colour
+    /// evaluation; 0 turns it off (default: the model's `[render]` setting, 1e-3).
+    #[arg(long)]
+    pub colour_culling: Option<f32>,
 }
 
 pub fn parse_switch(s: &str) -> Result<bool, String> {
@@ -91,6 +95,12 @@ impl LoadedModel {
             .is_some_and(|e| !(0.0..1.0).contains(&e))
         {
             anyhow::bail!("--early-termination must be a transmittance in [0, 1) (0: off)");
+        }
+        if args
+            .colour_culling
+            .is_some_and(|e| !(0.0..1.0).contains(&e))
+        {
+            anyhow::bail!("--colour-culling must be a weight in [0, 1) (0: off)");
         }
         let path = &args.model;
         let file = ModelFile::read(path)?;
@@ -139,6 +149,9 @@ impl LoadedModel {
         }
         if let Some(e) = args.early_termination {
             a.early_termination = e;
+        }
+        if let Some(e) = args.colour_culling {
+            a.colour_culling = e;
         }
         a
     }

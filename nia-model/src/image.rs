@@ -37,6 +37,9 @@ pub struct RenderedImage {
     pub rays: usize,
     /// Points the network evaluated (rays x samples, less the samples skipped as empty space).
     pub point_evaluations: u64,
+    /// Of those, the points the colour half of the network evaluated (fewer with colour
+    /// culling).
+    pub colour_evaluations: u64,
     /// Time per stage (only filled when timing was asked for).
     pub times: StageTimes,
 }
@@ -104,6 +107,7 @@ pub fn render_image_cancellable(
         blend_weights: vec![0.0; w * h * k],
         rays: 0,
         point_evaluations: 0,
+        colour_evaluations: 0,
         times: StageTimes::default(),
     };
     let total = rays.len();
@@ -123,6 +127,7 @@ pub fn render_image_cancellable(
             blend_weights,
             rgb_ibr,
             point_evaluations,
+            colour_evaluations,
             ..
         } = model.render(
             scene,
@@ -162,6 +167,7 @@ pub fn render_image_cancellable(
         }
         out.rays += n;
         out.point_evaluations += point_evaluations as u64;
+        out.colour_evaluations += colour_evaluations as u64;
         progress(end, total);
     }
     if let Some(bad) = out.rgb.iter().position(|v| !v.is_finite()) {

@@ -13,6 +13,7 @@
 //! - [`store`]: the `.nia` model file and training checkpoints.
 
 pub mod c0_shuffle;
+pub mod colour_culling;
 pub mod config;
 pub mod device;
 pub mod field;

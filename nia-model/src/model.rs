@@ -162,6 +162,7 @@ impl NiaModel {
         };
         let total = ray_samples.total();
         let mut evaluated = ray_samples.evaluated();
+        let mut colour_evaluated = evaluated;
         let n1 = scene.num_views() + 1;
         let (sigma, colour, c0, blend, ibr, blend_c0) = if ray_samples.evaluated() == 0 {
             (
@@ -175,11 +176,18 @@ impl NiaModel {
         } else {
             // Early ray termination (inference: no jitter) evaluates front to back and skips
             // what the front has hidden; otherwise every kept sample in one call.
-            let (out, kept) = match (scene.termination, jitter) {
-                (Some(epsilon), None) => {
-                    let (out, index) =
-                        self.field_front_to_back(scene, &ray_samples, epsilon, &mut watch)?;
+            let adaptive = scene.termination.is_some() || scene.colour_culling.is_some();
+            let (out, kept) = match (adaptive, jitter) {
+                (true, None) => {
+                    let (out, index, coloured) = self.field_front_to_back(
+                        scene,
+                        &ray_samples,
+                        scene.termination,
+                        scene.colour_culling,
+                        &mut watch,
+                    )?;
                     evaluated = index.len();
+                    colour_evaluated = coloured;
                     let all_in_order =
                         index.len() == total && index.iter().enumerate().all(|(i, &f)| i == f);
                     (out, (!all_in_order).then_some(index))
@@ -277,6 +285,7 @@ impl NiaModel {
             }
         }
         rendered.point_evaluations = evaluated;
+        rendered.colour_evaluations = colour_evaluated;
         watch.mark(Stage::Compositing);
         Ok(rendered)
     }

@@ -54,6 +54,9 @@ pub struct RenderOutput {
     pub rgb_ibr: Option<Tensor<2>>,
     /// Sample points the network evaluated (`R * S` unless empty space was skipped).
     pub point_evaluations: usize,
+    /// Of those, the points the colour half of the network evaluated (fewer with colour
+    /// culling).
+    pub colour_evaluations: usize,
 }
 
 /// The compositing weights w_i = T_i alpha_i of every sample.
@@ -201,5 +204,6 @@ pub fn render_rays_delta(
         delta,
         rgb_ibr: None,
         point_evaluations: r * s,
+        colour_evaluations: r * s,
     })
 }

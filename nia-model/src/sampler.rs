@@ -28,6 +28,7 @@
 
 use std::sync::Arc;
 
+use crate::colour_culling::DEFAULT_COLOUR_CULLING;
 use crate::termination::DEFAULT_TERMINATION;
 use glam::Vec3;
 use nia_data::geometry::occupancy::{OccupancyError, OccupancyGrid};
@@ -386,6 +387,9 @@ pub struct AdaptiveConfig {
     /// Early ray termination: a ray evaluates no more samples once its transmittance is below
     /// this (`termination`); 0 evaluates every kept sample.
     pub early_termination: f32,
+    /// Colour culling: per ray, samples whose weights sum to at most this get no colour
+    /// evaluation (`colour_culling`); 0 colours every evaluated sample.
+    pub colour_culling: f32,
 }
 
 impl Default for AdaptiveConfig {
@@ -395,6 +399,7 @@ impl Default for AdaptiveConfig {
             empty_space_m: DEFAULT_EMPTY_SPACE_M,
             occupancy_cell_m: DEFAULT_OCCUPANCY_CELL_M,
             early_termination: DEFAULT_TERMINATION,
+            colour_culling: DEFAULT_COLOUR_CULLING,
         }
     }
 }
@@ -405,6 +410,7 @@ impl AdaptiveConfig {
         AdaptiveConfig {
             skip_empty_space: false,
             early_termination: 0.0,
+            colour_culling: 0.0,
             ..Self::default()
         }
     }
@@ -413,6 +419,12 @@ impl AdaptiveConfig {
     /// early termination is off.
     pub fn termination(&self) -> Option<f32> {
         (self.early_termination > 0.0).then_some(self.early_termination)
+    }
+
+    /// The per-ray weight budget of colour culling (`SceneEncoding::with_colour_culling`);
+    /// `None` when culling is off.
+    pub fn culling(&self) -> Option<f32> {
+        (self.colour_culling > 0.0).then_some(self.colour_culling)
     }
 
     /// The occupancy grid of the posed mesh (`vertices` [V] world metres) when skipping is on.

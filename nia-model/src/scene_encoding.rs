@@ -13,6 +13,7 @@ use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::scene::{projection_grid, SceneGeometry, SceneInput};
 
 use crate::c0_shuffle::C0Shuffle;
+use crate::field::bilinear::ViewRows;
 use crate::field::body_volume::{BodyVolume, BodyVolumeGeometry};
 use crate::field::ibr::sample_reduced_through;
 use crate::model::{ModelError, NiaModel};
@@ -25,13 +26,15 @@ pub struct SceneEncoding {
     pub geometry: Arc<SceneGeometry>,
     /// [N, 3, H, W] source images in [0, 1].
     pub images: Tensor<4>,
+    /// The source images laid out as rows once, for the colour reads c_n of every ray chunk.
+    pub image_rows: ViewRows,
     /// [N, C_v, H/2, W/2] the encoder's feature maps through the vertex reduction's weights
     /// (`W_v^T F`, without the bias): what the body volume's vertex features sample, kept for
     /// rebuilding the volume in other poses.
     pub vertex_maps: Tensor<4>,
     /// [N, d, H/2, W/2] the feature maps through the pixel-feature reduction's weights
-    /// (`PixelFeature::reduce_maps`), sampled per point.
-    pub pixel_maps: Tensor<4>,
+    /// (`PixelFeature::reduce_maps`), laid out as rows once and sampled per point.
+    pub pixel_rows: ViewRows,
     /// The body volume and its geometry (`None` for variant (a), which has no body).
     pub volume: Option<(BodyVolumeGeometry, BodyVolume)>,
     /// Pose animation: maps query points of the rendered (target) pose to the scene's pose.
@@ -43,6 +46,9 @@ pub struct SceneEncoding {
     /// Early ray termination (`termination`): the transmittance below which a ray evaluates no
     /// more samples, at inference. `None` (the default) evaluates every kept sample.
     pub termination: Option<f32>,
+    /// Colour culling (`colour_culling`): the per-ray budget of weight whose samples get no
+    /// colour evaluation, at inference. `None` (the default) colours every evaluated sample.
+    pub colour_culling: Option<f32>,
     /// Training augmentation: F_B blends some points' c0 from other points (`c0_shuffle`).
     /// `None` (the default, and always at inference) blends every point's own c0.
     pub c0_shuffle: Option<C0Shuffle>,
@@ -62,6 +68,12 @@ impl SceneEncoding {
     /// This encoding with early ray termination below transmittance `epsilon` (`None`: off).
     pub fn with_termination(mut self, epsilon: Option<f32>) -> Self {
         self.termination = epsilon;
+        self
+    }
+
+    /// This encoding with colour culling within a per-ray weight budget `epsilon` (`None`: off).
+    pub fn with_colour_culling(mut self, epsilon: Option<f32>) -> Self {
+        self.colour_culling = epsilon;
         self
     }
 
@@ -101,7 +113,7 @@ impl NiaModel {
         // The encoder's pyramid is reduced level by level before upsampling, once per
         // consumer (pixel features, vertex features): the 512-channel map F is never built.
         let pyramid = self.encoder.forward_pyramid(images.clone());
-        let pixel_maps = self.pixel_feature.reduce_maps(&pyramid)?;
+        let pixel_rows = ViewRows::new(self.pixel_feature.reduce_maps(&pyramid)?)?;
         let vertex_maps = pyramid.reduce(self.vertex_reduce.weight.val())?;
         drop(pyramid);
         watch.mark(Stage::Encoder);
@@ -113,13 +125,15 @@ impl NiaModel {
         let band = self.band_of(&geometry, reposer.as_deref())?;
         Ok(SceneEncoding {
             geometry,
+            image_rows: ViewRows::new(images.clone())?,
             images,
             vertex_maps,
-            pixel_maps,
+            pixel_rows,
             volume,
             reposer,
             occupancy: None,
             termination: None,
+            colour_culling: None,
             c0_shuffle: None,
             band,
         })
@@ -155,11 +169,13 @@ impl NiaModel {
             geometry: scene.geometry.clone(),
             images: scene.images.clone(),
             vertex_maps: scene.vertex_maps.clone(),
-            pixel_maps: scene.pixel_maps.clone(),
+            image_rows: scene.image_rows.clone(),
+            pixel_rows: scene.pixel_rows.clone(),
             volume,
             reposer,
             occupancy: None,
             termination: scene.termination,
+            colour_culling: scene.colour_culling,
             c0_shuffle: scene.c0_shuffle,
             band,
         })

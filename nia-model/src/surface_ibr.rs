@@ -30,7 +30,7 @@ use nia_data::geometry::rays::RayBundle;
 use nia_data::scene::projection_grid;
 use serde::{Deserialize, Serialize};
 
-use crate::field::ibr::fetch_source_colours;
+use crate::field::ibr::fetch_source_colours_from;
 use crate::model::ModelError;
 use crate::scene_encoding::SceneEncoding;
 
@@ -128,7 +128,7 @@ pub fn surface_colours(
         // No gradient can flow (inference): the read alone, without the slope's second
         // projection (and reposing) of every ray.
         let grid = Tensor::<3>::from_data(TensorData::new(to_grid(points)?, [n, r, 2]), &device);
-        return Ok(fetch_source_colours(scene.images.clone(), grid)?);
+        return Ok(fetch_source_colours_from(&scene.image_rows, grid)?);
     }
     let stepped: Vec<Vec3> = points
         .iter()
@@ -153,8 +153,8 @@ pub fn surface_colours(
     // t_s - t0: zero forward, the gradient of t_s backward.
     let t_s = depth / acc.clamp_min(SURFACE_ACC_FLOOR);
     let dt = (t_s.clone() - t_s.detach()).reshape([1, r, 1]);
-    Ok(fetch_source_colours(
-        scene.images.clone(),
+    Ok(fetch_source_colours_from(
+        &scene.image_rows,
         grid + slope * dt,
     )?)
 }

@@ -13,10 +13,14 @@
 //!
 //! Cost: one network call per non-empty segment instead of one per ray chunk, and the density
 //! read back to the CPU between segments.
+//!
+//! The same walk culls colour evaluations ([`crate::colour_culling`]): the density half of the
+//! network runs on a segment's samples, then the colour half on those whose weight matters.
 
 use burn::prelude::*;
 use glam::Vec3;
 
+use crate::colour_culling::cull;
 use crate::field::PointOutput;
 use crate::model::{ModelError, NiaModel};
 use crate::sampler::RaySamples;
@@ -31,16 +35,21 @@ pub const TERMINATION_SEGMENTS: usize = 8;
 pub const DEFAULT_TERMINATION: f32 = 1e-3;
 
 impl NiaModel {
-    /// The field at the kept samples of `samples`, front to back, skipping the samples of rays
-    /// whose transmittance fell below `epsilon` (module docs). Returns the outputs of the
-    /// evaluated points and their flat `[R * S]` sample indices, in the same order.
+    /// The field at the kept samples of `samples`, front to back: with `termination`
+    /// (transmittance epsilon) in [`TERMINATION_SEGMENTS`] depth segments, skipping the samples
+    /// of rays whose transmittance fell below it (module docs); with `culling` (a per-ray weight
+    /// budget, [`crate::colour_culling`]) the colour half of the network runs only on the
+    /// samples whose weight matters. Returns the outputs of the evaluated points, their flat
+    /// `[R * S]` sample indices in the same order, and how many got a colour evaluation
+    /// (culled samples come with zero colour, c0, IBR colour and blend weights).
     pub(crate) fn field_front_to_back(
         &self,
         scene: &SceneEncoding,
         samples: &RaySamples,
-        epsilon: f32,
+        termination: Option<f32>,
+        culling: Option<f32>,
         watch: &mut Stopwatch<'_>,
-    ) -> Result<(PointOutput, Vec<usize>), ModelError> {
+    ) -> Result<(PointOutput, Vec<usize>, usize), ModelError> {
         let s = samples.per_ray.max(1);
         let rays = samples.t.len() / s;
         let flat: Vec<usize> = match &samples.kept {
@@ -48,16 +57,24 @@ impl NiaModel {
             None => (0..samples.points.len()).collect(),
         };
         // exp(-tau) < epsilon  <=>  tau > -ln(epsilon); epsilon <= 0 never stops a ray.
-        let tau_stop = if epsilon > 0.0 {
-            -epsilon.ln()
-        } else {
-            f32::INFINITY
+        let tau_stop = match termination {
+            Some(epsilon) if epsilon > 0.0 => -epsilon.ln(),
+            _ => f32::INFINITY,
         };
-        let segment_of = |f: usize| (f % s) * TERMINATION_SEGMENTS / s;
+        let segments = if termination.is_some() {
+            TERMINATION_SEGMENTS
+        } else {
+            1
+        };
+        let segment_of = |f: usize| (f % s) * segments / s;
+        let device = scene.images.device();
+        let n1 = scene.num_views() + 1;
         let mut tau = vec![0.0f32; rays];
+        let mut spent = vec![0.0f32; rays];
         let mut outputs = Vec::new();
         let mut index = Vec::new();
-        for segment in 0..TERMINATION_SEGMENTS {
+        let mut coloured = 0;
+        for segment in 0..segments {
             let chosen: Vec<usize> = (0..flat.len())
                 .filter(|&p| segment_of(flat[p]) == segment && tau[flat[p] / s] <= tau_stop)
                 .collect();
@@ -66,25 +83,63 @@ impl NiaModel {
             }
             let points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
             let dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
-            let out = self.field_with(scene, &points, &dirs, watch)?;
-            let sigma = out
+            let density = self.field_density(scene, &points, &dirs, watch)?;
+            let sigma = density
                 .sigma
                 .clone()
                 .into_data()
                 .try_to_vec::<f32>()
                 .map_err(|e| ModelError::Input(format!("reading densities: {e:?}")))?;
-            for (k, &p) in chosen.iter().enumerate() {
-                let f = flat[p];
-                // A non-finite density stops the ray (the renderer reports what it does).
-                let step = sigma[k] * samples.delta[f];
-                tau[f / s] += if step.is_finite() {
-                    step
+            let ray_of: Vec<usize> = chosen.iter().map(|&p| flat[p] / s).collect();
+            let steps: Vec<f32> = chosen
+                .iter()
+                .zip(&sigma)
+                .map(|(&p, &sigma)| sigma * samples.delta[flat[p]])
+                .collect();
+            let evaluate = match culling {
+                // Also advances tau (a non-finite density stops the ray).
+                Some(budget) => cull(&ray_of, &steps, &mut tau, &mut spent, budget),
+                None => {
+                    for (&ray, &step) in ray_of.iter().zip(&steps) {
+                        tau[ray] += if step.is_finite() {
+                            step
+                        } else {
+                            f32::INFINITY
+                        };
+                    }
+                    vec![true; chosen.len()]
+                }
+            };
+            let (colour_at, culled): (Vec<usize>, Vec<usize>) =
+                (0..chosen.len()).partition(|&k| evaluate[k]);
+            coloured += colour_at.len();
+            let to_index = |ks: &[usize]| {
+                let ks: Vec<i64> = ks.iter().map(|&k| k as i64).collect();
+                Tensor::<1, Int>::from_data(TensorData::new(ks.clone(), [ks.len()]), &device)
+            };
+            // The evaluated points first, then the culled ones with zero colour.
+            let mut parts = Vec::new();
+            if !colour_at.is_empty() {
+                let pass = if culled.is_empty() {
+                    density.clone()
                 } else {
-                    f32::INFINITY
+                    density.select(to_index(&colour_at))
                 };
+                parts.push(self.query_colour(scene, pass, watch)?);
             }
-            index.extend(chosen.iter().map(|&p| flat[p]));
-            outputs.push(out);
+            if !culled.is_empty() {
+                let k = culled.len();
+                parts.push(PointOutput {
+                    sigma: density.sigma.clone().select(0, to_index(&culled)),
+                    colour: Tensor::zeros([k, 3], &device),
+                    c0: Tensor::zeros([k, 3], &device),
+                    blend_c0: None,
+                    blend_weights: Tensor::zeros([k, n1], &device),
+                    ibr_colour: Tensor::zeros([k, 3], &device),
+                });
+            }
+            index.extend(colour_at.iter().chain(&culled).map(|&k| flat[chosen[k]]));
+            outputs.extend(parts);
         }
         let cat1 =
             |f: fn(&PointOutput) -> Tensor<1>| Tensor::cat(outputs.iter().map(f).collect(), 0);
@@ -99,11 +154,11 @@ impl NiaModel {
             sigma: cat1(|o| o.sigma.clone()),
             colour: cat2(|o| o.colour.clone()),
             c0: cat2(|o| o.c0.clone()),
-            // c0 shuffling is a training augmentation; early termination runs at inference.
+            // c0 shuffling is a training augmentation; this runs at inference.
             blend_c0: None,
             blend_weights: cat2(|o| o.blend_weights.clone()),
             ibr_colour: cat2(|o| o.ibr_colour.clone()),
         };
-        Ok((out, index))
+        Ok((out, index, coloured))
     }
 }

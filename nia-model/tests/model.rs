@@ -32,7 +32,7 @@ fn forward_renders_finite_colours_of_the_right_shape() {
     let config = ModelConfig::tiny();
     let model = config.init(&device);
     let scene = model.encode(&input, None, &device, None).unwrap();
-    assert_eq!(scene.pixel_maps.dims(), [3, config.d_model, 16, 16]);
+    assert_eq!(scene.pixel_rows.dims(), [3, config.d_model, 16, 16]);
     assert_eq!(
         scene.vertex_maps.dims(),
         [3, config.body_volume.vertex_channels, 16, 16]
@@ -379,6 +379,119 @@ fn early_termination_skips_what_the_front_hides_within_epsilon() {
             .render(&terminated, &rays, samples, Some(&jitter), None)
             .unwrap();
         assert_eq!(trained.point_evaluations, all);
+    }
+}
+
+/// Colour culling: the colour half of the network runs only on samples whose weight matters.
+/// With densities that make rays opaque part-way or at once, fewer samples get a colour;
+/// opacity and depth do not move (the densities are the same), the colour, the NeRF colour and
+/// the blend maps move by at most the budget per ray, in both colour forms (per sample and at
+/// the surface) and together with early termination. A jittered (training) render colours
+/// every sample.
+#[test]
+fn colour_culling_colours_only_samples_that_carry_weight_within_the_budget() {
+    let device = common::device();
+    device.seed(11);
+    let to_vec = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap();
+    let to_vec2 = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
+    let input = common::scene(3, 32);
+    let rays = common::target_rays(&input, 4);
+    let samples = 32;
+    let all = rays.len() * samples;
+    let budget = 1e-3;
+    for at in [SourceColoursAt::Samples, SourceColoursAt::Surface] {
+        let mut model = ModelConfig::tiny()
+            .with_source_colours_at(Some(at))
+            .init(&device);
+        for (shift, expect_cut) in [(-1.0, false), (30.0, true), (2000.0, true)] {
+            model.density.density_shift = shift;
+            let scene = model.encode(&input, None, &device, None).unwrap();
+            let full = model.render(&scene, &rays, samples, None, None).unwrap();
+            assert_eq!(full.colour_evaluations, all);
+            for termination in [None, Some(1e-3)] {
+                let culled_scene = scene
+                    .clone()
+                    .with_termination(termination)
+                    .with_colour_culling(Some(budget));
+                let culled = model
+                    .render(&culled_scene, &rays, samples, None, None)
+                    .unwrap();
+                let case = format!("{at:?}, shift {shift}, termination {termination:?}");
+                assert!(
+                    culled.colour_evaluations <= culled.point_evaluations,
+                    "{case}"
+                );
+                if termination.is_none() {
+                    assert_eq!(culled.point_evaluations, all, "{case}");
+                }
+                if expect_cut {
+                    assert!(
+                        culled.colour_evaluations < culled.point_evaluations,
+                        "{case}: nothing culled ({} of {})",
+                        culled.colour_evaluations,
+                        culled.point_evaluations
+                    );
+                }
+                if shift > 1000.0 {
+                    // Opaque at the first sample: about one colour per ray.
+                    assert!(culled.colour_evaluations <= 2 * rays.len(), "{case}");
+                }
+                // Early termination moves colour and opacity by up to its epsilon as well.
+                let slack = termination.unwrap_or(0.0);
+                let far = rays.far.iter().cloned().fold(0.0f32, f32::max);
+                let blend = |r: &nia_model::renderer::RenderOutput| {
+                    to_vec2(r.blend_weights.clone().unwrap())
+                };
+                for (what, a, b, bound) in [
+                    (
+                        "rgb",
+                        to_vec2(full.rgb.clone()),
+                        to_vec2(culled.rgb.clone()),
+                        budget + slack,
+                    ),
+                    (
+                        "rgb0",
+                        to_vec2(full.rgb0.clone()),
+                        to_vec2(culled.rgb0.clone()),
+                        budget + slack,
+                    ),
+                    ("blend", blend(&full), blend(&culled), budget + slack),
+                    (
+                        "acc",
+                        to_vec(full.acc.clone()),
+                        to_vec(culled.acc.clone()),
+                        slack,
+                    ),
+                    (
+                        "depth",
+                        to_vec(full.depth.clone()),
+                        to_vec(culled.depth.clone()),
+                        slack * far,
+                    ),
+                ] {
+                    assert_eq!(a.len(), b.len(), "{case}: {what}");
+                    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+                        assert!(x.is_finite() && y.is_finite(), "{case}: {what}[{i}]");
+                        assert!(
+                            (x - y).abs() <= bound + 1e-5,
+                            "{case}: {what}[{i}] {x} vs {y}"
+                        );
+                    }
+                }
+            }
+            // Training renders (jittered) colour every sample.
+            let jitter = vec![0.5f32; all];
+            let trained = model
+                .render(
+                    &scene.clone().with_colour_culling(Some(budget)),
+                    &rays,
+                    samples,
+                    Some(&jitter),
+                    None,
+                )
+                .unwrap();
+            assert_eq!(trained.colour_evaluations, all);
+        }
     }
 }
 

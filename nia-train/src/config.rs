@@ -513,6 +513,13 @@ impl TrainConfig {
                 r.early_termination.to_string(),
             ));
         }
+        if !(0.0..1.0).contains(&r.colour_culling) {
+            return Err(bad(
+                "render.colour_culling",
+                "a weight in [0, 1) (0: off)",
+                r.colour_culling.to_string(),
+            ));
+        }
         let o = &self.optim;
         for (key, beta) in [("optim.beta1", o.beta1), ("optim.beta2", o.beta2)] {
             if !(beta.is_finite() && (0.0..1.0).contains(&beta)) {

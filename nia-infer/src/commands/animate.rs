@@ -182,7 +182,8 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
             .model
             .encode_pose(&base, reposer.clone(), Some(&mut times))?
             .with_occupancy(occupancy)
-            .with_termination(adaptive.termination());
+            .with_termination(adaptive.termination())
+            .with_colour_culling(adaptive.culling());
         let rays = RayBundle::through_pixels(&camera, &body_box, None);
         let img = render_image(
             &loaded.model,

@@ -229,13 +229,13 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     write_json(&args.out.join("metrics.json"), &metrics)?;
 
     let mut csv = String::from(
-        "subject,frame,reference_frame,target_view,input_views,psnr,ssim,lpips,rays,point_evaluations,seconds\n",
+        "subject,frame,reference_frame,target_view,input_views,psnr,ssim,lpips,rays,point_evaluations,colour_evaluations,seconds\n",
     );
     for r in &results {
         let views: Vec<String> = r.input_views.iter().map(|v| v.to_string()).collect();
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{:.6},{:.6},{},{},{},{:.4}",
+            "{},{},{},{},{},{:.6},{:.6},{},{},{},{},{:.4}",
             r.subject,
             r.frame,
             r.reference_frame,
@@ -246,6 +246,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             r.lpips.map(|l| format!("{l:.6}")).unwrap_or_default(),
             r.rays,
             r.point_evaluations,
+            r.colour_evaluations,
             r.seconds
         );
     }

@@ -90,7 +90,8 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
         .model
         .encode(&input, None, &loaded.device, None)?
         .with_occupancy(occupancy)
-        .with_termination(adaptive.termination());
+        .with_termination(adaptive.termination())
+        .with_colour_culling(adaptive.culling());
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let bar = progress_bar(orbit.len() as u64, "orbit");

@@ -50,6 +50,8 @@ pub struct ImageReport {
     pub rays: usize,
     pub pixels: usize,
     pub point_evaluations: u64,
+    /// Of those, the points whose colour was evaluated (colour culling skips the rest).
+    pub colour_evaluations: u64,
     pub seconds: f64,
     /// Milliseconds per stage (this image's rendering; the scene's encoding is reported once).
     pub stage_ms: BTreeMap<String, f64>,
@@ -90,7 +92,8 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         .model
         .encode(&input, None, &loaded.device, Some(&mut encode_times))?
         .with_occupancy(occupancy)
-        .with_termination(adaptive.termination());
+        .with_termination(adaptive.termination())
+        .with_colour_culling(adaptive.culling());
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let mut images = Vec::new();
@@ -125,10 +128,11 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             &blend_weight_maps(&img.blend_weights, img.blend_channels, w, h),
         )?;
         eprintln!(
-            "view {target}: {} rays of {} pixels, {} network points, {:.2} s",
+            "view {target}: {} rays of {} pixels, {} network points ({} coloured), {:.2} s",
             img.rays,
             w * h,
             img.point_evaluations,
+            img.colour_evaluations,
             seconds
         );
         images.push(ImageReport {
@@ -139,6 +143,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             rays: img.rays,
             pixels: w * h,
             point_evaluations: img.point_evaluations,
+            colour_evaluations: img.colour_evaluations,
             seconds,
             stage_ms: img.times.milliseconds(),
         });

@@ -166,7 +166,8 @@ impl ViewerScene {
             .model
             .encode(&input, None, &loaded.device, None)?
             .with_occupancy(occupancy)
-            .with_termination(adaptive.termination());
+            .with_termination(adaptive.termination())
+            .with_colour_culling(adaptive.culling());
         Ok(ViewerScene {
             encode_seconds: started.elapsed().as_secs_f64(),
             loaded,

@@ -16,6 +16,8 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
+use super::linear_rows::linear_rows;
+
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
 
@@ -76,9 +78,9 @@ impl ViewCrossAttention {
         if n == 0 {
             return Err(ShapeError::empty("attention views N"));
         }
-        let queries = self.phi_k.forward(body_feature.clone());
-        let keys = self.phi_k.forward(pixel_feature.clone());
-        let values = self.phi_v.forward(pixel_feature);
+        let queries = linear_rows(&self.phi_k, body_feature.clone());
+        let keys = linear_rows(&self.phi_k, pixel_feature.clone());
+        let values = linear_rows(&self.phi_v, pixel_feature);
         // [M, N, N]: row i = view i's body feature against every view's pixel feature. Written
         // as broadcast products and sums over d, not as a batched matmul: with M batches of
         // N x d x N (N = 3) the CPU backends run M tiny GEMMs forward and twice that backward,

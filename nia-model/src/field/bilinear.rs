@@ -11,76 +11,130 @@
 //! computation forward and a scatter-add of the same kind backward (about a fifth of the tiny
 //! network's training step). Here the maps are laid out channels-last once (`[N H W + 1, C]`,
 //! the last row zero), every corner is one `select` of whole rows (a row copy forward, a row
-//! scatter-add backward) and the weights multiply rows. The corner indices are computed on the
-//! device from the grid, so nothing is read back to the host, and the weights stay
-//! differentiable in the grid (the surface read's gradient in the expected depth, see
-//! `surface_ibr`). Every backend runs the same tensor operations.
+//! scatter-add backward) and the weights multiply rows. [`ViewRows`] holds that layout, so a
+//! scene's maps are laid out once and every ray chunk reads them as they are (laid out per
+//! read, the copy of the paper-width maps took most of a 512x512 render). The corner indices
+//! are computed on the device from the grid, so nothing is read back to the host, and the
+//! weights stay differentiable in the grid (the surface read's gradient in the expected depth,
+//! see `surface_ibr`). Every backend runs the same tensor operations.
 
 use burn::prelude::*;
 use burn::tensor::ops::GridSampleOptions;
 
 use crate::shape::ShapeError;
 
-/// Reads N maps at M points each.
+/// Reads N maps at M points each: [`ViewRows::new`] then [`ViewRows::sample`]. A caller that
+/// reads the same maps many times (every ray chunk of an image) keeps the [`ViewRows`].
 ///
 /// # Shapes
 /// - `maps`: `[N, C, H, W]`
 /// - `proj_grid`: `[N, M, 2]`, (x, y) normalised to [-1, 1] over the map's extent
 /// - output: `[N, M, C]`, zeros where every corner falls outside the map
 pub fn sample(maps: Tensor<4>, proj_grid: Tensor<3>) -> Result<Tensor<3>, ShapeError> {
-    let [n, c, h, w] = check(&maps, &proj_grid)?;
-    let m = proj_grid.dims()[1];
-    let device = maps.device();
-    if m == 0 {
-        return Ok(Tensor::zeros([n, 0, c], &device));
+    ViewRows::new(maps)?.sample(proj_grid)
+}
+
+/// N maps laid out channels-last for [`ViewRows::sample`]: the layout change (a copy of the
+/// whole maps) is made once, not per read.
+#[derive(Debug, Clone)]
+pub struct ViewRows {
+    /// `[N H W + 1, C]`: channels-last rows of every view, then one zero row.
+    rows: Tensor<2>,
+    /// `[N, C, H, W]` of the maps.
+    dims: [usize; 4],
+}
+
+impl ViewRows {
+    /// The rows of `maps`.
+    ///
+    /// # Shapes
+    /// - `maps`: `[N, C, H, W]`, N, H, W > 0
+    pub fn new(maps: Tensor<4>) -> Result<Self, ShapeError> {
+        let [n, c, h, w] = maps.dims();
+        if n == 0 || h == 0 || w == 0 {
+            return Err(ShapeError::empty("IBR `maps` [N, C, H, W]"));
+        }
+        let device = maps.device();
+        let rows = Tensor::cat(
+            vec![
+                maps.permute([0, 2, 3, 1]).reshape([n * h * w, c]),
+                Tensor::zeros([1, c], &device),
+            ],
+            0,
+        );
+        Ok(Self {
+            rows,
+            dims: [n, c, h, w],
+        })
     }
-    let zero_row = (n * h * w) as f32;
-    // [N H W + 1, C]: channels-last rows of every view, then one zero row.
-    let rows = Tensor::cat(
-        vec![
-            maps.permute([0, 2, 3, 1]).reshape([n * h * w, c]),
-            Tensor::zeros([1, c], &device),
-        ],
-        0,
-    );
-    // Pixel coordinates [N, M] and the first row of each view, as floats: indices up to
-    // N H W stay exact in f32 for every map this model reads (below 2^24 pixels in all).
-    let x = (proj_grid.clone().narrow(2, 0, 1).reshape([n, m]) + 1.0) * (w as f32 / 2.0) - 0.5;
-    let y = (proj_grid.narrow(2, 1, 1).reshape([n, m]) + 1.0) * (h as f32 / 2.0) - 0.5;
-    let x0 = x.clone().detach().floor();
-    let y0 = y.clone().detach().floor();
-    let fx = x - x0.clone();
-    let fy = y - y0.clone();
-    let view_base = Tensor::<1, Int>::arange(0..n as i64, &device)
-        .float()
-        .mul_scalar((h * w) as f32)
-        .reshape([n, 1]);
-    // One corner (x0 + dx, y0 + dy) with its weight: a row gather times the weight, zero off
-    // the map.
-    let corner = |dx: f32, dy: f32, wx: Tensor<2>, wy: Tensor<2>| -> Tensor<2> {
-        let xi = x0.clone() + dx;
-        let yi = y0.clone() + dy;
-        // Comparisons with NaN are false: a non-finite coordinate is outside.
-        let inside = xi
-            .clone()
-            .greater_equal_elem(0.0)
-            .bool_and(xi.clone().lower_equal_elem((w - 1) as f32))
-            .bool_and(yi.clone().greater_equal_elem(0.0))
-            .bool_and(yi.clone().lower_equal_elem((h - 1) as f32));
-        let outside = inside.bool_not();
-        let index = (yi * (w as f32) + xi + view_base.clone())
-            .mask_fill(outside.clone(), zero_row)
-            .int()
-            .reshape([n * m]);
-        let weight = (wy * wx).mask_fill(outside, 0.0).reshape([n * m, 1]);
-        rows.clone().select(0, index) * weight
-    };
-    let (gx, gy) = (fx.clone().neg() + 1.0, fy.clone().neg() + 1.0);
-    let out = corner(0.0, 0.0, gx.clone(), gy.clone())
-        + corner(1.0, 0.0, fx.clone(), gy)
-        + corner(0.0, 1.0, gx, fy.clone())
-        + corner(1.0, 1.0, fx, fy);
-    Ok(out.reshape([n, m, c]))
+
+    /// `[N, C, H, W]` of the maps these rows hold.
+    pub fn dims(&self) -> [usize; 4] {
+        self.dims
+    }
+
+    /// The device the rows live on.
+    pub fn device(&self) -> Device {
+        self.rows.device()
+    }
+
+    /// Reads the N maps at M points each.
+    ///
+    /// # Shapes
+    /// - `proj_grid`: `[N, M, 2]`, (x, y) normalised to [-1, 1] over the map's extent
+    /// - output: `[N, M, C]`, zeros where every corner falls outside the map
+    pub fn sample(&self, proj_grid: Tensor<3>) -> Result<Tensor<3>, ShapeError> {
+        let [n, c, h, w] = self.dims;
+        let [n_grid, m, two] = proj_grid.dims();
+        ShapeError::check(
+            "IBR `proj_grid` [N, M, 2]",
+            &[n_grid, m, two],
+            &[Some(n), None, Some(2)],
+        )?;
+        let device = self.rows.device();
+        if m == 0 {
+            return Ok(Tensor::zeros([n, 0, c], &device));
+        }
+        let zero_row = (n * h * w) as f32;
+        // Pixel coordinates [N, M] and the first row of each view, as floats: indices up to
+        // N H W stay exact in f32 for every map this model reads (below 2^24 pixels in all).
+        let x = (proj_grid.clone().narrow(2, 0, 1).reshape([n, m]) + 1.0) * (w as f32 / 2.0) - 0.5;
+        let y = (proj_grid.narrow(2, 1, 1).reshape([n, m]) + 1.0) * (h as f32 / 2.0) - 0.5;
+        let x0 = x.clone().detach().floor();
+        let y0 = y.clone().detach().floor();
+        let fx = x - x0.clone();
+        let fy = y - y0.clone();
+        let view_base = Tensor::<1, Int>::arange(0..n as i64, &device)
+            .float()
+            .mul_scalar((h * w) as f32)
+            .reshape([n, 1]);
+        // One corner (x0 + dx, y0 + dy) with its weight: a row gather times the weight, zero
+        // off the map.
+        let corner = |dx: f32, dy: f32, wx: Tensor<2>, wy: Tensor<2>| -> Tensor<2> {
+            let xi = x0.clone() + dx;
+            let yi = y0.clone() + dy;
+            // Comparisons with NaN are false: a non-finite coordinate is outside.
+            let inside = xi
+                .clone()
+                .greater_equal_elem(0.0)
+                .bool_and(xi.clone().lower_equal_elem((w - 1) as f32))
+                .bool_and(yi.clone().greater_equal_elem(0.0))
+                .bool_and(yi.clone().lower_equal_elem((h - 1) as f32));
+            let outside = inside.bool_not();
+            let index = (yi * (w as f32) + xi + view_base.clone())
+                .mask_fill(outside.clone(), zero_row)
+                .int()
+                .reshape([n * m]);
+            let weight = (wy * wx).mask_fill(outside, 0.0).reshape([n * m, 1]);
+            self.rows.clone().select(0, index) * weight
+        };
+        let (gx, gy) = (fx.clone().neg() + 1.0, fy.clone().neg() + 1.0);
+        let out = corner(0.0, 0.0, gx.clone(), gy.clone())
+            + corner(1.0, 0.0, fx.clone(), gy)
+            + corner(0.0, 1.0, gx, fy.clone())
+            + corner(1.0, 1.0, fx, fy);
+        Ok(out.reshape([n, m, c]))
+    }
 }
 
 /// `grid_sample_2d` (bilinear, zero padding, `align_corners = false`): the reference

@@ -33,6 +33,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 
 use super::ibr::{cosine_weights, simple_average_weights};
+use super::linear_rows::linear_rows;
 use super::view_statistics::{mean_and_variance, view_weights};
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
@@ -244,7 +245,11 @@ impl Blender {
             .forward(Tensor::cat(point_parts, 1))
             .unsqueeze_dim::<3>(0); // [1, M, d_hidden]
 
-        let mut x = relu(self.token_input.forward(tokens) + point);
+        let first = relu(linear_rows(&self.token_input, tokens) + point); // [N + 1, M, d_hidden]
+                                                                          // Layers 2..8 on the tokens as rows of one matrix: one matmul per layer instead of a
+                                                                          // batch of N + 1 (the weights are shared).
+        let width = first.dims()[2];
+        let mut x = first.reshape([(n + 1) * m, width]);
         let last = self.layers.len() - 1;
         for (i, layer) in self.layers.iter().enumerate() {
             x = layer.forward(x);
@@ -252,7 +257,7 @@ impl Blender {
                 x = relu(x);
             }
         }
-        // [N + 1, M, 1] -> [M, N + 1]
+        // [(N + 1) M, 1] -> [M, N + 1]
         Ok(x.reshape([n + 1, m]).transpose())
     }
 

@@ -16,6 +16,7 @@ use burn::prelude::*;
 
 use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 
+use super::bilinear::ViewRows;
 use super::encoder::FeaturePyramid;
 use crate::shape::ShapeError;
 
@@ -43,7 +44,20 @@ pub fn sample_reduced_through(
     reduced_maps: Tensor<4>,
     proj_grid: Tensor<3>,
 ) -> Result<Tensor<3>, ShapeError> {
-    let sampled = sample_views(reduced_maps, proj_grid)?;
+    sample_rows_through(linear, &ViewRows::new(reduced_maps)?, proj_grid)
+}
+
+/// [`sample_reduced_through`] from maps already laid out as rows.
+///
+/// # Shapes
+/// - `reduced_rows`: maps `[N, d_out, H, W]`; `proj_grid`: `[N, M, 2]`
+/// - output: `[N, M, d_out]`
+pub fn sample_rows_through(
+    linear: &Linear,
+    reduced_rows: &ViewRows,
+    proj_grid: Tensor<3>,
+) -> Result<Tensor<3>, ShapeError> {
+    let sampled = reduced_rows.sample(proj_grid)?;
     Ok(match &linear.bias {
         Some(b) => sampled + b.val().unsqueeze::<3>(),
         None => sampled,
@@ -66,6 +80,24 @@ pub fn fetch_source_colours(
         &[None, Some(3), None, None],
     )?;
     sample_views(images, proj_grid)
+}
+
+/// [`fetch_source_colours`] from the source images laid out as rows once per scene
+/// ([`crate::SceneEncoding::image_rows`]).
+///
+/// # Shapes
+/// - `image_rows`: images `[N, 3, H, W]`; `proj_grid`: `[N, M, 2]`
+/// - output c_n: `[N, M, 3]`
+pub fn fetch_source_colours_from(
+    image_rows: &ViewRows,
+    proj_grid: Tensor<3>,
+) -> Result<Tensor<3>, ShapeError> {
+    ShapeError::check(
+        "IBR `images` [N, 3, H, W]",
+        &image_rows.dims(),
+        &[None, Some(3), None, None],
+    )?;
+    image_rows.sample(proj_grid)
 }
 
 /// Configuration of [`PixelFeature`].
@@ -112,24 +144,25 @@ impl PixelFeature {
         pyramid.reduce(self.reduce.weight.val())
     }
 
-    /// l_n from maps reduced by [`Self::reduce_maps`]: sampled, plus the bias.
+    /// l_n from maps reduced by [`Self::reduce_maps`] and laid out as rows: sampled, plus the
+    /// bias.
     ///
     /// # Shapes
-    /// - `reduced_maps`: `[N, d_model, H/2, W/2]`
+    /// - `reduced_rows`: maps `[N, d_model, H/2, W/2]`
     /// - `proj_grid`: `[N, M, 2]`
     /// - output l_n: `[N, M, d_model]`
     pub fn sample_reduced(
         &self,
-        reduced_maps: Tensor<4>,
+        reduced_rows: &ViewRows,
         proj_grid: Tensor<3>,
     ) -> Result<Tensor<3>, ShapeError> {
         let d_model = self.reduce.weight.dims()[1];
         ShapeError::check(
             "IBR reduced `pixel_maps` [N, d, H/2, W/2]",
-            &reduced_maps.dims(),
+            &reduced_rows.dims(),
             &[None, Some(d_model), None, None],
         )?;
-        sample_reduced_through(&self.reduce, reduced_maps, proj_grid)
+        sample_rows_through(&self.reduce, reduced_rows, proj_grid)
     }
 
     /// Samples and reduces the per-view feature maps (the reference form of
@@ -238,7 +271,8 @@ mod reduced_maps_tests {
         let reference = feature.forward(maps.clone(), grid.clone()).unwrap();
         let reduced = feature.reduce_maps(&pyramid).unwrap();
         assert_eq!(reduced.dims(), [2, 8, 5, 7]);
-        let fast = feature.sample_reduced(reduced, grid).unwrap();
+        let rows = ViewRows::new(reduced).unwrap();
+        let fast = feature.sample_reduced(&rows, grid).unwrap();
         let diff = (reference - fast).abs().max().into_scalar::<f32>();
         assert!(diff < TOL, "{diff}");
     }

@@ -24,6 +24,7 @@ pub mod encoder;
 pub mod encoder_import;
 pub mod heads;
 pub mod ibr;
+pub mod linear_rows;
 pub mod positional_encoding;
 pub mod view_statistics;
 
@@ -34,7 +35,8 @@ use nia_data::scene::{PointInputs, VIEW_DIR_FEATURE_DIM};
 use self::blender::BlendInputs;
 use self::body_volume::TrilinearTensors;
 use self::heads::view_mean;
-use self::ibr::fetch_source_colours;
+use self::ibr::fetch_source_colours_from;
+use self::linear_rows::linear_rows;
 use crate::model::{ModelError, NiaModel};
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::{Stage, StageTimes, Stopwatch};
@@ -124,6 +126,18 @@ impl NiaModel {
         dirs: &[Vec3],
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointOutput, ModelError> {
+        let inputs = self.point_tensors(scene, points, dirs)?;
+        self.query_with(scene, &inputs, watch)
+    }
+
+    /// The point inputs of world points (in the rendered pose) on the scene's device, reposed
+    /// into the scene's pose first when the scene was encoded for another pose.
+    fn point_tensors(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+    ) -> Result<PointTensors, ModelError> {
         let geometry = &scene.geometry;
         let scales = scene.volume.as_ref().map(|(vg, _)| &vg.levels[1..]);
         let inputs = match &scene.reposer {
@@ -149,8 +163,19 @@ impl NiaModel {
                 PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume)
             }
         };
-        let inputs = PointTensors::upload(&inputs, &scene.images.device());
-        self.query_with(scene, &inputs, watch)
+        Ok(PointTensors::upload(&inputs, &scene.images.device()))
+    }
+
+    /// [`Self::field_with`]'s density half: the point inputs and [`Self::query_density`].
+    pub(crate) fn field_density(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<DensityPass, ModelError> {
+        let inputs = self.point_tensors(scene, points, dirs)?;
+        self.query_density(scene, &inputs, watch)
     }
 
     /// The network at M points whose inputs are already on the device: pixel features and
@@ -171,10 +196,22 @@ impl NiaModel {
         points: &PointTensors,
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointOutput, ModelError> {
+        let density = self.query_density(scene, points, watch)?;
+        self.query_colour(scene, density, watch)
+    }
+
+    /// The density half of the network at M points: pixel features l_n, body features s_n,
+    /// attention and F_sigma. What the colour half reads is kept with sigma, so a caller can
+    /// run [`Self::query_colour`] on all points or on a subset ([`DensityPass::select`]).
+    pub(crate) fn query_density(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<DensityPass, ModelError> {
         let l = self
             .pixel_feature
-            .sample_reduced(scene.pixel_maps.clone(), points.proj_grid.clone())?; // [N, M, d]
-        let source_colours = fetch_source_colours(scene.images.clone(), points.proj_grid.clone())?; // [N, M, 3]
+            .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?; // [N, M, d]
         let body = match (&scene.volume, self.variant.uses_body()) {
             (Some((_, volume)), true) => Some(volume.sample(&points.corners)?),
             _ => None,
@@ -182,7 +219,7 @@ impl NiaModel {
         watch.mark(Stage::Sampling);
         let z = match (body, self.variant.uses_body()) {
             (Some(body), true) => {
-                let s = self.body_reduce.forward(body); // [N, M, d]
+                let s = linear_rows(&self.body_reduce, body); // [N, M, d]
                 self.attention
                     .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))? // [M, N, d]
             }
@@ -195,7 +232,38 @@ impl NiaModel {
         };
         let mean_z = view_mean(z); // [M, d]
         let sigma = self.density.forward(mean_z.clone())?;
-        let gamma = self.direction_encoding.forward(points.dirs.clone())?;
+        watch.mark(Stage::Mlps);
+        Ok(DensityPass {
+            sigma,
+            mean_z,
+            l,
+            proj_grid: points.proj_grid.clone(),
+            view_dir_features: points.view_dir_features.clone(),
+            visibility: points.visibility.clone(),
+            dirs: points.dirs.clone(),
+        })
+    }
+
+    /// The colour half of the network at the points of `density`: source colours c_n, F_c0 and
+    /// the blend.
+    pub(crate) fn query_colour(
+        &self,
+        scene: &SceneEncoding,
+        density: DensityPass,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let DensityPass {
+            sigma,
+            mean_z,
+            l,
+            proj_grid,
+            view_dir_features,
+            visibility,
+            dirs,
+        } = density;
+        let source_colours = fetch_source_colours_from(&scene.image_rows, proj_grid)?; // [N, M, 3]
+        watch.mark(Stage::Sampling);
+        let gamma = self.direction_encoding.forward(dirs)?;
         let heads = self.colour.forward(mean_z, gamma)?;
         let c0 = heads.c0.clone();
         let blend_c0 = scene.c0_shuffle.map(|s| s.apply(heads.c0.clone()));
@@ -208,8 +276,8 @@ impl NiaModel {
                 h: heads.h,
                 source_colours: source_colours.clone(),
                 pixel_feature: l,
-                view_dir_features: points.view_dir_features.clone(),
-                visibility: points.visibility.clone(),
+                view_dir_features,
+                visibility,
             },
         )?;
         let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
@@ -222,6 +290,41 @@ impl NiaModel {
             blend_weights: blended.blend_weights,
             ibr_colour,
         })
+    }
+}
+
+/// The density half of the network at M points ([`NiaModel::query_density`]) and the inputs
+/// of the colour half.
+#[derive(Debug, Clone)]
+pub(crate) struct DensityPass {
+    /// [M] density sigma, per metre.
+    pub sigma: Tensor<1>,
+    /// [M, d] the view mean of the attention's output, read by F_c0.
+    mean_z: Tensor<2>,
+    /// [N, M, d] pixel features l_n (F_B's p_n).
+    l: Tensor<3>,
+    /// [N, M, 2]
+    proj_grid: Tensor<3>,
+    /// [N, M, 4]
+    view_dir_features: Tensor<3>,
+    /// [N, M]
+    visibility: Tensor<2>,
+    /// [M, 3]
+    dirs: Tensor<2>,
+}
+
+impl DensityPass {
+    /// The points at `index` ([K] Int, into M), in that order.
+    pub fn select(&self, index: Tensor<1, Int>) -> Self {
+        DensityPass {
+            sigma: self.sigma.clone().select(0, index.clone()),
+            mean_z: self.mean_z.clone().select(0, index.clone()),
+            l: self.l.clone().select(1, index.clone()),
+            proj_grid: self.proj_grid.clone().select(1, index.clone()),
+            view_dir_features: self.view_dir_features.clone().select(1, index.clone()),
+            visibility: self.visibility.clone().select(1, index.clone()),
+            dirs: self.dirs.clone().select(0, index),
+        }
     }
 }
 

@@ -62,6 +62,14 @@ pub(super) fn cases() -> Vec<Case> {
             },
         ),
         case(
+            "config_colour_culling_out_of_range",
+            &["tiny.toml", "render.colour_culling", "[0, 1)", "-0.5"],
+            |c| {
+                let config = c.config(&[("[train]", "[render]\ncolour_culling = -0.5\n\n[train]")]);
+                c.train_args(&config, &[])
+            },
+        ),
+        case(
             "config_c0_shuffle_out_of_range",
             &["tiny.toml", "train.c0_shuffle", "[0, 1]", "2"],
             |c| {
