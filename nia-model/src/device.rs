@@ -183,3 +183,13 @@ mod tests {
         assert!(err.to_string().contains("single device"), "{err}");
     }
 }
+
+/// Whether `device` computes in host memory (the flex and ndarray backends, not under
+/// autodiff): where the renderers read the body volume on the host ([`crate::field::body_volume::HostVolume`]).
+pub fn is_host(device: &Device) -> bool {
+    use burn_dispatch::DispatchDevice;
+    matches!(
+        device.as_dispatch(),
+        DispatchDevice::Flex(_) | DispatchDevice::NdArray(_)
+    )
+}

@@ -13,8 +13,9 @@ use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::scene::{projection_grid, SceneGeometry, SceneInput};
 
 use crate::c0_shuffle::C0Shuffle;
+use crate::device::is_host;
 use crate::field::bilinear::ViewRows;
-use crate::field::body_volume::{BodyVolume, BodyVolumeGeometry};
+use crate::field::body_volume::{BodyVolume, BodyVolumeGeometry, HostVolume};
 use crate::field::ibr::sample_reduced_through;
 use crate::model::{ModelError, NiaModel};
 use crate::timing::{Stage, StageTimes, Stopwatch};
@@ -37,6 +38,9 @@ pub struct SceneEncoding {
     pub pixel_rows: ViewRows,
     /// The body volume and its geometry (`None` for variant (a), which has no body).
     pub volume: Option<(BodyVolumeGeometry, BodyVolume)>,
+    /// A host copy of the body volume's site features for the fused CPU read
+    /// ([`HostVolume`], inference on the CPU backends); `None` reads with tensor operations.
+    pub host_volume: Option<Arc<HostVolume>>,
     /// Pose animation: maps query points of the rendered (target) pose to the scene's pose.
     /// `None` renders the scene's own pose, with no reposing work at all.
     pub reposer: Option<Arc<Reposer>>,
@@ -75,6 +79,18 @@ impl SceneEncoding {
     pub fn with_colour_culling(mut self, epsilon: Option<f32>) -> Self {
         self.colour_culling = epsilon;
         self
+    }
+
+    /// This encoding with the body volume read on the host (`on`, for the CPU backends at
+    /// inference: [`HostVolume`]) or with tensor operations (every backend, with gradients).
+    /// [`NiaModel::encode`] turns it on for a CPU device without autodiff; off is the
+    /// reference path the host read is tested against.
+    pub fn with_host_reads(mut self, on: bool) -> Result<Self, ModelError> {
+        self.host_volume = match (&self.volume, on) {
+            (Some((_, volume)), true) => Some(Arc::new(HostVolume::read(volume)?)),
+            _ => None,
+        };
+        Ok(self)
     }
 
     /// This encoding with c0 shuffling in the blend (training only; `None`: off).
@@ -123,20 +139,23 @@ impl NiaModel {
             watch.mark(Stage::BodyVolume);
         }
         let band = self.band_of(&geometry, reposer.as_deref())?;
-        Ok(SceneEncoding {
+        let encoding = SceneEncoding {
             geometry,
             image_rows: ViewRows::new(images.clone())?,
             images,
             vertex_maps,
             pixel_rows,
             volume,
+            host_volume: None,
             reposer,
             occupancy: None,
             termination: None,
             colour_culling: None,
             c0_shuffle: None,
             band,
-        })
+        };
+        // Inference on a CPU backend reads the body volume on the host (fused).
+        encoding.with_host_reads(is_host(device))
     }
 
     /// The same scene rendered in another pose: the body volume rebuilt on `reposer`'s target
@@ -165,6 +184,10 @@ impl NiaModel {
             watch.mark(Stage::BodyVolume);
         }
         let band = self.band_of(&scene.geometry, reposer.as_deref())?;
+        let host_volume = match (&volume, &scene.host_volume) {
+            (Some((_, v)), Some(_)) => Some(Arc::new(HostVolume::read(v)?)),
+            _ => None,
+        };
         Ok(SceneEncoding {
             geometry: scene.geometry.clone(),
             images: scene.images.clone(),
@@ -172,6 +195,7 @@ impl NiaModel {
             image_rows: scene.image_rows.clone(),
             pixel_rows: scene.pixel_rows.clone(),
             volume,
+            host_volume,
             reposer,
             occupancy: None,
             termination: scene.termination,

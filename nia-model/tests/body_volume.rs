@@ -526,6 +526,67 @@ fn trilinear_matches_dense_grid_sample() {
     }
 }
 
+/// The fused host read of the body volume (inference on the CPU backends) against the tensor
+/// path, over two scales of different widths: points inside, outside, on voxel centres, on the
+/// box faces and non-finite; and a mismatched set of corners is an error.
+#[test]
+fn host_read_matches_the_tensor_read_on_every_scale() {
+    use nia_model::field::body_volume::{BodyVolume, HostVolume, ScaleVolume};
+    use std::sync::Arc;
+    let dev = device();
+    let mut rng = Rng::new(47);
+    let vb = test_box();
+    let n = 3;
+    let mut scales = Vec::new();
+    for (level, c) in [(0u32, 3usize), (1, 5)] {
+        let (_, _, dims) = vb.level_placement(level);
+        let sites = random_sites(&mut rng, dims, 0.5);
+        let geometry = Arc::new(ScaleGeometry::new(&vb, level, sites).unwrap());
+        let p = geometry.num_sites();
+        let features = tensor3(normals(&mut rng, n * p * c), [n, p, c], &dev);
+        scales.push(ScaleVolume { features, geometry });
+    }
+    let volume = BodyVolume { scales };
+    let mut points = random_points(&mut rng, &vb, 400, 0.08);
+    points.push(volume.scales[0].geometry.centre_of([1, 2, 3]));
+    points.push(vb.min_m);
+    points.push(vb.max_m());
+    points.push([f32::NAN, 0.3, 0.1]);
+    points.push([f32::INFINITY, 0.3, 0.1]);
+    let corners: Vec<TrilinearCorners> = volume
+        .scales
+        .iter()
+        .map(|s| TrilinearCorners::compute(&points, &s.geometry))
+        .collect();
+    let uploaded: Vec<TrilinearTensors> = corners
+        .iter()
+        .map(|c| TrilinearTensors::upload(c, &dev))
+        .collect();
+    let reference = values(volume.sample(&uploaded).unwrap());
+    let host = HostVolume::read(&volume).unwrap();
+    assert_eq!(host.channels(), 8);
+    assert_eq!(host.num_views(), n);
+    let fused = host.sample(&corners).unwrap();
+    assert_eq!(fused.len(), n * points.len() * 8);
+    assert_eq!(reference.len(), fused.len());
+    let mut nonzero = 0;
+    for (i, (r, f)) in reference.iter().zip(&fused).enumerate() {
+        assert!(f.is_finite(), "[{i}] {f}");
+        assert!((r - f).abs() <= 1e-5, "[{i}] tensor {r} vs host {f}");
+        nonzero += usize::from(*f != 0.0);
+    }
+    assert!(
+        nonzero > fused.len() / 4,
+        "the points should mostly read sites"
+    );
+    // One corner set for two scales, or corners of another site count: errors.
+    assert!(host.sample(&corners[..1]).is_err());
+    let swapped = vec![corners[1].clone(), corners[0].clone()];
+    assert!(host.sample(&swapped).is_err());
+    let other_points = TrilinearCorners::compute(&points[..3], &volume.scales[1].geometry);
+    assert!(host.sample(&[corners[0].clone(), other_points]).is_err());
+}
+
 #[test]
 fn trilinear_on_a_centre_plane_matches_burn_grid_sample_2d() {
     // With z on a plane of voxel centres, trilinear = bilinear on that slice: compare with

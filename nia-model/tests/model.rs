@@ -495,6 +495,54 @@ fn colour_culling_colours_only_samples_that_carry_weight_within_the_budget() {
     }
 }
 
+/// The body volume read on the host (the CPU backends' inference default) renders what the
+/// tensor read renders, in the scene's own pose and reposed (the host copy follows the pose's
+/// rebuilt volume).
+#[test]
+fn host_body_reads_render_what_the_tensor_reads_render() {
+    use nia_data::body::reposing::Reposer;
+    use nia_data::body::{pose_for_motion, MotionKind, ProceduralBody, ProceduralSpec, SmplParams};
+    let device = common::device();
+    device.seed(12);
+    let model = ModelConfig::tiny().init(&device);
+    let input = common::scene(3, 32);
+    let rays = common::target_rays(&input, 4);
+    let to_vec2 = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
+    let scene = model.encode(&input, None, &device, None).unwrap();
+    assert!(
+        scene.host_volume.is_some(),
+        "a CPU device reads on the host"
+    );
+    let tensor_scene = scene.clone().with_host_reads(false).unwrap();
+    assert!(tensor_scene.host_volume.is_none());
+    let compare = |a: &nia_model::SceneEncoding, b: &nia_model::SceneEncoding, what: &str| {
+        let x = model.render(a, &rays, SAMPLES, None, None).unwrap();
+        let y = model.render(b, &rays, SAMPLES, None, None).unwrap();
+        for (i, (p, q)) in to_vec2(x.rgb).iter().zip(&to_vec2(y.rgb)).enumerate() {
+            assert!(
+                p.is_finite() && (p - q).abs() <= 1e-5,
+                "{what}: rgb[{i}] {p} vs {q}"
+            );
+        }
+    };
+    compare(&scene, &tensor_scene, "own pose");
+    let body = ProceduralBody::generate(&ProceduralSpec {
+        target_vertices: 1500,
+        ..ProceduralSpec::default()
+    })
+    .unwrap();
+    let target = SmplParams {
+        poses: pose_for_motion(0.4, MotionKind::Walk),
+        ..SmplParams::default()
+    };
+    let reposer = Arc::new(Reposer::new(&body, &SmplParams::default(), &target).unwrap());
+    let reposed = model.encode_pose(&scene, reposer.clone(), None).unwrap();
+    assert!(reposed.host_volume.is_some());
+    let reposed_tensor = model.encode_pose(&tensor_scene, reposer, None).unwrap();
+    assert!(reposed_tensor.host_volume.is_none());
+    compare(&reposed, &reposed_tensor, "reposed");
+}
+
 /// c0 shuffling (training augmentation): the blend reads other points' c0, so the colour
 /// changes while the NeRF-only composite (the true c0) does not, and gradients stay finite and
 /// reach F_c0 and F_B.

@@ -74,8 +74,11 @@ pub struct PointTensors {
     pub visibility: Tensor<2>,
     /// [M, 3]
     pub dirs: Tensor<2>,
-    /// Per scale of the body volume (empty without one).
+    /// Per scale of the body volume (empty without one, or when `body` holds the read).
     pub corners: Vec<TrilinearTensors>,
+    /// [N, M, sum_s C_s] the body volume already read at the points (the fused host read,
+    /// [`body_volume::HostVolume`]); `None` reads it from `corners` with tensor operations.
+    pub body: Option<Tensor<3>>,
 }
 
 impl PointTensors {
@@ -99,7 +102,27 @@ impl PointTensors {
                 .iter()
                 .map(|c| TrilinearTensors::upload(c, device))
                 .collect(),
+            body: None,
         }
+    }
+
+    /// Uploads `inputs` to `device` with the body volume read on the host by `host` at the
+    /// inputs' corners (which are then not uploaded).
+    pub fn upload_read(
+        inputs: &PointInputs,
+        host: &body_volume::HostVolume,
+        device: &Device,
+    ) -> Result<Self, ModelError> {
+        let (n, m) = (inputs.num_views, inputs.num_points);
+        let body = host.sample(&inputs.corners)?;
+        let body = Tensor::<3>::from_data(TensorData::new(body, [n, m, host.channels()]), device);
+        let without_corners = PointInputs {
+            corners: Vec::new(),
+            ..inputs.clone()
+        };
+        let mut tensors = Self::upload(&without_corners, device);
+        tensors.body = Some(body);
+        Ok(tensors)
     }
 }
 
@@ -163,7 +186,11 @@ impl NiaModel {
                 PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume)
             }
         };
-        Ok(PointTensors::upload(&inputs, &scene.images.device()))
+        let device = scene.images.device();
+        match (&scene.host_volume, inputs.corners.is_empty()) {
+            (Some(host), false) => PointTensors::upload_read(&inputs, host, &device),
+            _ => Ok(PointTensors::upload(&inputs, &device)),
+        }
     }
 
     /// [`Self::field_with`]'s density half: the point inputs and [`Self::query_density`].
@@ -212,8 +239,9 @@ impl NiaModel {
         let l = self
             .pixel_feature
             .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?; // [N, M, d]
-        let body = match (&scene.volume, self.variant.uses_body()) {
-            (Some((_, volume)), true) => Some(volume.sample(&points.corners)?),
+        let body = match (&scene.volume, self.variant.uses_body(), &points.body) {
+            (Some(_), true, Some(read)) => Some(read.clone()),
+            (Some((_, volume)), true, None) => Some(volume.sample(&points.corners)?),
             _ => None,
         };
         watch.mark(Stage::Sampling);

@@ -14,11 +14,13 @@
 
 use nia_data::geometry::sparse::SparseGridError;
 
+pub mod host_read;
 pub mod network;
 pub mod site_norm;
 pub mod sparse_conv;
 pub mod trilinear;
 
+pub use host_read::HostVolume;
 pub use network::{
     BodyVolume, BodyVolumeGeometry, BodyVolumeNet, BodyVolumeNetConfig, ScaleVolume, NUM_SCALES,
 };
