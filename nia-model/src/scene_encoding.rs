@@ -81,8 +81,9 @@ impl SceneEncoding {
         self
     }
 
-    /// This encoding with the body volume read on the host (`on`, for the CPU backends at
-    /// inference: [`HostVolume`]) or with tensor operations (every backend, with gradients).
+    /// This encoding with the body volume, the source images and the pixel-feature maps read
+    /// on the host (`on`, for the CPU backends at inference: [`HostVolume`],
+    /// [`ViewRows::with_host_copy`]) or with tensor operations (every backend, with gradients).
     /// [`NiaModel::encode`] turns it on for a CPU device without autodiff; off is the
     /// reference path the host read is tested against.
     pub fn with_host_reads(mut self, on: bool) -> Result<Self, ModelError> {
@@ -90,6 +91,13 @@ impl SceneEncoding {
             (Some((_, volume)), true) => Some(Arc::new(HostVolume::read(volume)?)),
             _ => None,
         };
+        let host_copy = |rows: ViewRows| match (on, rows.has_host_copy()) {
+            (true, false) => rows.with_host_copy(),
+            (true, true) => Ok(rows),
+            (false, _) => Ok(rows.without_host_copy()),
+        };
+        self.image_rows = host_copy(self.image_rows)?;
+        self.pixel_rows = host_copy(self.pixel_rows)?;
         Ok(self)
     }
 

@@ -210,3 +210,52 @@ fn shape_errors_and_empty_grids() {
     let empty = sample(maps, Tensor::<3>::zeros([N, 0, 2], &dev)).unwrap();
     assert_eq!(empty.dims(), [N, 0, C]);
 }
+
+/// The fused host read (a host copy of the rows, a grid without gradients: inference on the CPU
+/// backends) against the tensor read and `grid_sample_2d`, with the edge cases and non-finite
+/// coordinates; a grid that carries gradients still takes the tensor path.
+#[test]
+fn host_read_matches_the_tensor_read() {
+    use nia_model::field::bilinear::ViewRows;
+    let dev = device();
+    let (mut grid, m) = grid_values();
+    grid[0] = f32::NAN;
+    grid[3] = f32::INFINITY;
+    let maps = tensor(maps_values(), [N, C, H, W], &dev);
+    let proj = tensor(grid.clone(), [N, m, 2], &dev);
+    let rows = ViewRows::new(maps.clone()).unwrap();
+    let host = rows.clone().with_host_copy().unwrap();
+    assert!(host.has_host_copy() && !rows.has_host_copy());
+    let tensor_read = values(rows.sample(proj.clone()).unwrap());
+    let host_read = values(host.sample(proj.clone()).unwrap());
+    assert_eq!(tensor_read.len(), host_read.len());
+    for (i, (t, h)) in tensor_read.iter().zip(&host_read).enumerate() {
+        assert!(h.is_finite(), "[{i}] {h}");
+        assert!((t - h).abs() <= 1e-6, "[{i}] tensor {t} vs host {h}");
+    }
+    // The non-finite coordinates read zero.
+    assert_eq!(&host_read[..C], &[0.0; C]);
+    assert_eq!(&host_read[C..2 * C], &[0.0; C]);
+    let finite: Vec<f32> = grid
+        .iter()
+        .map(|v| if v.is_finite() { *v } else { 5.0 })
+        .collect();
+    let reference =
+        values(grid_sample_reference(maps.clone(), tensor(finite, [N, m, 2], &dev)).unwrap());
+    assert_close(&host_read, &reference, 1e-5, "host read vs grid_sample_2d");
+    assert!(host
+        .clone()
+        .without_host_copy()
+        .sample(proj.clone())
+        .is_ok());
+    // Under autodiff the same rows read with tensor operations, and gradients reach the grid.
+    let ad = dev.clone().autodiff();
+    let rows = ViewRows::new(tensor(maps_values(), [N, C, H, W], &ad))
+        .unwrap()
+        .with_host_copy()
+        .unwrap();
+    let proj = tensor(grid_values().0, [N, m, 2], &ad).require_grad();
+    let grads = rows.sample(proj.clone()).unwrap().sum().backward();
+    let g = values(proj.grad(&grads).expect("a gradient in the grid"));
+    assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|v| *v != 0.0));
+}

@@ -18,8 +18,11 @@
 //! weights stay differentiable in the grid (the surface read's gradient in the expected depth,
 //! see `surface_ibr`). Every backend runs the same tensor operations.
 
+use std::sync::Arc;
+
 use burn::prelude::*;
 use burn::tensor::ops::GridSampleOptions;
+use rayon::prelude::*;
 
 use crate::shape::ShapeError;
 
@@ -36,12 +39,20 @@ pub fn sample(maps: Tensor<4>, proj_grid: Tensor<3>) -> Result<Tensor<3>, ShapeE
 
 /// N maps laid out channels-last for [`ViewRows::sample`]: the layout change (a copy of the
 /// whole maps) is made once, not per read.
+///
+/// With a host copy ([`ViewRows::with_host_copy`], inference on the CPU backends) a read whose
+/// grid carries no gradient is one fused pass on the host: the four corners of every (view,
+/// point) accumulated straight into the output, in parallel, instead of four row gathers,
+/// four weightings and three sums that burn-flex runs one after the other (most of them on
+/// one thread). Same arithmetic in the same order; the tensor read stays the reference.
 #[derive(Debug, Clone)]
 pub struct ViewRows {
     /// `[N H W + 1, C]`: channels-last rows of every view, then one zero row.
     rows: Tensor<2>,
     /// `[N, C, H, W]` of the maps.
     dims: [usize; 4],
+    /// `rows` in host memory, row-major, for the fused read.
+    host: Option<Arc<Vec<f32>>>,
 }
 
 impl ViewRows {
@@ -65,7 +76,34 @@ impl ViewRows {
         Ok(Self {
             rows,
             dims: [n, c, h, w],
+            host: None,
         })
+    }
+
+    /// These rows with a host copy (read back once) for the fused read of grids without
+    /// gradients; on a GPU backend the copy is a transfer, so the renderers ask for it on the
+    /// CPU backends only.
+    pub fn with_host_copy(mut self) -> Result<Self, ShapeError> {
+        let values = self
+            .rows
+            .clone()
+            .into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .map_err(|e| ShapeError::value("IBR rows", format!("f32 values ({e:?})")))?;
+        self.host = Some(Arc::new(values));
+        Ok(self)
+    }
+
+    /// These rows without a host copy (every read with tensor operations).
+    pub fn without_host_copy(mut self) -> Self {
+        self.host = None;
+        self
+    }
+
+    /// Whether reads without gradients run on the host.
+    pub fn has_host_copy(&self) -> bool {
+        self.host.is_some()
     }
 
     /// `[N, C, H, W]` of the maps these rows hold.
@@ -94,6 +132,15 @@ impl ViewRows {
         let device = self.rows.device();
         if m == 0 {
             return Ok(Tensor::zeros([n, 0, c], &device));
+        }
+        if let (Some(host), false) = (&self.host, proj_grid.is_autodiff()) {
+            let grid = proj_grid
+                .into_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .map_err(|e| ShapeError::value("IBR `proj_grid`", format!("f32 values ({e:?})")))?;
+            let out = host_read(host, self.dims, &grid, m);
+            return Ok(Tensor::from_data(TensorData::new(out, [n, m, c]), &device));
         }
         let zero_row = (n * h * w) as f32;
         // Pixel coordinates [N, M] and the first row of each view, as floats: indices up to
@@ -135,6 +182,53 @@ impl ViewRows {
             + corner(1.0, 1.0, fx, fy);
         Ok(out.reshape([n, m, c]))
     }
+}
+
+/// Points per parallel task of [`host_read`].
+const POINTS_PER_TASK: usize = 128;
+
+/// The fused read: `out[n, m] = sum over the four corners of weight * row`, the corners in the
+/// tensor read's order (x0 y0, x1 y0, x0 y1, x1 y1) and with its coordinates and weights.
+///
+/// # Shapes
+/// - `rows`: `[N H W + 1, C]` row-major; `grid`: `[N, M, 2]` row-major
+/// - output: `[N, M, C]` row-major
+fn host_read(rows: &[f32], dims: [usize; 4], grid: &[f32], m: usize) -> Vec<f32> {
+    let [n, c, h, w] = dims;
+    let mut out = vec![0.0f32; n * m * c];
+    out.par_chunks_mut(POINTS_PER_TASK * c)
+        .enumerate()
+        .for_each(|(task, block)| {
+            for (r, acc) in block.chunks_mut(c).enumerate() {
+                let flat = task * POINTS_PER_TASK + r; // view * M + point
+                let view = flat / m;
+                let x = (grid[2 * flat] + 1.0) * (w as f32 / 2.0) - 0.5;
+                let y = (grid[2 * flat + 1] + 1.0) * (h as f32 / 2.0) - 0.5;
+                let (x0, y0) = (x.floor(), y.floor());
+                let (fx, fy) = (x - x0, y - y0);
+                let (gx, gy) = (-fx + 1.0, -fy + 1.0);
+                for (dx, dy, wx, wy) in [
+                    (0.0, 0.0, gx, gy),
+                    (1.0, 0.0, fx, gy),
+                    (0.0, 1.0, gx, fy),
+                    (1.0, 1.0, fx, fy),
+                ] {
+                    let (xi, yi) = (x0 + dx, y0 + dy);
+                    // Comparisons with NaN are false: a non-finite coordinate is outside.
+                    let inside =
+                        xi >= 0.0 && xi <= (w - 1) as f32 && yi >= 0.0 && yi <= (h - 1) as f32;
+                    if !inside {
+                        continue;
+                    }
+                    let weight = wy * wx;
+                    let row = view * h * w + yi as usize * w + xi as usize;
+                    for (a, &v) in acc.iter_mut().zip(&rows[row * c..(row + 1) * c]) {
+                        *a += v * weight;
+                    }
+                }
+            }
+        });
+    out
 }
 
 /// `grid_sample_2d` (bilinear, zero padding, `align_corners = false`): the reference
