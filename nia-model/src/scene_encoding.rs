@@ -86,9 +86,9 @@ impl SceneEncoding {
     /// [`ViewRows::with_host_copy`]) or with tensor operations (every backend, with gradients).
     /// [`NiaModel::encode`] turns it on for a CPU device without autodiff; off is the
     /// reference path the host read is tested against.
-    pub fn with_host_reads(mut self, on: bool) -> Result<Self, ModelError> {
+    pub fn with_host_reads(mut self, model: &NiaModel, on: bool) -> Result<Self, ModelError> {
         self.host_volume = match (&self.volume, on) {
-            (Some((_, volume)), true) => Some(Arc::new(HostVolume::read(volume)?)),
+            (Some((_, volume)), true) => Some(Arc::new(model.host_volume(volume)?)),
             _ => None,
         };
         let host_copy = |rows: ViewRows| match (on, rows.has_host_copy()) {
@@ -163,7 +163,7 @@ impl NiaModel {
             band,
         };
         // Inference on a CPU backend reads the body volume on the host (fused).
-        encoding.with_host_reads(is_host(device))
+        encoding.with_host_reads(self, is_host(device))
     }
 
     /// The same scene rendered in another pose: the body volume rebuilt on `reposer`'s target
@@ -193,7 +193,7 @@ impl NiaModel {
         }
         let band = self.band_of(&scene.geometry, reposer.as_deref())?;
         let host_volume = match (&volume, &scene.host_volume) {
-            (Some((_, v)), Some(_)) => Some(Arc::new(HostVolume::read(v)?)),
+            (Some((_, v)), Some(_)) => Some(Arc::new(self.host_volume(v)?)),
             _ => None,
         };
         Ok(SceneEncoding {
@@ -211,6 +211,15 @@ impl NiaModel {
             c0_shuffle: scene.c0_shuffle,
             band,
         })
+    }
+
+    /// The host copy of `volume` for the fused read, its wide scales through the body
+    /// reduction's weight ([`HostVolume::read`]).
+    fn host_volume(&self, volume: &BodyVolume) -> Result<HostVolume, ModelError> {
+        Ok(HostVolume::read(
+            volume,
+            Some(self.body_reduce.weight.val()),
+        )?)
     }
 
     /// The band sampler's grid on the mesh of the rendered pose: the scene's own, or

@@ -563,7 +563,7 @@ fn host_read_matches_the_tensor_read_on_every_scale() {
         .map(|c| TrilinearTensors::upload(c, &dev))
         .collect();
     let reference = values(volume.sample(&uploaded).unwrap());
-    let host = HostVolume::read(&volume).unwrap();
+    let host = HostVolume::read(&volume, None).unwrap();
     assert_eq!(host.channels(), 8);
     assert_eq!(host.num_views(), n);
     let fused = host.sample(&corners).unwrap();
@@ -585,6 +585,31 @@ fn host_read_matches_the_tensor_read_on_every_scale() {
     assert!(host.sample(&swapped).is_err());
     let other_points = TrilinearCorners::compute(&points[..3], &volume.scales[1].geometry);
     assert!(host.sample(&[corners[0].clone(), other_points]).is_err());
+
+    // Through a reduction to d = 4: the 5-channel scale is stored reduced per site (4 <= 5),
+    // the 3-channel one as it is; the reduced read equals the reduction of the full read.
+    use burn::nn::LinearConfig;
+    use nia_model::field::linear_rows::linear_rows;
+    let linear = LinearConfig::new(8, 4).init(&dev);
+    let reducing = HostVolume::read(&volume, Some(linear.weight.val())).unwrap();
+    assert_eq!(reducing.channels(), 3 + 4);
+    let read = reducing.sample(&corners).unwrap();
+    let read = tensor3(read, [n, points.len(), 7], &dev);
+    let reduced = values(reducing.reduce(read, &linear));
+    let expected = values(linear_rows(&linear, volume.sample(&uploaded).unwrap()));
+    assert_eq!(reduced.len(), expected.len());
+    for (i, (r, e)) in reduced.iter().zip(&expected).enumerate() {
+        assert!((r - e).abs() <= 1e-5, "[{i}] reduced host read {r} vs {e}");
+    }
+    // Without reduced scales `reduce` is the linear layer itself.
+    let plain = values(host.reduce(tensor3(fused.clone(), [n, points.len(), 8], &dev), &linear));
+    for (i, (r, e)) in plain.iter().zip(&expected).enumerate() {
+        assert!((r - e).abs() <= 1e-5, "[{i}] host read reduced {r} vs {e}");
+    }
+    // A weight of another height is an error naming what was expected.
+    let wrong = LinearConfig::new(6, 4).init(&dev);
+    let err = HostVolume::read(&volume, Some(wrong.weight.val())).unwrap_err();
+    assert!(err.to_string().contains("[8, d]"), "{err}");
 }
 
 #[test]

@@ -513,7 +513,7 @@ fn host_body_reads_render_what_the_tensor_reads_render() {
         scene.host_volume.is_some(),
         "a CPU device reads on the host"
     );
-    let tensor_scene = scene.clone().with_host_reads(false).unwrap();
+    let tensor_scene = scene.clone().with_host_reads(&model, false).unwrap();
     assert!(tensor_scene.host_volume.is_none());
     let compare = |a: &nia_model::SceneEncoding, b: &nia_model::SceneEncoding, what: &str| {
         let x = model.render(a, &rays, SAMPLES, None, None).unwrap();

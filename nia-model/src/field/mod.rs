@@ -239,15 +239,25 @@ impl NiaModel {
         let l = self
             .pixel_feature
             .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?; // [N, M, d]
-        let body = match (&scene.volume, self.variant.uses_body(), &points.body) {
-            (Some(_), true, Some(read)) => Some(read.clone()),
-            (Some((_, volume)), true, None) => Some(volume.sample(&points.corners)?),
-            _ => None,
+                                                                           // The body volume read (on the host: a layout whose wide scales are already reduced),
+                                                                           // then s_n = W_b^T read + b, [N, M, d].
+        let (read, on_host) = match (
+            &scene.volume,
+            self.variant.uses_body(),
+            &points.body,
+            &scene.host_volume,
+        ) {
+            (Some(_), true, Some(read), Some(_)) => (Some(read.clone()), true),
+            (Some((_, volume)), true, _, _) => (Some(volume.sample(&points.corners)?), false),
+            _ => (None, false),
         };
         watch.mark(Stage::Sampling);
-        let z = match (body, self.variant.uses_body()) {
-            (Some(body), true) => {
-                let s = linear_rows(&self.body_reduce, body); // [N, M, d]
+        let s = read.map(|read| match (&scene.host_volume, on_host) {
+            (Some(host), true) => host.reduce(read, &self.body_reduce),
+            _ => linear_rows(&self.body_reduce, read),
+        });
+        let z = match (s, self.variant.uses_body()) {
+            (Some(s), true) => {
                 self.attention
                     .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))? // [M, N, d]
             }

@@ -10,7 +10,16 @@
 //! the CPU already computed, writing only `[N, M, C]`: same arithmetic, the corners summed in
 //! the same order. The tensor path stays the reference (and the only path with gradients, on
 //! the GPU, and in training); `nia-model/tests/body_volume.rs` checks the two agree.
+//!
+//! The field reduces the read at once, `s_n = W_b^T read + b` ([`HostVolume::reduce`]). The
+//! trilinear read is linear, so for a scale at least as wide as the reduction the product can
+//! be taken per site, once per scene (`W_s^T f_s`, [`HostVolume::read`] with the reduction's
+//! weight), and the reads of those scales summed into one block of d channels: at the paper's
+//! widths (scales of 32, 64, 128 and 128 channels to d = 128) the per-point product shrinks from
+//! 352 to 96 input channels and the read writes 224 channels instead of 352.
 
+use burn::nn::Linear;
+use burn::prelude::*;
 use rayon::prelude::*;
 
 use super::network::BodyVolume;
@@ -23,10 +32,14 @@ const POINTS_PER_TASK: usize = 256;
 /// One scale's site features in host memory.
 #[derive(Debug, Clone)]
 struct HostScale {
-    /// `[N, P_s, C]`, row-major.
+    /// `[N, P_s, C]`, row-major: the site features, or `W_s^T f` (C = d) for a reduced scale.
     features: Vec<f32>,
     num_sites: usize,
     channels: usize,
+    /// Rows `offset..offset + C_s` of the reduction's weight belong to this scale.
+    offset: usize,
+    /// Whether `features` are already through the reduction's weight.
+    reduced: bool,
 }
 
 /// A host copy of a [`BodyVolume`]'s site features, for [`HostVolume::sample`].
@@ -34,20 +47,48 @@ struct HostScale {
 pub struct HostVolume {
     scales: Vec<HostScale>,
     num_views: usize,
+    /// d of the reduced scales' block (0 when none is reduced).
+    reduced_width: usize,
 }
 
 impl HostVolume {
     /// Reads the site features of `volume` back to host memory (on a GPU backend this is a
-    /// transfer; the renderers use it on the CPU backends only).
-    pub fn read(volume: &BodyVolume) -> Result<Self, BodyVolumeError> {
+    /// transfer; the renderers use it on the CPU backends only). With `reduction`
+    /// (`W_b`, `[sum_s C_s, d]`) every scale with `C_s >= d` is stored through its rows of the
+    /// weight (module docs).
+    pub fn read(
+        volume: &BodyVolume,
+        reduction: Option<Tensor<2>>,
+    ) -> Result<Self, BodyVolumeError> {
+        let total: usize = volume.scales.iter().map(|s| s.features.dims()[2]).sum();
+        let reduction = match reduction {
+            Some(w) if w.dims()[0] != total => {
+                return Err(BodyVolumeError::invalid(
+                    "HostVolume::read reduction",
+                    format!("[{total}, d] (one row per channel of the scales)"),
+                    w.dims(),
+                ))
+            }
+            other => other,
+        };
+        let d = reduction.as_ref().map_or(0, |w| w.dims()[1]);
         let mut num_views = 0;
+        let mut offset = 0;
+        let mut reduced_width = 0;
         let mut scales = Vec::with_capacity(volume.scales.len());
         for scale in &volume.scales {
-            let [n, p_s, c] = scale.features.dims();
+            let [n, p_s, c_s] = scale.features.dims();
             num_views = n;
-            let features = scale
-                .features
-                .clone()
+            let (features, c, reduced) = match &reduction {
+                Some(w) if c_s >= d && d > 0 => {
+                    reduced_width = d;
+                    let rows = w.clone().narrow(0, offset, c_s);
+                    let through = scale.features.clone().reshape([n * p_s, c_s]).matmul(rows);
+                    (through, d, true)
+                }
+                _ => (scale.features.clone().reshape([n * p_s, c_s]), c_s, false),
+            };
+            let features = features
                 .into_data()
                 .convert::<f32>()
                 .try_into_vec::<f32>()
@@ -58,14 +99,66 @@ impl HostVolume {
                 features,
                 num_sites: p_s,
                 channels: c,
+                offset,
+                reduced,
             });
+            offset += c_s;
         }
-        Ok(HostVolume { scales, num_views })
+        Ok(HostVolume {
+            scales,
+            num_views,
+            reduced_width,
+        })
     }
 
-    /// Channels of the read, `sum_s C_s`.
+    /// Channels of the read: the scales kept as they are, concatenated, then the reduced
+    /// scales' block of d (`sum_s C_s` when none is reduced).
     pub fn channels(&self) -> usize {
-        self.scales.iter().map(|s| s.channels).sum()
+        self.raw_channels() + self.reduced_width
+    }
+
+    /// Channels of the scales kept as they are.
+    fn raw_channels(&self) -> usize {
+        self.scales
+            .iter()
+            .filter(|s| !s.reduced)
+            .map(|s| s.channels)
+            .sum()
+    }
+
+    /// `s = W^T read + b` from a read of [`Self::sample`]: the kept scales through their rows
+    /// of `linear`'s weight, plus the reduced block, plus the bias. Without reduced scales this
+    /// is `linear` applied to the read.
+    ///
+    /// # Shapes
+    /// - `read`: `[N, M, Self::channels()]`
+    /// - output: `[N, M, d]`
+    pub fn reduce(&self, read: Tensor<3>, linear: &Linear) -> Tensor<3> {
+        let [n, m, _] = read.dims();
+        let raw = self.raw_channels();
+        let weight = linear.weight.val();
+        let d = weight.dims()[1];
+        let rows: Vec<Tensor<2>> = self
+            .scales
+            .iter()
+            .filter(|s| !s.reduced)
+            .map(|s| weight.clone().narrow(0, s.offset, s.channels))
+            .collect();
+        let mut s = match rows.is_empty() {
+            true => Tensor::zeros([n * m, d], &read.device()),
+            false => read
+                .clone()
+                .narrow(2, 0, raw)
+                .reshape([n * m, raw])
+                .matmul(Tensor::cat(rows, 0)),
+        };
+        if self.reduced_width > 0 {
+            s = s + read.narrow(2, raw, self.reduced_width).reshape([n * m, d]);
+        }
+        if let Some(b) = &linear.bias {
+            s = s + b.val().unsqueeze::<2>();
+        }
+        s.reshape([n, m, d])
     }
 
     /// Number of views N.
@@ -102,6 +195,7 @@ impl HostVolume {
         }
         let n = self.num_views;
         let total = self.channels();
+        let raw = self.raw_channels();
         let mut out = vec![0.0f32; n * m * total];
         // Rows of `total` channels: (view, point) pairs, in tasks of consecutive points.
         out.par_chunks_mut(POINTS_PER_TASK * total)
@@ -112,10 +206,12 @@ impl HostVolume {
                     let flat = task * POINTS_PER_TASK + r; // view * M + point
                     let (view, point) = (flat / m, flat % m);
                     let row = &mut block[r * total..(r + 1) * total];
+                    // Kept scales side by side, reduced ones summed into the last block.
                     let mut offset = 0;
                     for (scale, corner) in self.scales.iter().zip(corners) {
                         let c = scale.channels;
-                        let acc = &mut row[offset..offset + c];
+                        let start = if scale.reduced { raw } else { offset };
+                        let acc = &mut row[start..start + c];
                         let view_base = view * scale.num_sites * c;
                         for j in 0..CORNERS {
                             let site = corner.index[point * CORNERS + j] as usize;
@@ -130,7 +226,9 @@ impl HostVolume {
                                 *a += w * f;
                             }
                         }
-                        offset += c;
+                        if !scale.reduced {
+                            offset += c;
+                        }
                     }
                 }
             });
