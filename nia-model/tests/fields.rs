@@ -117,6 +117,44 @@ fn positional_encoding_tensor_and_cpu_agree_for_directions() {
 // View-wise cross-attention
 // ----------------------------------------------------------------------------------------------
 
+/// The attention's view mean fused on the host (inference on the CPU backends) against the
+/// tensor form and `view_mean`, for 1 and 3 views, with features large enough that the scores
+/// reach +-1e4 (the softmax must subtract its maximum), and a shape error.
+#[test]
+fn host_attention_view_mean_matches_the_tensor_form() {
+    let dev = device();
+    let d = 8;
+    let attention = ViewCrossAttentionConfig::new().with_d_model(d).init(&dev);
+    let mut rng = Rng::new(77);
+    for (n, amplitude) in [(1usize, 1.0f32), (3, 1.0), (3, 60.0)] {
+        let m = 37;
+        let mut draw = |k: usize| -> Vec<f32> {
+            (0..k)
+                .map(|_| (rng.uniform() * 2.0 - 1.0) * amplitude)
+                .collect()
+        };
+        let s = tensor(draw(n * m * d), [n, m, d], &dev); // [N, M, d]
+        let l = tensor(draw(n * m * d), [n, m, d], &dev);
+        let reference = values(view_mean(
+            attention
+                .forward(s.clone().swap_dims(0, 1), l.clone().swap_dims(0, 1))
+                .unwrap(),
+        ));
+        let host = values(attention.view_mean_on_host(s, l).unwrap());
+        assert_eq!(host.len(), m * d);
+        let tol = 1e-5 * amplitude.max(1.0) * amplitude.max(1.0);
+        for (i, (r, h)) in reference.iter().zip(&host).enumerate() {
+            assert!(h.is_finite(), "N {n} amplitude {amplitude}: [{i}] {h}");
+            assert!(
+                (r - h).abs() <= tol,
+                "N {n} amplitude {amplitude}: [{i}] tensor {r} vs host {h}"
+            );
+        }
+    }
+    let s = tensor(vec![0.0; 2 * 3 * 5], [2, 3, 5], &dev);
+    assert!(attention.view_mean_on_host(s.clone(), s).is_err());
+}
+
 #[test]
 fn attention_with_one_view_is_value_plus_residual() {
     let dev = device();

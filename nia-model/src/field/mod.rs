@@ -17,6 +17,7 @@
 //! first when the scene renders another pose) and runs [`NiaModel::query`], the network proper.
 
 pub mod attention;
+pub mod attention_host;
 pub mod bilinear;
 pub mod blender;
 pub mod body_volume;
@@ -256,19 +257,22 @@ impl NiaModel {
             (Some(host), true) => host.reduce(read, &self.body_reduce),
             _ => linear_rows(&self.body_reduce, read),
         });
-        let z = match (s, self.variant.uses_body()) {
-            (Some(s), true) => {
-                self.attention
-                    .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))? // [M, N, d]
+        let mean_z = match (s, self.variant.uses_body()) {
+            // Inference with host reads: the attention's view mean fused on the host.
+            (Some(s), true) if on_host && !s.is_autodiff() => {
+                self.attention.view_mean_on_host(s, l.clone())? // [M, d]
             }
+            (Some(s), true) => view_mean(
+                self.attention
+                    .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))?, // [M, N, d]
+            ),
             (None, true) => {
                 return Err(ModelError::Input(
                     "the scene was encoded without a body volume".into(),
                 ))
             }
-            (_, false) => l.clone().swap_dims(0, 1),
-        };
-        let mean_z = view_mean(z); // [M, d]
+            (_, false) => view_mean(l.clone().swap_dims(0, 1)),
+        }; // [M, d]
         let sigma = self.density.forward(mean_z.clone())?;
         watch.mark(Stage::Mlps);
         Ok(DensityPass {
