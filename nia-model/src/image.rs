@@ -6,6 +6,8 @@
 //! (NHP/NIA's convention) with zero opacity and zero blend weights.
 
 use burn::prelude::*;
+
+use crate::readback::host_values;
 use nia_data::geometry::rays::RayBundle;
 
 use crate::model::{ModelError, NiaModel};
@@ -56,11 +58,7 @@ pub struct ImageRenderOptions {
 }
 
 fn readback(name: &str, tensor: Tensor<2>) -> Result<Vec<f32>, ModelError> {
-    tensor
-        .into_data()
-        .convert::<f32>()
-        .try_to_vec::<f32>()
-        .map_err(|e| ModelError::Input(format!("reading back {name}: {e:?}")))
+    host_values(tensor).map_err(|e| ModelError::Input(format!("reading back {name}: {e}")))
 }
 
 /// Renders `rays` (pixels of a `width x height` image) of `scene` in chunks of

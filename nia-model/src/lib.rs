@@ -21,6 +21,7 @@ pub mod image;
 pub mod loss;
 pub mod lpips;
 pub mod model;
+pub mod readback;
 pub mod renderer;
 pub mod sampler;
 pub mod scene_encoding;

@@ -23,6 +23,7 @@ use glam::Vec3;
 use crate::colour_culling::cull;
 use crate::field::PointOutput;
 use crate::model::{ModelError, NiaModel};
+use crate::readback::host_values;
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::Stopwatch;
@@ -84,12 +85,8 @@ impl NiaModel {
             let points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
             let dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
             let density = self.field_density(scene, &points, &dirs, watch)?;
-            let sigma = density
-                .sigma
-                .clone()
-                .into_data()
-                .try_to_vec::<f32>()
-                .map_err(|e| ModelError::Input(format!("reading densities: {e:?}")))?;
+            let sigma = host_values(density.sigma.clone())
+                .map_err(|e| ModelError::Input(format!("reading densities: {e}")))?;
             let ray_of: Vec<usize> = chosen.iter().map(|&p| flat[p] / s).collect();
             let steps: Vec<f32> = chosen
                 .iter()
@@ -115,7 +112,8 @@ impl NiaModel {
             coloured += colour_at.len();
             let to_index = |ks: &[usize]| {
                 let ks: Vec<i64> = ks.iter().map(|&k| k as i64).collect();
-                Tensor::<1, Int>::from_data(TensorData::new(ks.clone(), [ks.len()]), &device)
+                let len = ks.len();
+                Tensor::<1, Int>::from_data(TensorData::new(ks, [len]), &device)
             };
             // The evaluated points first, then the culled ones with zero colour.
             let mut parts = Vec::new();

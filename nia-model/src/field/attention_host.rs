@@ -15,6 +15,7 @@ use rayon::prelude::*;
 
 use super::attention::ViewCrossAttention;
 use super::linear_rows::linear_rows;
+use crate::readback::host_values;
 use crate::shape::ShapeError;
 
 /// Points per parallel task.
@@ -47,10 +48,7 @@ impl ViewCrossAttention {
         }
         let device = body_feature.device();
         let host = |t: Tensor<3>, what: &str| {
-            t.into_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .map_err(|e| ShapeError::value(what, format!("f32 values ({e:?})")))
+            host_values(t).map_err(|e| ShapeError::value(what, format!("f32 values ({e})")))
         };
         let q = host(
             linear_rows(&self.phi_k, body_feature.clone()),

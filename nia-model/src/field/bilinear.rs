@@ -24,6 +24,7 @@ use burn::prelude::*;
 use burn::tensor::ops::GridSampleOptions;
 use rayon::prelude::*;
 
+use crate::readback::host_values;
 use crate::shape::ShapeError;
 
 /// Reads N maps at M points each: [`ViewRows::new`] then [`ViewRows::sample`]. A caller that
@@ -84,13 +85,8 @@ impl ViewRows {
     /// gradients; on a GPU backend the copy is a transfer, so the renderers ask for it on the
     /// CPU backends only.
     pub fn with_host_copy(mut self) -> Result<Self, ShapeError> {
-        let values = self
-            .rows
-            .clone()
-            .into_data()
-            .convert::<f32>()
-            .try_into_vec::<f32>()
-            .map_err(|e| ShapeError::value("IBR rows", format!("f32 values ({e:?})")))?;
+        let values = host_values(self.rows.clone())
+            .map_err(|e| ShapeError::value("IBR rows", format!("f32 values ({e})")))?;
         self.host = Some(Arc::new(values));
         Ok(self)
     }
@@ -123,22 +119,14 @@ impl ViewRows {
     /// - output: `[N, M, C]`, zeros where every corner falls outside the map
     pub fn sample(&self, proj_grid: Tensor<3>) -> Result<Tensor<3>, ShapeError> {
         let [n, c, h, w] = self.dims;
-        let [n_grid, m, two] = proj_grid.dims();
-        ShapeError::check(
-            "IBR `proj_grid` [N, M, 2]",
-            &[n_grid, m, two],
-            &[Some(n), None, Some(2)],
-        )?;
+        let m = check_grid(n, &proj_grid)?;
         let device = self.rows.device();
         if m == 0 {
             return Ok(Tensor::zeros([n, 0, c], &device));
         }
         if let (Some(host), false) = (&self.host, proj_grid.is_autodiff()) {
-            let grid = proj_grid
-                .into_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .map_err(|e| ShapeError::value("IBR `proj_grid`", format!("f32 values ({e:?})")))?;
+            let grid = host_values(proj_grid)
+                .map_err(|e| ShapeError::value("IBR `proj_grid`", format!("f32 values ({e})")))?;
             let out = host_read(host, self.dims, &grid, m);
             return Ok(Tensor::from_data(TensorData::new(out, [n, m, c]), &device));
         }
@@ -248,15 +236,21 @@ pub fn grid_sample_reference(
     Ok(sampled.reshape([n, c, m]).swap_dims(1, 2))
 }
 
-/// `[N, C, H, W]` of `maps` after checking the grid against it.
-fn check(maps: &Tensor<4>, proj_grid: &Tensor<3>) -> Result<[usize; 4], ShapeError> {
-    let [n, c, h, w] = maps.dims();
+/// M of a grid `[N, M, 2]` for N maps.
+fn check_grid(n: usize, proj_grid: &Tensor<3>) -> Result<usize, ShapeError> {
     let [n_grid, m, two] = proj_grid.dims();
     ShapeError::check(
         "IBR `proj_grid` [N, M, 2]",
         &[n_grid, m, two],
         &[Some(n), None, Some(2)],
     )?;
+    Ok(m)
+}
+
+/// `[N, C, H, W]` of `maps` after checking the grid against it.
+fn check(maps: &Tensor<4>, proj_grid: &Tensor<3>) -> Result<[usize; 4], ShapeError> {
+    let [n, c, h, w] = maps.dims();
+    check_grid(n, proj_grid)?;
     if n == 0 || h == 0 || w == 0 {
         return Err(ShapeError::empty("IBR `maps` [N, C, H, W]"));
     }

@@ -25,6 +25,7 @@ use rayon::prelude::*;
 use super::network::BodyVolume;
 use super::trilinear::{TrilinearCorners, CORNERS};
 use super::BodyVolumeError;
+use crate::readback::host_values;
 
 /// Points per parallel task.
 const POINTS_PER_TASK: usize = 256;
@@ -88,13 +89,9 @@ impl HostVolume {
                 }
                 _ => (scale.features.clone().reshape([n * p_s, c_s]), c_s, false),
             };
-            let features = features
-                .into_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .map_err(|e| {
-                    BodyVolumeError::invalid("HostVolume::read features", "f32 site features", e)
-                })?;
+            let features = host_values(features).map_err(|e| {
+                BodyVolumeError::invalid("HostVolume::read features", "f32 site features", e)
+            })?;
             scales.push(HostScale {
                 features,
                 num_sites: p_s,
