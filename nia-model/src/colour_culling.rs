@@ -20,8 +20,9 @@ pub const DEFAULT_COLOUR_CULLING: f32 = 1e-3;
 /// `rays[k]` is sample k's ray, `steps[k] = sigma_k delta_k`; samples of one ray come in
 /// front-to-back order (other rays' samples may come between them). `tau[ray]` is the optical
 /// depth in front of the batch and `spent[ray]` the weight culled so far; both are updated.
-/// Returns, per sample, whether its colour is evaluated. A non-finite step makes the sample
-/// opaque (it takes the ray's whole remaining transmittance as weight).
+/// Returns, per sample, whether its colour is evaluated (every sample for `epsilon = -inf`).
+/// A non-finite step makes the sample opaque (it takes the ray's whole remaining transmittance
+/// as weight).
 pub fn cull(
     rays: &[usize],
     steps: &[f32],

@@ -93,20 +93,10 @@ impl NiaModel {
                 .zip(&sigma)
                 .map(|(&p, &sigma)| sigma * samples.delta[flat[p]])
                 .collect();
-            let evaluate = match culling {
-                // Also advances tau (a non-finite density stops the ray).
-                Some(budget) => cull(&ray_of, &steps, &mut tau, &mut spent, budget),
-                None => {
-                    for (&ray, &step) in ray_of.iter().zip(&steps) {
-                        tau[ray] += if step.is_finite() {
-                            step
-                        } else {
-                            f32::INFINITY
-                        };
-                    }
-                    vec![true; chosen.len()]
-                }
-            };
+            // Advances tau as well (a non-finite density stops the ray); without culling the
+            // budget is -inf and every sample is evaluated.
+            let budget = culling.unwrap_or(f32::NEG_INFINITY);
+            let evaluate = cull(&ray_of, &steps, &mut tau, &mut spent, budget);
             let (colour_at, culled): (Vec<usize>, Vec<usize>) =
                 (0..chosen.len()).partition(|&k| evaluate[k]);
             coloured += colour_at.len();

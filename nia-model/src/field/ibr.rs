@@ -74,12 +74,7 @@ pub fn fetch_source_colours(
     images: Tensor<4>,
     proj_grid: Tensor<3>,
 ) -> Result<Tensor<3>, ShapeError> {
-    ShapeError::check(
-        "IBR `images` [N, 3, H, W]",
-        &images.dims(),
-        &[None, Some(3), None, None],
-    )?;
-    sample_views(images, proj_grid)
+    fetch_source_colours_from(&ViewRows::new(images)?, proj_grid)
 }
 
 /// [`fetch_source_colours`] from the source images laid out as rows once per scene

@@ -110,7 +110,7 @@ impl PointTensors {
     /// Uploads `inputs` to `device` with the body volume read on the host by `host` at the
     /// inputs' corners (which are then not uploaded).
     pub fn upload_read(
-        inputs: &PointInputs,
+        inputs: PointInputs,
         host: &body_volume::HostVolume,
         device: &Device,
     ) -> Result<Self, ModelError> {
@@ -119,7 +119,7 @@ impl PointTensors {
         let body = Tensor::<3>::from_data(TensorData::new(body, [n, m, host.channels()]), device);
         let without_corners = PointInputs {
             corners: Vec::new(),
-            ..inputs.clone()
+            ..inputs
         };
         let mut tensors = Self::upload(&without_corners, device);
         tensors.body = Some(body);
@@ -189,7 +189,7 @@ impl NiaModel {
         };
         let device = scene.images.device();
         match (&scene.host_volume, inputs.corners.is_empty()) {
-            (Some(host), false) => PointTensors::upload_read(&inputs, host, &device),
+            (Some(host), false) => PointTensors::upload_read(inputs, host, &device),
             _ => Ok(PointTensors::upload(&inputs, &device)),
         }
     }
@@ -240,23 +240,28 @@ impl NiaModel {
         let l = self
             .pixel_feature
             .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?; // [N, M, d]
-                                                                           // The body volume read (on the host: a layout whose wide scales are already reduced),
-                                                                           // then s_n = W_b^T read + b, [N, M, d].
-        let (read, on_host) = match (
-            &scene.volume,
-            self.variant.uses_body(),
-            &points.body,
-            &scene.host_volume,
-        ) {
-            (Some(_), true, Some(read), Some(_)) => (Some(read.clone()), true),
-            (Some((_, volume)), true, _, _) => (Some(volume.sample(&points.corners)?), false),
-            _ => (None, false),
+                                                                           // The body volume read (on the host: a layout whose wide scales are already reduced,
+                                                                           // with the host copy that reads it), then s_n = W_b^T read + b, [N, M, d].
+        let read = match (&scene.volume, self.variant.uses_body(), &points.body) {
+            (Some(_), true, Some(read)) => match scene.host_volume.as_deref() {
+                Some(host) => Some((read.clone(), Some(host))),
+                None => {
+                    return Err(ModelError::Input(
+                        "points carry a host body-volume read but the scene has no host copy"
+                            .into(),
+                    ))
+                }
+            },
+            (Some((_, volume)), true, None) => Some((volume.sample(&points.corners)?, None)),
+            _ => None,
         };
         watch.mark(Stage::Sampling);
-        let s = read.map(|read| match (&scene.host_volume, on_host) {
-            (Some(host), true) => host.reduce(read, &self.body_reduce),
-            _ => linear_rows(&self.body_reduce, read),
-        });
+        let on_host = matches!(read, Some((_, Some(_))));
+        let s = match read {
+            Some((read, Some(host))) => Some(host.reduce(read, &self.body_reduce)),
+            Some((read, None)) => Some(linear_rows(&self.body_reduce, read)),
+            None => None,
+        };
         let mean_z = match (s, self.variant.uses_body()) {
             // Inference with host reads: the attention's view mean fused on the host.
             (Some(s), true) if on_host && !s.is_autodiff() => {
