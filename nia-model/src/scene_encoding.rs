@@ -16,7 +16,9 @@ use crate::c0_shuffle::C0Shuffle;
 use crate::device::is_host;
 use crate::field::bilinear::ViewRows;
 use crate::field::body_volume::{BodyVolume, BodyVolumeGeometry, HostVolume};
-use crate::field::ibr::sample_reduced_through;
+use crate::field::encoder_host::HostTrunk;
+use crate::field::ibr::sample_rows_through;
+use crate::field::pyramid_host::reduce_to_rows;
 use crate::model::{ModelError, NiaModel};
 use crate::timing::{Stage, StageTimes, Stopwatch};
 
@@ -30,9 +32,9 @@ pub struct SceneEncoding {
     /// The source images laid out as rows once, for the colour reads c_n of every ray chunk.
     pub image_rows: ViewRows,
     /// [N, C_v, H/2, W/2] the encoder's feature maps through the vertex reduction's weights
-    /// (`W_v^T F`, without the bias): what the body volume's vertex features sample, kept for
-    /// rebuilding the volume in other poses.
-    pub vertex_maps: Tensor<4>,
+    /// (`W_v^T F`, without the bias), laid out as rows: what the body volume's vertex features
+    /// sample, kept for rebuilding the volume in other poses.
+    pub vertex_rows: ViewRows,
     /// [N, d, H/2, W/2] the feature maps through the pixel-feature reduction's weights
     /// (`PixelFeature::reduce_maps`), laid out as rows once and sampled per point.
     pub pixel_rows: ViewRows,
@@ -136,13 +138,26 @@ impl NiaModel {
         let images = Tensor::<4>::from_data(TensorData::new(pixels, [n, 3, h, w]), device);
         // The encoder's pyramid is reduced level by level before upsampling, once per
         // consumer (pixel features, vertex features): the 512-channel map F is never built.
-        let pyramid = self.encoder.forward_pyramid(images.clone());
-        let pixel_rows = ViewRows::new(self.pixel_feature.reduce_maps(&pyramid)?)?;
-        let vertex_maps = pyramid.reduce(self.vertex_reduce.weight.val())?;
-        drop(pyramid);
+        // On a CPU backend without autodiff the reductions run on the host, into rows.
+        let on_host = is_host(device);
+        let pixel_weight = self.pixel_feature.reduce.weight.val();
+        let vertex_weight = self.vertex_reduce.weight.val();
+        let (pixel_rows, vertex_rows) = if on_host {
+            let pyramid = HostTrunk::new(&self.encoder)?.forward(images.clone())?;
+            (
+                reduce_to_rows(&pyramid, pixel_weight)?,
+                reduce_to_rows(&pyramid, vertex_weight)?,
+            )
+        } else {
+            let pyramid = self.encoder.forward_pyramid(images.clone());
+            (
+                ViewRows::new(pyramid.reduce(pixel_weight)?)?,
+                ViewRows::new(pyramid.reduce(vertex_weight)?)?,
+            )
+        };
         watch.mark(Stage::Encoder);
         let reposer = reposer.filter(|r| !r.is_identity());
-        let volume = self.body_volume_of(&vertex_maps, &geometry, reposer.as_deref(), device)?;
+        let volume = self.body_volume_of(&vertex_rows, &geometry, reposer.as_deref(), device)?;
         if volume.is_some() {
             watch.mark(Stage::BodyVolume);
         }
@@ -151,7 +166,7 @@ impl NiaModel {
             geometry,
             image_rows: ViewRows::new(images.clone())?,
             images,
-            vertex_maps,
+            vertex_rows,
             pixel_rows,
             volume,
             host_volume: None,
@@ -163,7 +178,7 @@ impl NiaModel {
             band,
         };
         // Inference on a CPU backend reads the body volume on the host (fused).
-        encoding.with_host_reads(self, is_host(device))
+        encoding.with_host_reads(self, on_host)
     }
 
     /// The same scene rendered in another pose: the body volume rebuilt on `reposer`'s target
@@ -183,7 +198,7 @@ impl NiaModel {
         let device = scene.images.device();
         let mut watch = Stopwatch::new(times, &device);
         let volume = self.body_volume_of(
-            &scene.vertex_maps,
+            &scene.vertex_rows,
             &scene.geometry,
             reposer.as_deref(),
             &device,
@@ -199,7 +214,7 @@ impl NiaModel {
         Ok(SceneEncoding {
             geometry: scene.geometry.clone(),
             images: scene.images.clone(),
-            vertex_maps: scene.vertex_maps.clone(),
+            vertex_rows: scene.vertex_rows.clone(),
             image_rows: scene.image_rows.clone(),
             pixel_rows: scene.pixel_rows.clone(),
             volume,
@@ -241,7 +256,7 @@ impl NiaModel {
     /// features of the scene's vertices of the same index); `None` for variant (a).
     fn body_volume_of(
         &self,
-        vertex_maps: &Tensor<4>,
+        vertex_rows: &ViewRows,
         geometry: &SceneGeometry,
         reposer: Option<&Reposer>,
         device: &Device,
@@ -249,13 +264,13 @@ impl NiaModel {
         if !self.variant.uses_body() {
             return Ok(None);
         }
-        let n = vertex_maps.dims()[0];
+        let n = vertex_rows.dims()[0];
         let v = geometry.vertices_world.len();
         // Vertex projections: the same projection rule as the query points.
         let grid = projection_grid(geometry, &geometry.vertices_world);
         let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, v, 2]), device);
         // Linear(sample(F)) = sample(W_v^T F) + b: [N, V, C_v].
-        let features = sample_reduced_through(&self.vertex_reduce, vertex_maps.clone(), grid)?;
+        let features = sample_rows_through(&self.vertex_reduce, vertex_rows, grid)?;
         let vis: Vec<f32> = geometry
             .vertex_visibility
             .iter()

@@ -34,7 +34,7 @@ fn forward_renders_finite_colours_of_the_right_shape() {
     let scene = model.encode(&input, None, &device, None).unwrap();
     assert_eq!(scene.pixel_rows.dims(), [3, config.d_model, 16, 16]);
     assert_eq!(
-        scene.vertex_maps.dims(),
+        scene.vertex_rows.dims(),
         [3, config.body_volume.vertex_channels, 16, 16]
     );
     let rays = common::target_rays(&input, 4);

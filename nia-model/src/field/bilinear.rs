@@ -81,6 +81,41 @@ impl ViewRows {
         })
     }
 
+    /// Rows computed on the host, channels-last (`values[((n H + y) W + x) C + c]` for
+    /// maps `[N, C, H, W]` = `dims`), with that host copy: no layout change, no read-back.
+    pub fn from_channels_last(
+        mut values: Vec<f32>,
+        dims: [usize; 4],
+        device: &Device,
+    ) -> Result<Self, ShapeError> {
+        let [n, c, h, w] = dims;
+        if n == 0 || h == 0 || w == 0 {
+            return Err(ShapeError::empty("IBR `maps` [N, C, H, W]"));
+        }
+        if values.len() != n * h * w * c {
+            return Err(ShapeError::value(
+                "channels-last IBR rows",
+                format!(
+                    "{} values for maps {dims:?}, got {}",
+                    n * h * w * c,
+                    values.len()
+                ),
+            ));
+        }
+        values.extend(std::iter::repeat_n(0.0, c));
+        let rows = Tensor::from_data(TensorData::new(values.clone(), [n * h * w + 1, c]), device);
+        Ok(Self {
+            rows,
+            dims,
+            host: Some(Arc::new(values)),
+        })
+    }
+
+    /// `[N H W + 1, C]`: the channels-last rows of every view, then one zero row.
+    pub fn rows(&self) -> Tensor<2> {
+        self.rows.clone()
+    }
+
     /// These rows with a host copy (read back once) for the fused read of grids without
     /// gradients; on a GPU backend the copy is a transfer, so the renderers ask for it on the
     /// CPU backends only.

@@ -32,22 +32,9 @@ pub fn sample_views(maps: Tensor<4>, proj_grid: Tensor<3>) -> Result<Tensor<3>, 
     super::bilinear::sample(maps, proj_grid)
 }
 
-/// `Linear(sample(F))` from maps already through the linear map's weights (`W^T F`): the
-/// sampled maps plus the bias (sampling is linear, and the bias counts once also where the
-/// projection falls outside the map).
-///
-/// # Shapes
-/// - `reduced_maps`: `[N, d_out, H, W]`; `proj_grid`: `[N, M, 2]`
-/// - output: `[N, M, d_out]`
-pub fn sample_reduced_through(
-    linear: &Linear,
-    reduced_maps: Tensor<4>,
-    proj_grid: Tensor<3>,
-) -> Result<Tensor<3>, ShapeError> {
-    sample_rows_through(linear, &ViewRows::new(reduced_maps)?, proj_grid)
-}
-
-/// [`sample_reduced_through`] from maps already laid out as rows.
+/// `Linear(sample(F))` from maps already through the linear map's weights (`W^T F`) and laid
+/// out as rows: the sampled maps plus the bias (sampling is linear, and the bias counts once
+/// also where the projection falls outside the map).
 ///
 /// # Shapes
 /// - `reduced_rows`: maps `[N, d_out, H, W]`; `proj_grid`: `[N, M, 2]`

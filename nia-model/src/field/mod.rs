@@ -22,11 +22,13 @@ pub mod bilinear;
 pub mod blender;
 pub mod body_volume;
 pub mod encoder;
+pub mod encoder_host;
 pub mod encoder_import;
 pub mod heads;
 pub mod ibr;
 pub mod linear_rows;
 pub mod positional_encoding;
+pub mod pyramid_host;
 pub mod view_statistics;
 
 use burn::prelude::*;

@@ -1,0 +1,92 @@
+//! Image-encoder timings at the paper's size (3 views of 512x512, ResNet-18 trunk to `layer3`):
+//! every layer of the trunk, one pyramid reduction (tensor form, then its channels-last
+//! layout), and the host forms (the folded channels-last trunk, the reduction that writes the
+//! rows directly), on flex and ndarray.
+//!
+//! `CARGO_TARGET_DIR=$HOME/.cache/nia-rs/target cargo bench --all-features -p nia-model --bench encoder`
+//! Plain `main` (no harness): prints milliseconds; speed is never asserted in a test.
+
+use std::time::Instant;
+
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+use nia_model::field::bilinear::ViewRows;
+use nia_model::field::encoder::{ImageEncoderConfig, ENCODER_CHANNELS};
+use nia_model::field::encoder_host::HostTrunk;
+use nia_model::field::pyramid_host::{reduce_to_rows, HostPyramid};
+
+const VIEWS: usize = 3;
+const SIZE: usize = 512;
+const D: usize = 128;
+
+/// Reads a scalar back, which waits for the device.
+fn sync<const R: usize>(t: Tensor<R>) -> f32 {
+    t.sum().into_scalar::<f32>()
+}
+
+fn main() {
+    for (name, device) in [("flex", Device::flex()), ("ndarray", Device::ndarray())] {
+        let encoder = ImageEncoderConfig::new().init(&device);
+        let images = Tensor::<4>::random(
+            [VIEWS, 3, SIZE, SIZE],
+            burn::tensor::Distribution::Uniform(0.0, 1.0),
+            &device,
+        );
+        let weight = Tensor::<2>::random(
+            [ENCODER_CHANNELS, D],
+            burn::tensor::Distribution::Normal(0.0, 0.05),
+            &device,
+        );
+        sync(encoder.forward_pyramid(images.clone()).levels[3].clone());
+        for rep in 0..2 {
+            let total = Instant::now();
+            let t = Instant::now();
+            let x = relu(encoder.bn1.forward(encoder.conv1.forward(images.clone())));
+            sync(x.clone());
+            let stem = t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
+            let mut x = encoder.maxpool.forward(x);
+            sync(x.clone());
+            let pool = t.elapsed().as_secs_f64() * 1e3;
+            let mut layers = Vec::new();
+            for layer in [&encoder.layer1, &encoder.layer2, &encoder.layer3] {
+                let t = Instant::now();
+                for block in layer {
+                    x = block.forward(x);
+                }
+                sync(x.clone());
+                layers.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            let t = Instant::now();
+            let pyramid = encoder.forward_pyramid(images.clone());
+            sync(pyramid.levels[3].clone());
+            let whole = t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
+            let reduced = pyramid.reduce(weight.clone()).expect("reduce");
+            sync(reduced.clone());
+            let reduce = t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
+            let rows = ViewRows::new(reduced).expect("rows");
+            drop(rows);
+            let layout = t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
+            let trunk = HostTrunk::new(&encoder).expect("host trunk");
+            let host_pyramid = trunk.forward(images.clone()).expect("host trunk forward");
+            let host_trunk = t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
+            let host = reduce_to_rows(&host_pyramid, weight.clone()).expect("host reduction");
+            drop(host);
+            let host_reduce = t.elapsed().as_secs_f64() * 1e3;
+            drop(HostPyramid::from_tensors(&pyramid).expect("read back"));
+            println!(
+                "{name} rep {rep}: stem {stem:.0} ms, maxpool {pool:.0}, layer1 {:.0}, layer2 {:.0}, \
+                 layer3 {:.0}; whole trunk {whole:.0}; one reduction {reduce:.0}; rows {layout:.0}; \
+                 host trunk {host_trunk:.0}, host reduction {host_reduce:.0}; all {:.0} ms",
+                layers[0],
+                layers[1],
+                layers[2],
+                total.elapsed().as_secs_f64() * 1e3
+            );
+        }
+    }
+}

@@ -1,0 +1,240 @@
+//! The encoder pyramid's channel reduction on the host, straight into channels-last rows
+//! (inference on the CPU backends), from the channels-last pyramid of the host trunk
+//! ([`crate::field::encoder_host`]).
+//!
+//! [`FeaturePyramid::reduce`] is the reference: per level a matrix product `W_l^T f_l`, then a
+//! bilinear upsampling written as two dense matrix products (`A_h f A_w^T`) so that it has a
+//! backward on every backend. Those matrices hold two non-zeros per row, so at the paper's
+//! sizes the upsampling multiplies ~15 GFLOP of zeros per reduction, and the result is then
+//! copied channels-last for [`ViewRows`]. Here each level's product is one `gemm` call that
+//! writes channels-last, and the upsampling reads the two taps per axis directly, summing the
+//! four levels into the rows in one parallel pass: the same weights (the rule of
+//! [`bilinear_matrix`]) and the same result to float rounding (tests below).
+
+use burn::prelude::*;
+use rayon::prelude::*;
+
+use crate::field::bilinear::ViewRows;
+use crate::field::encoder::{bilinear_matrix, FeaturePyramid};
+use crate::readback::host_values;
+use crate::shape::ShapeError;
+
+/// One output index's two source taps along an axis: `(i0, i1, lambda)`, value
+/// `(1 - lambda) s[i0] + lambda s[i1]` (the non-zeros of a [`bilinear_matrix`] row).
+fn taps(input: usize, output: usize) -> Vec<(usize, usize, f32)> {
+    let m = bilinear_matrix(input, output);
+    (0..output)
+        .map(|i| {
+            let row = &m[i * input..(i + 1) * input];
+            let mut nz = row.iter().enumerate().filter(|(_, w)| **w != 0.0);
+            match (nz.next(), nz.next()) {
+                (Some((i0, &w0)), Some((i1, &w1))) => (i0, i1, w1 / (w0 + w1)),
+                (Some((i0, _)), None) => (i0, i0, 0.0),
+                // A row without weight cannot occur (the weights of a row sum to one).
+                _ => (0, 0, 0.0),
+            }
+        })
+        .collect()
+}
+
+/// Maps `[N, C, H, W]` held channels-last on the host: `data[((n H + y) W + x) C + c]`.
+#[derive(Debug, Clone)]
+pub struct HostMaps {
+    pub data: Vec<f32>,
+    /// `[N, C, H, W]`.
+    pub dims: [usize; 4],
+}
+
+/// The encoder's four feature maps on the host, channels-last (finest first, at H/2): what
+/// [`crate::field::encoder_host::HostTrunk`] computes.
+#[derive(Debug, Clone)]
+pub struct HostPyramid {
+    pub levels: [HostMaps; 4],
+}
+
+impl HostPyramid {
+    /// The tensor pyramid read back channels-last.
+    pub fn from_tensors(pyramid: &FeaturePyramid) -> Result<Self, ShapeError> {
+        let level = |f: &Tensor<4>| -> Result<HostMaps, ShapeError> {
+            let dims = f.dims();
+            let data = host_values(f.clone().permute([0, 2, 3, 1])).map_err(|e| {
+                ShapeError::value("feature pyramid level", format!("f32 values ({e})"))
+            })?;
+            Ok(HostMaps { data, dims })
+        };
+        let [a, b, c, d] = &pyramid.levels;
+        Ok(Self {
+            levels: [level(a)?, level(b)?, level(c)?, level(d)?],
+        })
+    }
+
+    /// Channels of the concatenated map, `sum_l C_l`.
+    pub fn channels(&self) -> usize {
+        self.levels.iter().map(|f| f.dims[1]).sum()
+    }
+}
+
+/// `W^T F` of `pyramid` as channels-last rows (`[N, d, H/2, W/2]` maps), computed on the host:
+/// equal to `ViewRows::new(pyramid.reduce(weight))` of the tensor pyramid to float rounding,
+/// with its host copy.
+///
+/// # Shapes
+/// - `weight`: `[sum_l C_l, d]` (a `Linear`'s weight, input-major)
+/// - output: rows of maps `[N, d, H/2, W/2]`
+pub fn reduce_to_rows(pyramid: &HostPyramid, weight: Tensor<2>) -> Result<ViewRows, ShapeError> {
+    let [c_total, d] = weight.dims();
+    ShapeError::check(
+        "feature pyramid reduction `weight` [C_img, d]",
+        &[c_total, d],
+        &[Some(pyramid.channels()), None],
+    )?;
+    let device = weight.device();
+    let weight = host_values(weight)
+        .map_err(|e| ShapeError::value("pyramid reduction weight", format!("f32 values ({e})")))?;
+    let [n, _, h2, w2] = pyramid.levels[0].dims;
+    let mut out = vec![0.0f32; n * h2 * w2 * d];
+    // The coarser levels' reductions with their taps, upsampled together below.
+    let mut coarse = Vec::new();
+    let mut offset = 0;
+    for (l, level) in pyramid.levels.iter().enumerate() {
+        let [ln, c, h, w] = level.dims;
+        if ln != n {
+            return Err(ShapeError::value(
+                "feature pyramid levels",
+                format!("{n} maps on every level (level {l} has {ln})"),
+            ));
+        }
+        let f = &level.data;
+        let w_l = &weight[offset * d..(offset + c) * d];
+        offset += c;
+        let full = (h, w) == (h2, w2);
+        // [N, h w, d]: per map, f ([h w, C], channels-last) times W_l; a
+        // level at full size goes straight into the rows (accumulated after the first).
+        let mut reduced = if full {
+            std::mem::take(&mut out)
+        } else {
+            vec![0.0f32; n * h * w * d]
+        };
+        let read_dst = full && l > 0;
+        for (map, dst) in f.chunks(c * h * w).zip(reduced.chunks_mut(h * w * d)) {
+            // SAFETY: dst is [h w, d] row-major, lhs [h w, c] row-major, rhs [c, d]
+            // row-major; the slices hold exactly those extents.
+            unsafe {
+                gemm::gemm(
+                    h * w,
+                    d,
+                    c,
+                    dst.as_mut_ptr(),
+                    1,
+                    d as isize,
+                    read_dst,
+                    map.as_ptr(),
+                    1,
+                    c as isize,
+                    w_l.as_ptr(),
+                    1,
+                    d as isize,
+                    1.0,
+                    1.0,
+                    false,
+                    false,
+                    false,
+                    gemm::Parallelism::Rayon(0),
+                );
+            }
+        }
+        if full {
+            out = reduced;
+        } else {
+            coarse.push((reduced, h, w, taps(h, h2), taps(w, w2)));
+        }
+    }
+    // One pass over the rows: every coarser level's two taps per axis added per pixel.
+    out.par_chunks_mut(w2 * d)
+        .enumerate()
+        .for_each(|(row, dst)| {
+            let (m, y) = (row / h2, row % h2);
+            for (reduced, h, w, ty, tx) in &coarse {
+                let src = &reduced[m * h * w * d..(m + 1) * h * w * d];
+                let (y0, y1, ly) = ty[y];
+                for (x, px) in dst.chunks_mut(d).enumerate() {
+                    let (x0, x1, lx) = tx[x];
+                    let a = &src[(y0 * w + x0) * d..][..d];
+                    let b = &src[(y0 * w + x1) * d..][..d];
+                    let c = &src[(y1 * w + x0) * d..][..d];
+                    let e = &src[(y1 * w + x1) * d..][..d];
+                    for k in 0..d {
+                        let top = (1.0 - lx) * a[k] + lx * b[k];
+                        let bottom = (1.0 - lx) * c[k] + lx * e[k];
+                        px[k] += (1.0 - ly) * top + ly * bottom;
+                    }
+                }
+            }
+        });
+    ViewRows::from_channels_last(out, [n, d, h2, w2], &device)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::field::encoder::ImageEncoderConfig;
+    use crate::readback::host_values;
+    use burn::tensor::Distribution;
+
+    fn close(a: &[f32], b: &[f32], tol: f32) {
+        assert_eq!(a.len(), b.len());
+        let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1.0);
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!(x.is_finite(), "value {i} not finite: {x}");
+            assert!(
+                (x - y).abs() <= tol * scale,
+                "value {i}: host {x} vs tensor {y}"
+            );
+        }
+    }
+
+    #[test]
+    fn taps_are_the_bilinear_matrix_rows() {
+        for (input, output) in [(4, 8), (3, 8), (5, 9), (7, 7), (1, 4), (16, 64)] {
+            let m = bilinear_matrix(input, output);
+            for (i, (i0, i1, l)) in taps(input, output).into_iter().enumerate() {
+                let mut row = vec![0.0f32; input];
+                row[i0] += 1.0 - l;
+                row[i1] += l;
+                close(&row, &m[i * input..(i + 1) * input], 1e-6);
+            }
+        }
+    }
+
+    /// The host rows equal the tensor reduction laid out as rows, for even and odd image
+    /// sizes (odd sizes give levels whose upsampling is not an exact factor of two).
+    #[test]
+    fn host_rows_match_the_tensor_reduction() {
+        let device = Device::ndarray();
+        for [h, w] in [[32, 48], [40, 24], [36, 52]] {
+            let encoder = ImageEncoderConfig::new().with_base_width(8).init(&device);
+            let images =
+                Tensor::<4>::random([2, 3, h, w], Distribution::Uniform(0.0, 1.0), &device);
+            let pyramid = encoder.forward_pyramid(images);
+            let weight = Tensor::<2>::random([64, 12], Distribution::Normal(0.0, 0.3), &device);
+            let reference = ViewRows::new(pyramid.reduce(weight.clone()).unwrap()).unwrap();
+            let host =
+                reduce_to_rows(&HostPyramid::from_tensors(&pyramid).unwrap(), weight).unwrap();
+            assert_eq!(host.dims(), reference.dims());
+            assert!(host.has_host_copy());
+            let want = host_values(reference.rows()).unwrap();
+            let got = host_values(host.rows()).unwrap();
+            close(&got, &want, 1e-5);
+        }
+    }
+
+    #[test]
+    fn a_weight_of_the_wrong_width_is_an_error() {
+        let device = Device::ndarray();
+        let encoder = ImageEncoderConfig::new().with_base_width(8).init(&device);
+        let pyramid = encoder.forward_pyramid(Tensor::zeros([1, 3, 32, 32], &device));
+        let pyramid = HostPyramid::from_tensors(&pyramid).unwrap();
+        let err = reduce_to_rows(&pyramid, Tensor::zeros([63, 4], &device)).unwrap_err();
+        assert!(err.to_string().contains("[C_img, d]"), "{err}");
+    }
+}
