@@ -4,6 +4,7 @@
 //! rows directly), on flex and ndarray.
 //!
 //! `CARGO_TARGET_DIR=$HOME/.cache/nia-rs/target cargo bench --all-features -p nia-model --bench encoder`
+//! (`-- host`: the host path alone, five times, for profiling)
 //! Plain `main` (no harness): prints milliseconds; speed is never asserted in a test.
 
 use std::time::Instant;
@@ -25,6 +26,32 @@ fn sync<const R: usize>(t: Tensor<R>) -> f32 {
 }
 
 fn main() {
+    // `-- host`: only the host trunk and reduction, repeated (for `perf record`).
+    if std::env::args().any(|a| a == "host") {
+        let device = Device::flex();
+        let encoder = ImageEncoderConfig::new().init(&device);
+        let images = Tensor::<4>::random(
+            [VIEWS, 3, SIZE, SIZE],
+            burn::tensor::Distribution::Uniform(0.0, 1.0),
+            &device,
+        );
+        let weight = Tensor::<2>::random(
+            [ENCODER_CHANNELS, D],
+            burn::tensor::Distribution::Normal(0.0, 0.05),
+            &device,
+        );
+        for rep in 0..5 {
+            let t = Instant::now();
+            let trunk = HostTrunk::new(&encoder).expect("host trunk");
+            let pyramid = trunk.forward(images.clone()).expect("host trunk forward");
+            let host_trunk = t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
+            drop(reduce_to_rows(&pyramid, weight.clone()).expect("host reduction"));
+            let host_reduce = t.elapsed().as_secs_f64() * 1e3;
+            println!("host rep {rep}: trunk {host_trunk:.0} ms, reduction {host_reduce:.0} ms");
+        }
+        return;
+    }
     for (name, device) in [("flex", Device::flex()), ("ndarray", Device::ndarray())] {
         let encoder = ImageEncoderConfig::new().init(&device);
         let images = Tensor::<4>::random(

@@ -175,88 +175,98 @@ impl FoldedConv {
         let co = self.c_out;
         let pointwise = kh == 1 && kw == 1 && self.stride == [1, 1] && pt == 0 && pl == 0;
         let mut out = vec![0.0f32; n * ho * wo * co];
-        out.par_chunks_mut(TILE * co)
+        // A few jobs per thread, each with one im2col buffer for all its tiles.
+        let tiles = (n * ho * wo).div_ceil(TILE);
+        let tiles_per_job = tiles.div_ceil(4 * rayon::current_num_threads()).max(1);
+        out.par_chunks_mut(TILE * co * tiles_per_job)
             .enumerate()
-            .for_each_init(Vec::new, |col, (chunk, dst)| {
-                // A tile's pixels are taken in runs within one map each.
-                let first = chunk * TILE;
-                let pixels = dst.len() / co;
-                let mut done = 0;
-                while done < pixels {
-                    let p = first + done;
-                    let (b, q) = (p / (ho * wo), p % (ho * wo));
-                    let run = (ho * wo - q).min(pixels - done);
-                    let image = &x.data[b * h * w * c..(b + 1) * h * w * c];
-                    let dst_run = &mut dst[done * co..(done + run) * co];
-                    let (lhs, lhs_rs): (&[f32], usize) = if pointwise {
-                        (&image[q * c..(q + run) * c], c)
-                    } else {
-                        col.clear();
-                        col.resize(run * k, 0.0);
-                        for (r, row) in col.chunks_mut(k).enumerate() {
-                            let (oy, ox) = ((q + r) / wo, (q + r) % wo);
-                            for i in 0..kh {
-                                let y = (oy * sh + i) as isize - pt as isize;
-                                if y < 0 || y >= h as isize {
-                                    continue;
-                                }
-                                // A kernel row inside the image is one contiguous run.
-                                let x0 = (ox * sw) as isize - pl as isize;
-                                if x0 >= 0 && x0 as usize + kw <= w {
-                                    let src = (y as usize * w + x0 as usize) * c;
-                                    row[i * kw * c..][..kw * c]
-                                        .copy_from_slice(&image[src..src + kw * c]);
-                                    continue;
-                                }
-                                for j in 0..kw {
-                                    let xx = (ox * sw + j) as isize - pl as isize;
-                                    if xx < 0 || xx >= w as isize {
+            .for_each(|(job, job_dst)| {
+                let mut col = Vec::new();
+                for (t, dst) in job_dst.chunks_mut(TILE * co).enumerate() {
+                    let chunk = job * tiles_per_job + t;
+                    // A tile's pixels are taken in runs within one map each.
+                    let first = chunk * TILE;
+                    let pixels = dst.len() / co;
+                    let mut done = 0;
+                    while done < pixels {
+                        let p = first + done;
+                        let (b, q) = (p / (ho * wo), p % (ho * wo));
+                        let run = (ho * wo - q).min(pixels - done);
+                        let image = &x.data[b * h * w * c..(b + 1) * h * w * c];
+                        let dst_run = &mut dst[done * co..(done + run) * co];
+                        let (lhs, lhs_rs): (&[f32], usize) = if pointwise {
+                            (&image[q * c..(q + run) * c], c)
+                        } else {
+                            // Every element of the rows is written (padding as zeros), so the
+                            // buffer is only grown, never cleared.
+                            if col.len() < run * k {
+                                col.resize(run * k, 0.0);
+                            }
+                            for (r, row) in col[..run * k].chunks_mut(k).enumerate() {
+                                let (oy, ox) = ((q + r) / wo, (q + r) % wo);
+                                for (i, seg) in row.chunks_mut(kw * c).enumerate() {
+                                    let y = (oy * sh + i) as isize - pt as isize;
+                                    if y < 0 || y >= h as isize {
+                                        seg.fill(0.0);
                                         continue;
                                     }
-                                    let src = (y as usize * w + xx as usize) * c;
-                                    row[(i * kw + j) * c..][..c]
-                                        .copy_from_slice(&image[src..src + c]);
+                                    // A kernel row inside the image is one contiguous run.
+                                    let x0 = (ox * sw) as isize - pl as isize;
+                                    if x0 >= 0 && x0 as usize + kw <= w {
+                                        let src = (y as usize * w + x0 as usize) * c;
+                                        seg.copy_from_slice(&image[src..src + kw * c]);
+                                        continue;
+                                    }
+                                    for (j, tap) in seg.chunks_mut(c).enumerate() {
+                                        let xx = x0 + j as isize;
+                                        if xx < 0 || xx >= w as isize {
+                                            tap.fill(0.0);
+                                        } else {
+                                            let src = (y as usize * w + xx as usize) * c;
+                                            tap.copy_from_slice(&image[src..src + c]);
+                                        }
+                                    }
                                 }
                             }
+                            (&col[..run * k], k)
+                        };
+                        // SAFETY: dst_run is [run, C_out] row-major, lhs [run, K] with row stride
+                        // lhs_rs, weight [K, C_out] row-major; the slices hold those extents.
+                        unsafe {
+                            gemm::gemm(
+                                run,
+                                co,
+                                k,
+                                dst_run.as_mut_ptr(),
+                                1,
+                                co as isize,
+                                false,
+                                lhs.as_ptr(),
+                                1,
+                                lhs_rs as isize,
+                                self.weight.as_ptr(),
+                                1,
+                                co as isize,
+                                0.0,
+                                1.0,
+                                false,
+                                false,
+                                false,
+                                gemm::Parallelism::None,
+                            );
                         }
-                        (&col[..], k)
-                    };
-                    // SAFETY: dst_run is [run, C_out] row-major, lhs [run, K] with row stride
-                    // lhs_rs, weight [K, C_out] row-major; the slices hold those extents.
-                    unsafe {
-                        gemm::gemm(
-                            run,
-                            co,
-                            k,
-                            dst_run.as_mut_ptr(),
-                            1,
-                            co as isize,
-                            false,
-                            lhs.as_ptr(),
-                            1,
-                            lhs_rs as isize,
-                            self.weight.as_ptr(),
-                            1,
-                            co as isize,
-                            0.0,
-                            1.0,
-                            false,
-                            false,
-                            false,
-                            gemm::Parallelism::None,
-                        );
-                    }
-                    let res = residual.map(|r| &r.data[p * co..(p + run) * co]);
-                    for (i, px) in dst_run.chunks_mut(co).enumerate() {
-                        for (o, v) in px.iter_mut().enumerate() {
-                            let mut s = *v + self.bias[o];
-                            if let Some(res) = res {
-                                s += res[i * co + o];
+                        let res = residual.map(|r| &r.data[p * co..(p + run) * co]);
+                        for (i, px) in dst_run.chunks_mut(co).enumerate() {
+                            for (o, v) in px.iter_mut().enumerate() {
+                                let mut s = *v + self.bias[o];
+                                if let Some(res) = res {
+                                    s += res[i * co + o];
+                                }
+                                *v = if relu { s.max(0.0) } else { s };
                             }
-                            *v = if relu { s.max(0.0) } else { s };
                         }
+                        done += run;
                     }
-                    done += run;
                 }
             });
         Ok(HostMaps { data: out, dims })
