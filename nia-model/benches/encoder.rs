@@ -25,6 +25,7 @@ fn sync<const R: usize>(t: Tensor<R>) -> f32 {
     t.sum().into_scalar::<f32>()
 }
 
+#[allow(deprecated)] // burn-ndarray, timed beside flex
 fn main() {
     // `-- host`: only the host trunk and reduction, repeated (for `perf record`).
     if std::env::args().any(|a| a == "host") {

@@ -469,6 +469,7 @@ mod tests {
     /// Every level of the host trunk equals the tensor trunk's (batch norm at inference), for
     /// image sizes that are and are not multiples of 16.
     #[test]
+    #[allow(deprecated)] // burn-ndarray: the tests' reference backend
     fn host_trunk_matches_the_tensor_trunk() {
         let device = Device::ndarray();
         let e = encoder(&device);
@@ -493,6 +494,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(deprecated)] // burn-ndarray: the tests' reference backend
     fn images_that_are_not_rgb_are_an_error() {
         let device = Device::ndarray();
         let trunk = HostTrunk::new(&encoder(&device)).unwrap();

@@ -209,6 +209,7 @@ mod tests {
     /// The host rows equal the tensor reduction laid out as rows, for even and odd image
     /// sizes (odd sizes give levels whose upsampling is not an exact factor of two).
     #[test]
+    #[allow(deprecated)] // burn-ndarray: the tests' reference backend
     fn host_rows_match_the_tensor_reduction() {
         let device = Device::ndarray();
         for [h, w] in [[32, 48], [40, 24], [36, 52]] {
@@ -229,6 +230,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(deprecated)] // burn-ndarray: the tests' reference backend
     fn a_weight_of_the_wrong_width_is_an_error() {
         let device = Device::ndarray();
         let encoder = ImageEncoderConfig::new().with_base_width(8).init(&device);
