@@ -16,8 +16,8 @@ use burn::tensor::activation::relu;
 use crate::shape::ShapeError;
 
 /// ImageNet normalisation torchvision's weights expect (applied inside the encoder).
-const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
-const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
+pub(crate) const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+pub(crate) const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
 
 /// Channels of the concatenated pyramid: 64 + 64 + 128 + 256.
 pub const ENCODER_CHANNELS: usize = 512;

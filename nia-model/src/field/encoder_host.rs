@@ -18,14 +18,10 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use crate::field::encoder::{BasicBlock, ImageEncoder};
+use crate::field::encoder::{BasicBlock, ImageEncoder, IMAGENET_MEAN, IMAGENET_STD};
 use crate::field::pyramid_host::{HostMaps, HostPyramid};
 use crate::readback::host_values;
 use crate::shape::ShapeError;
-
-/// ImageNet normalisation (the same constants as the tensor trunk).
-const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
-const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
 
 /// Output pixels per tile: one im2col buffer and one `gemm` of `TILE x K x C_out` each.
 const TILE: usize = 128;
