@@ -62,11 +62,16 @@ fn wait_for(child: &mut Child, what: &str, ready: impl Fn() -> bool) {
     }
 }
 
-/// `SIGKILL` (what `Child::kill` sends on Unix) and reap.
-fn kill9(child: &mut Child) {
+/// `SIGKILL` (what `Child::kill` sends on Unix) and reap; `false` when the process had already
+/// finished on its own (it can exit between a caller's last check and the kill).
+fn try_kill9(child: &mut Child) -> bool {
     child.kill().unwrap();
-    let status = child.wait().unwrap();
-    assert!(!status.success(), "the process was killed, not finished");
+    !child.wait().unwrap().success()
+}
+
+/// [`try_kill9`] of a process that must still be running (it waits on something).
+fn kill9(child: &mut Child) {
+    assert!(try_kill9(child), "the process was killed, not finished");
 }
 
 fn checkpoints_dir(out: &Path) -> PathBuf {
@@ -188,7 +193,10 @@ fn survives_repeated_sigkills_at_random_points() {
             break;
         }
         let cycle_start = std::time::SystemTime::now() - start.elapsed();
-        kill9(&mut child);
+        if !try_kill9(&mut child) {
+            // Finished between the check above and the kill.
+            break;
+        }
         kills += 1;
         // A temporary folder created by this process: the kill landed inside its write.
         if partial_writes(&out).iter().any(|p| {
