@@ -12,7 +12,7 @@ use std::time::Instant;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use nia_model::field::bilinear::ViewRows;
-use nia_model::field::encoder::{ImageEncoderConfig, ENCODER_CHANNELS};
+use nia_model::field::encoder::{ImageEncoder, ImageEncoderConfig, ENCODER_CHANNELS};
 use nia_model::field::encoder_host::HostTrunk;
 use nia_model::field::pyramid_host::{reduce_to_rows, HostPyramid};
 
@@ -25,22 +25,28 @@ fn sync<const R: usize>(t: Tensor<R>) -> f32 {
     t.sum().into_scalar::<f32>()
 }
 
+/// A paper-width encoder, random source images and a random reduction weight on `device`.
+fn setup(device: &Device) -> (ImageEncoder, Tensor<4>, Tensor<2>) {
+    let encoder = ImageEncoderConfig::new().init(device);
+    let images = Tensor::<4>::random(
+        [VIEWS, 3, SIZE, SIZE],
+        burn::tensor::Distribution::Uniform(0.0, 1.0),
+        device,
+    );
+    let weight = Tensor::<2>::random(
+        [ENCODER_CHANNELS, D],
+        burn::tensor::Distribution::Normal(0.0, 0.05),
+        device,
+    );
+    (encoder, images, weight)
+}
+
 #[allow(deprecated)] // burn-ndarray, timed beside flex
 fn main() {
     // `-- host`: only the host trunk and reduction, repeated (for `perf record`).
     if std::env::args().any(|a| a == "host") {
         let device = Device::flex();
-        let encoder = ImageEncoderConfig::new().init(&device);
-        let images = Tensor::<4>::random(
-            [VIEWS, 3, SIZE, SIZE],
-            burn::tensor::Distribution::Uniform(0.0, 1.0),
-            &device,
-        );
-        let weight = Tensor::<2>::random(
-            [ENCODER_CHANNELS, D],
-            burn::tensor::Distribution::Normal(0.0, 0.05),
-            &device,
-        );
+        let (encoder, images, weight) = setup(&device);
         for rep in 0..5 {
             let t = Instant::now();
             let trunk = HostTrunk::new(&encoder).expect("host trunk");
@@ -54,17 +60,7 @@ fn main() {
         return;
     }
     for (name, device) in [("flex", Device::flex()), ("ndarray", Device::ndarray())] {
-        let encoder = ImageEncoderConfig::new().init(&device);
-        let images = Tensor::<4>::random(
-            [VIEWS, 3, SIZE, SIZE],
-            burn::tensor::Distribution::Uniform(0.0, 1.0),
-            &device,
-        );
-        let weight = Tensor::<2>::random(
-            [ENCODER_CHANNELS, D],
-            burn::tensor::Distribution::Normal(0.0, 0.05),
-            &device,
-        );
+        let (encoder, images, weight) = setup(&device);
         sync(encoder.forward_pyramid(images.clone()).levels[3].clone());
         for rep in 0..2 {
             let total = Instant::now();
