@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use super::attention::ViewCrossAttention;
 use super::linear_rows::linear_rows;
-use crate::readback::host_values;
+use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
 /// Points per parallel task.
@@ -47,9 +47,7 @@ impl ViewCrossAttention {
             return Err(ShapeError::empty("attention views N"));
         }
         let device = body_feature.device();
-        let host = |t: Tensor<3>, what: &str| {
-            host_values(t).map_err(|e| ShapeError::value(what, format!("f32 values ({e})")))
-        };
+        let host = |t: Tensor<3>, what: &str| host_values_of(what, t);
         let q = host(
             linear_rows(&self.phi_k, body_feature.clone()),
             "attention queries",

@@ -24,7 +24,7 @@ use burn::prelude::*;
 use burn::tensor::ops::GridSampleOptions;
 use rayon::prelude::*;
 
-use crate::readback::host_values;
+use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
 /// Reads N maps at M points each: [`ViewRows::new`] then [`ViewRows::sample`]. A caller that
@@ -120,8 +120,7 @@ impl ViewRows {
     /// gradients; on a GPU backend the copy is a transfer, so the renderers ask for it on the
     /// CPU backends only.
     pub fn with_host_copy(mut self) -> Result<Self, ShapeError> {
-        let values = host_values(self.rows.clone())
-            .map_err(|e| ShapeError::value("IBR rows", format!("f32 values ({e})")))?;
+        let values = host_values_of("IBR rows", self.rows.clone())?;
         self.host = Some(Arc::new(values));
         Ok(self)
     }
@@ -160,8 +159,7 @@ impl ViewRows {
             return Ok(Tensor::zeros([n, 0, c], &device));
         }
         if let (Some(host), false) = (&self.host, proj_grid.is_autodiff()) {
-            let grid = host_values(proj_grid)
-                .map_err(|e| ShapeError::value("IBR `proj_grid`", format!("f32 values ({e})")))?;
+            let grid = host_values_of("IBR `proj_grid`", proj_grid)?;
             let out = host_read(host, self.dims, &grid, m);
             return Ok(Tensor::from_data(TensorData::new(out, [n, m, c]), &device));
         }

@@ -210,12 +210,7 @@ impl FeaturePyramid {
     /// - `weight`: `[sum_l C_l, d]` (a `Linear`'s weight, input-major)
     /// - output: `[N, d, H/2, W/2]`
     pub fn reduce(&self, weight: Tensor<2>) -> Result<Tensor<4>, ShapeError> {
-        let [c_total, d] = weight.dims();
-        ShapeError::check(
-            "feature pyramid reduction `weight` [C_img, d]",
-            &[c_total, d],
-            &[Some(self.channels()), None],
-        )?;
+        let d = check_reduction_weight(&weight, self.channels())?;
         let [_, _, h2, w2] = self.levels[0].dims();
         let mut offset = 0;
         let mut total: Option<Tensor<4>> = None;
@@ -239,6 +234,21 @@ impl FeaturePyramid {
         }
         total.ok_or_else(|| ShapeError::empty("feature pyramid levels"))
     }
+}
+
+/// The width d of a pyramid reduction's `weight` `[C_img, d]`, checked against the pyramid's
+/// `channels` (shared by the tensor and host reductions).
+pub(crate) fn check_reduction_weight(
+    weight: &Tensor<2>,
+    channels: usize,
+) -> Result<usize, ShapeError> {
+    let [c_total, d] = weight.dims();
+    ShapeError::check(
+        "feature pyramid reduction `weight` [C_img, d]",
+        &[c_total, d],
+        &[Some(channels), None],
+    )?;
+    Ok(d)
 }
 
 /// The [out, in] matrix of 1-D bilinear resampling with `align_corners = false` (PyTorch's

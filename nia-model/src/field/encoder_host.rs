@@ -20,15 +20,11 @@ use rayon::prelude::*;
 
 use crate::field::encoder::{BasicBlock, ImageEncoder, IMAGENET_MEAN, IMAGENET_STD};
 use crate::field::pyramid_host::{HostMaps, HostPyramid};
-use crate::readback::host_values;
+use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
 /// Output pixels per tile: one im2col buffer and one `gemm` of `TILE x K x C_out` each.
 const TILE: usize = 128;
-
-fn values<const D: usize>(what: &str, t: Tensor<D>) -> Result<Vec<f32>, ShapeError> {
-    host_values(t).map_err(|e| ShapeError::value(what, format!("f32 values ({e})")))
-}
 
 /// `(top, left, bottom, right)` of a padding the host trunk supports.
 fn explicit_padding(what: &str, padding: &PaddingConfig2d) -> Result<[usize; 4], ShapeError> {
@@ -70,13 +66,13 @@ impl FoldedConv {
             ));
         }
         let [c_out, c_in, kh, kw] = conv.weight.dims();
-        let w = values("host encoder conv weight", conv.weight.val())?;
-        let gamma = values("batch norm gamma", bn.gamma.val())?;
-        let beta = values("batch norm beta", bn.beta.val())?;
-        let mean = values("batch norm running mean", bn.running_mean.value())?;
-        let var = values("batch norm running var", bn.running_var.value())?;
+        let w = host_values_of("host encoder conv weight", conv.weight.val())?;
+        let gamma = host_values_of("batch norm gamma", bn.gamma.val())?;
+        let beta = host_values_of("batch norm beta", bn.beta.val())?;
+        let mean = host_values_of("batch norm running mean", bn.running_mean.value())?;
+        let var = host_values_of("batch norm running var", bn.running_var.value())?;
         let conv_bias = match &conv.bias {
-            Some(b) => values("host encoder conv bias", b.val())?,
+            Some(b) => host_values_of("host encoder conv bias", b.val())?,
             None => vec![0.0; c_out],
         };
         for (name, v) in [
@@ -394,7 +390,7 @@ impl HostTrunk {
                 format!("3 channels (RGB), got {c}"),
             ));
         }
-        let rgb = values("host encoder images", images)?;
+        let rgb = host_values_of("host encoder images", images)?;
         // Channels-last and ImageNet-normalised in one pass.
         let mut data = vec![0.0f32; n * h * w * 3];
         for b in 0..n {

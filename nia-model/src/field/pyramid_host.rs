@@ -15,8 +15,8 @@ use burn::prelude::*;
 use rayon::prelude::*;
 
 use crate::field::bilinear::ViewRows;
-use crate::field::encoder::{bilinear_matrix, FeaturePyramid};
-use crate::readback::host_values;
+use crate::field::encoder::{bilinear_matrix, check_reduction_weight, FeaturePyramid};
+use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
 /// One output index's two source taps along an axis: `(i0, i1, lambda)`, value
@@ -57,9 +57,7 @@ impl HostPyramid {
     pub fn from_tensors(pyramid: &FeaturePyramid) -> Result<Self, ShapeError> {
         let level = |f: &Tensor<4>| -> Result<HostMaps, ShapeError> {
             let dims = f.dims();
-            let data = host_values(f.clone().permute([0, 2, 3, 1])).map_err(|e| {
-                ShapeError::value("feature pyramid level", format!("f32 values ({e})"))
-            })?;
+            let data = host_values_of("feature pyramid level", f.clone().permute([0, 2, 3, 1]))?;
             Ok(HostMaps { data, dims })
         };
         let [a, b, c, d] = &pyramid.levels;
@@ -82,15 +80,9 @@ impl HostPyramid {
 /// - `weight`: `[sum_l C_l, d]` (a `Linear`'s weight, input-major)
 /// - output: rows of maps `[N, d, H/2, W/2]`
 pub fn reduce_to_rows(pyramid: &HostPyramid, weight: Tensor<2>) -> Result<ViewRows, ShapeError> {
-    let [c_total, d] = weight.dims();
-    ShapeError::check(
-        "feature pyramid reduction `weight` [C_img, d]",
-        &[c_total, d],
-        &[Some(pyramid.channels()), None],
-    )?;
+    let d = check_reduction_weight(&weight, pyramid.channels())?;
     let device = weight.device();
-    let weight = host_values(weight)
-        .map_err(|e| ShapeError::value("pyramid reduction weight", format!("f32 values ({e})")))?;
+    let weight = host_values_of("pyramid reduction weight", weight)?;
     let [n, _, h2, w2] = pyramid.levels[0].dims;
     let mut out = vec![0.0f32; n * h2 * w2 * d];
     // The coarser levels' reductions with their taps, upsampled together below.
