@@ -10,7 +10,14 @@
 //! detached), a plausible colour that is wrong there, as c0 is on a person F_c0 has not seen.
 //! F_B, which sees c0 next to the source colours and their across-view statistics, then learns
 //! to tell a c0 that agrees with the views from one that does not. F_c0 itself is still
-//! trained on the true c0 (the NeRF-only loss), and inference never shuffles.
+//! trained on the true c0 (the NeRF-only loss), and inference never shuffles. Only the
+//! variants with F_B shuffle (`Variant::uses_blender`): (b) shows c0 as it is, and (c) and (d)
+//! mix it by fixed rules, where a shuffled c0 would only be noise in the trained colour.
+//!
+//! With `seen_only`, only points that some source view sees (max_n o_n > 1/2) are shuffled: a
+//! point no view sees keeps its true c0, the one colour it has, so F_B learns to hand such
+//! points to c0 (the paper's "c0 takes over where no source sees") however strongly the seen
+//! points are shuffled.
 
 use burn::prelude::*;
 use nia_data::rng::Rng;
@@ -22,7 +29,12 @@ pub struct C0Shuffle {
     pub fraction: f32,
     /// Seed of the choice (the trainer derives it from the run's seed and the scene's index).
     pub seed: u64,
+    /// Shuffle only points that some source view sees (module docs).
+    pub seen_only: bool,
 }
+
+/// Visibility o_n above which a view counts as seeing a point ([`C0Shuffle::seen_only`]).
+pub const SEEN_VISIBILITY: f32 = 0.5;
 
 impl C0Shuffle {
     /// For M points: the point each one's blended c0 is read from (itself, or for about
@@ -41,17 +53,28 @@ impl C0Shuffle {
     }
 
     /// The c0 that F_B blends: `c0` with the replaced rows taken from their source point,
-    /// detached (no gradient reaches F_c0 through a shuffled colour).
+    /// detached (no gradient reaches F_c0 through a shuffled colour). With `seen_only`, rows
+    /// whose `visibility` is at most [`SEEN_VISIBILITY`] in every view keep their own c0.
     ///
     /// # Shapes
-    /// - `c0`: `[M, 3]`; output `[M, 3]`
-    pub fn apply(&self, c0: Tensor<2>) -> Tensor<2> {
+    /// - `c0`: `[M, 3]`; `visibility` o_n: `[N, M]`; output `[M, 3]`
+    pub fn apply(&self, c0: Tensor<2>, visibility: Tensor<2>) -> Tensor<2> {
         let [m, _] = c0.dims();
         let device = c0.device();
         let (sources, replaced) = self.sources(m);
         let index = Tensor::<1, Int>::from_data(TensorData::new(sources, [m]), &device);
         let mask: Vec<f32> = replaced.iter().map(|&r| r as u8 as f32).collect();
-        let mask = Tensor::<2>::from_data(TensorData::new(mask, [m, 1]), &device);
+        let mut mask = Tensor::<2>::from_data(TensorData::new(mask, [m, 1]), &device);
+        if self.seen_only {
+            // [N, M] -> [1, M] -> [M, 1]: 1 where some view sees the point.
+            let seen = visibility
+                .detach()
+                .max_dim(0)
+                .greater_elem(SEEN_VISIBILITY)
+                .float()
+                .reshape([m, 1]);
+            mask = mask * seen;
+        }
         let shuffled = c0.clone().detach().select(0, index);
         c0 * mask.clone().neg().add_scalar(1.0) + shuffled * mask
     }
@@ -71,11 +94,18 @@ mod tests {
         let shuffle = C0Shuffle {
             fraction: 0.25,
             seed: 3,
+            seen_only: false,
         };
         let (sources, replaced) = shuffle.sources(m);
         let share = replaced.iter().filter(|&&r| r).count() as f32 / m as f32;
         assert!((share - 0.25).abs() < 0.04, "{share}");
-        let out = shuffle.apply(c0).into_data().try_to_vec::<f32>().unwrap();
+        // Unseen by both views: without seen_only that does not matter.
+        let visibility = Tensor::<2>::zeros([2, m], &device);
+        let out = shuffle
+            .apply(c0, visibility)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
         for i in 0..m {
             let from = if replaced[i] { sources[i] as usize } else { i };
             assert_eq!(
@@ -92,6 +122,7 @@ mod tests {
         let none = C0Shuffle {
             fraction: 0.0,
             seed: 3,
+            seen_only: false,
         }
         .sources(m)
         .1;
@@ -99,9 +130,49 @@ mod tests {
         let all = C0Shuffle {
             fraction: 1.0,
             seed: 3,
+            seen_only: false,
         }
         .sources(m)
         .1;
         assert!(all.iter().all(|&r| r));
+    }
+
+    #[test]
+    fn seen_only_shuffles_the_points_some_view_sees_and_keeps_the_rest() {
+        let device = Device::ndarray();
+        let m = 400;
+        let c0: Vec<f32> = (0..m * 3).map(|i| i as f32).collect();
+        let c0 = Tensor::<2>::from_data(TensorData::new(c0, [m, 3]), &device);
+        // Two views: point i is seen by view i % 3 (2: by none; 0.5 itself is not "seen").
+        let mut o = vec![0.0f32; 2 * m];
+        for i in 0..m {
+            match i % 3 {
+                0 => o[i] = 0.9,
+                1 => {
+                    o[m + i] = 0.6;
+                    o[i] = 0.5;
+                }
+                _ => o[i] = 0.5,
+            }
+        }
+        let visibility = Tensor::<2>::from_data(TensorData::new(o, [2, m]), &device);
+        let shuffle = C0Shuffle {
+            fraction: 1.0,
+            seed: 11,
+            seen_only: true,
+        };
+        let (sources, _) = shuffle.sources(m);
+        let out = shuffle
+            .apply(c0, visibility)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        let mut moved = 0;
+        for i in 0..m {
+            let from = if i % 3 == 2 { i } else { sources[i] as usize };
+            assert_eq!(out[3 * i], 3.0 * from as f32, "point {i}");
+            moved += (from != i) as usize;
+        }
+        assert!(moved > m / 2, "{moved} of the {m} points moved");
     }
 }

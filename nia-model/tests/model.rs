@@ -544,6 +544,42 @@ fn host_body_reads_render_what_the_tensor_reads_render() {
 }
 
 /// c0 shuffling (training augmentation): the blend reads other points' c0, so the colour
+/// c0 shuffling is F_B's augmentation: the variants that mix c0 by a fixed rule or show it as
+/// it is ((b), (c), (d)) render exactly the same with it on.
+#[test]
+fn c0_shuffling_leaves_the_fixed_rule_variants_alone() {
+    use nia_model::c0_shuffle::C0Shuffle;
+    let device = Device::ndarray();
+    for variant in [
+        Variant::NoIbr,
+        Variant::SimpleAverage,
+        Variant::CosineWeighted,
+    ] {
+        device.seed(8);
+        let model = ModelConfig::tiny().with_variant(variant).init(&device);
+        let input = common::scene(3, 32);
+        let scene = model.encode(&input, None, &device, None).unwrap();
+        let rays = common::target_rays(&input, 3);
+        let jitter = vec![0.5f32; rays.len() * SAMPLES];
+        let v = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
+        let plain = model
+            .render(&scene, &rays, SAMPLES, Some(&jitter), None)
+            .unwrap();
+        let shuffled_scene = scene.with_c0_shuffle(Some(C0Shuffle {
+            fraction: 1.0,
+            seed: 5,
+            seen_only: false,
+        }));
+        let shuffled = model
+            .render(&shuffled_scene, &rays, SAMPLES, Some(&jitter), None)
+            .unwrap();
+        let plain = v(plain.rgb);
+        assert!(plain.iter().all(|x| x.is_finite()), "{variant:?}");
+        assert!(plain.iter().any(|&x| x > 0.0), "{variant:?}: black render");
+        assert_eq!(plain, v(shuffled.rgb), "{variant:?}");
+    }
+}
+
 /// changes while the NeRF-only composite (the true c0) does not, and gradients stay finite and
 /// reach F_c0 and F_B.
 #[test]
@@ -563,6 +599,7 @@ fn c0_shuffling_changes_the_blend_but_not_the_nerf_composite() {
     let shuffled_scene = scene.clone().with_c0_shuffle(Some(C0Shuffle {
         fraction: 1.0,
         seed: 5,
+        seen_only: false,
     }));
     let shuffled = model
         .render(&shuffled_scene, &rays, SAMPLES, Some(&jitter), None)

@@ -278,6 +278,10 @@ pub struct TrainSection {
     /// paper's training; see `nia_model::c0_shuffle`).
     #[serde(default)]
     pub c0_shuffle: f32,
+    /// Shuffle c0 only at points some source view sees; unseen points keep their own c0
+    /// (false: every point may be shuffled; see `nia_model::c0_shuffle`).
+    #[serde(default)]
+    pub c0_shuffle_seen_only: bool,
 }
 
 impl TrainSection {

@@ -511,6 +511,7 @@ fn scene_gradients(
             .fork(index)
             .fork(C0_SHUFFLE_STREAM)
             .next_u64(),
+        seen_only: config.train.c0_shuffle_seen_only,
     });
     let encoded = model
         .encode(&input, None, device, None)

@@ -315,7 +315,11 @@ impl NiaModel {
         let gamma = self.direction_encoding.forward(dirs)?;
         let heads = self.colour.forward(mean_z, gamma)?;
         let c0 = heads.c0.clone();
-        let blend_c0 = scene.c0_shuffle.map(|s| s.apply(heads.c0.clone()));
+        // Shuffling is F_B's augmentation: the fixed rules of (b)-(d) would only average noise.
+        let blend_c0 = scene
+            .c0_shuffle
+            .filter(|_| self.variant.uses_blender())
+            .map(|s| s.apply(heads.c0.clone(), visibility.clone()));
         watch.mark(Stage::Mlps);
         let blended = self.blender.colour(
             self.variant,
