@@ -543,12 +543,38 @@ fn host_body_reads_render_what_the_tensor_reads_render() {
     compare(&reposed, &reposed_tensor, "reposed");
 }
 
-/// c0 shuffling (training augmentation): the blend reads other points' c0, so the colour
+/// One scene's render without and with c0 shuffling of every point (fraction 1, seed 5).
+fn render_plain_and_shuffled(
+    model: &nia_model::NiaModel,
+    device: &Device,
+) -> (
+    nia_model::renderer::RenderOutput,
+    nia_model::renderer::RenderOutput,
+    usize,
+) {
+    use nia_model::c0_shuffle::C0Shuffle;
+    let input = common::scene(3, 32);
+    let scene = model.encode(&input, None, device, None).unwrap();
+    let rays = common::target_rays(&input, 3);
+    let jitter = vec![0.5f32; rays.len() * SAMPLES];
+    let plain = model
+        .render(&scene, &rays, SAMPLES, Some(&jitter), None)
+        .unwrap();
+    let shuffled_scene = scene.with_c0_shuffle(Some(C0Shuffle {
+        fraction: 1.0,
+        seed: 5,
+        seen_only: false,
+    }));
+    let shuffled = model
+        .render(&shuffled_scene, &rays, SAMPLES, Some(&jitter), None)
+        .unwrap();
+    (plain, shuffled, rays.len())
+}
+
 /// c0 shuffling is F_B's augmentation: the variants that mix c0 by a fixed rule or show it as
 /// it is ((b), (c), (d)) render exactly the same with it on.
 #[test]
 fn c0_shuffling_leaves_the_fixed_rule_variants_alone() {
-    use nia_model::c0_shuffle::C0Shuffle;
     let device = Device::ndarray();
     for variant in [
         Variant::NoIbr,
@@ -557,22 +583,8 @@ fn c0_shuffling_leaves_the_fixed_rule_variants_alone() {
     ] {
         device.seed(8);
         let model = ModelConfig::tiny().with_variant(variant).init(&device);
-        let input = common::scene(3, 32);
-        let scene = model.encode(&input, None, &device, None).unwrap();
-        let rays = common::target_rays(&input, 3);
-        let jitter = vec![0.5f32; rays.len() * SAMPLES];
+        let (plain, shuffled, _) = render_plain_and_shuffled(&model, &device);
         let v = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
-        let plain = model
-            .render(&scene, &rays, SAMPLES, Some(&jitter), None)
-            .unwrap();
-        let shuffled_scene = scene.with_c0_shuffle(Some(C0Shuffle {
-            fraction: 1.0,
-            seed: 5,
-            seen_only: false,
-        }));
-        let shuffled = model
-            .render(&shuffled_scene, &rays, SAMPLES, Some(&jitter), None)
-            .unwrap();
         let plain = v(plain.rgb);
         assert!(plain.iter().all(|x| x.is_finite()), "{variant:?}");
         assert!(plain.iter().any(|&x| x > 0.0), "{variant:?}: black render");
@@ -580,30 +592,16 @@ fn c0_shuffling_leaves_the_fixed_rule_variants_alone() {
     }
 }
 
+/// c0 shuffling (training augmentation): the blend reads other points' c0, so the colour
 /// changes while the NeRF-only composite (the true c0) does not, and gradients stay finite and
 /// reach F_c0 and F_B.
 #[test]
 fn c0_shuffling_changes_the_blend_but_not_the_nerf_composite() {
-    use nia_model::c0_shuffle::C0Shuffle;
     let device = Device::ndarray().autodiff();
     device.seed(8);
     let config = ModelConfig::tiny().with_source_colours_at(Some(SourceColoursAt::Surface));
     let model = config.init(&device);
-    let input = common::scene(3, 32);
-    let scene = model.encode(&input, None, &device, None).unwrap();
-    let rays = common::target_rays(&input, 3);
-    let jitter = vec![0.5f32; rays.len() * SAMPLES];
-    let plain = model
-        .render(&scene, &rays, SAMPLES, Some(&jitter), None)
-        .unwrap();
-    let shuffled_scene = scene.clone().with_c0_shuffle(Some(C0Shuffle {
-        fraction: 1.0,
-        seed: 5,
-        seen_only: false,
-    }));
-    let shuffled = model
-        .render(&shuffled_scene, &rays, SAMPLES, Some(&jitter), None)
-        .unwrap();
+    let (plain, shuffled, n_rays) = render_plain_and_shuffled(&model, &device);
     let v = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
     assert_eq!(v(plain.rgb0.clone()), v(shuffled.rgb0.clone()));
     let moved = v(plain.rgb.clone())
@@ -612,7 +610,7 @@ fn c0_shuffling_changes_the_blend_but_not_the_nerf_composite() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
     assert!(moved > 1e-6, "shuffling did not change the blend");
-    let gt = Tensor::<2>::ones([rays.len(), 3], &device).mul_scalar(0.5);
+    let gt = Tensor::<2>::ones([n_rays, 3], &device).mul_scalar(0.5);
     let grads = render_loss(shuffled.rgb, shuffled.rgb0, gt)
         .unwrap()
         .total
