@@ -143,7 +143,8 @@ mod tests {
         let m = 400;
         let c0: Vec<f32> = (0..m * 3).map(|i| i as f32).collect();
         let c0 = Tensor::<2>::from_data(TensorData::new(c0, [m, 3]), &device);
-        // Two views: point i is seen by view i % 3 (2: by none; 0.5 itself is not "seen").
+        // Two views. i % 3 == 0: view 0 sees the point (0.9); 1: view 1 does (0.6; view 0 is
+        // at 0.5, which is not "seen"); 2: no view does (0.5 and 0).
         let mut o = vec![0.0f32; 2 * m];
         for i in 0..m {
             match i % 3 {
