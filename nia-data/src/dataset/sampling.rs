@@ -129,7 +129,10 @@ impl TrainRays {
 /// The pixels within the mask's border band: dilation minus erosion of `mask` ([H * W]) with a
 /// `border_px x border_px` square centred on the pixel (for even sizes OpenCV's anchor, the
 /// square spans `-size/2 .. size - 1 - size/2`). Pixels outside the image do not take part
-/// (`cv2.erode`/`cv2.dilate` default borders).
+/// (`cv2.erode`/`cv2.dilate` default borders). An even size gives a one-sided band: with 2 it
+/// is the ring just outside the mask on the bottom and right edges and the ring just inside
+/// on the top and left, so the model never sees the background next to half of the outline;
+/// odd sizes (NHP's 5) are symmetric.
 pub fn border_band(mask: &[bool], width: usize, height: usize, border_px: usize) -> Vec<bool> {
     if border_px == 0 {
         return vec![false; mask.len()];
