@@ -277,4 +277,29 @@ mod tests {
         assert_eq!(row, expect);
         assert!(!band[6 * w + 5], "the square's centre is not border");
     }
+
+    /// An even window is one-sided (OpenCV's anchor): with 2 px the band is the ring just
+    /// outside the square on its bottom and right, and the ring just inside on its top and left.
+    #[test]
+    fn an_even_band_is_one_sided() {
+        let (w, h) = (12, 12);
+        let mut mask = vec![false; w * h];
+        for y in 3..9 {
+            for x in 3..9 {
+                mask[y * w + x] = true;
+            }
+        }
+        let band = border_band(&mask, w, h, 2);
+        let in_band = |x: usize, y: usize| band[y * w + x];
+        // Row 6 crosses the left edge (x = 3 inside) and the right edge (x = 9 outside).
+        let row: Vec<usize> = (0..w).filter(|&x| in_band(x, 6)).collect();
+        assert_eq!(row, vec![3, 9]);
+        // Column 6 crosses the top edge (y = 3 inside) and the bottom edge (y = 9 outside).
+        let column: Vec<usize> = (0..h).filter(|&y| in_band(6, y)).collect();
+        assert_eq!(column, vec![3, 9]);
+        // The pixels just outside the top and left edges train; those inside the bottom and
+        // right edges do too.
+        assert!(!in_band(6, 2) && !in_band(2, 6) && !in_band(6, 8) && !in_band(8, 6));
+        assert!(border_band(&mask, w, h, 0).iter().all(|b| !b));
+    }
 }
