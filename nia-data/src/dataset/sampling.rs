@@ -259,15 +259,17 @@ pub fn sample_rays(
 mod tests {
     use super::*;
 
+    /// A `w x h` mask holding the square `3..9 x 3..9`.
+    fn square_mask(w: usize, h: usize) -> Vec<bool> {
+        (0..w * h)
+            .map(|i| (3..9).contains(&(i % w)) && (3..9).contains(&(i / w)))
+            .collect()
+    }
+
     #[test]
     fn band_of_a_square_is_two_pixels_each_side() {
         let (w, h) = (12, 12);
-        let mut mask = vec![false; w * h];
-        for y in 3..9 {
-            for x in 3..9 {
-                mask[y * w + x] = true;
-            }
-        }
+        let mask = square_mask(w, h);
         let band = border_band(&mask, w, h, 5);
         // Row 6: x = 1..=4 (outside 1, 2; inside 3, 4) and 7..=10 are in the band.
         let row: Vec<bool> = (0..w).map(|x| band[6 * w + x]).collect();
@@ -283,12 +285,7 @@ mod tests {
     #[test]
     fn an_even_band_is_one_sided() {
         let (w, h) = (12, 12);
-        let mut mask = vec![false; w * h];
-        for y in 3..9 {
-            for x in 3..9 {
-                mask[y * w + x] = true;
-            }
-        }
+        let mask = square_mask(w, h);
         let band = border_band(&mask, w, h, 2);
         let in_band = |x: usize, y: usize| band[y * w + x];
         // Row 6 crosses the left edge (x = 3 inside) and the right edge (x = 9 outside).
