@@ -19,3 +19,95 @@ fn view_direction_feature_is_difference_and_cosine() {
         assert!((g - e).abs() <= VALUE_TOL, "{got:?} vs {expected:?}");
     }
 }
+
+mod depth_test {
+    use glam::{Vec2, Vec3};
+    use nia_data::geometry::camera::Camera;
+    use nia_data::scene::SourceDepth;
+
+    const SIZE: u32 = 16;
+    const TOL: f32 = 0.03;
+    /// Camera depth of the occluder.
+    const WALL_Z: f32 = 2.0;
+
+    /// A camera at the origin looking down +z (f = SIZE: 1 pixel = 1/16 m at 1 m).
+    fn camera() -> Camera {
+        let f = SIZE as f32;
+        Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::NEG_Y, f, f, SIZE, SIZE).unwrap()
+    }
+
+    /// A wall at z = 2 covering the image's left half (x < 0 in the world; the principal
+    /// point is at u = 8, so pixel columns 0..=7 have their centres on it).
+    fn depth() -> SourceDepth {
+        let v = [
+            Vec3::new(-10.0, -10.0, WALL_Z),
+            Vec3::new(-0.0625, -10.0, WALL_Z),
+            Vec3::new(-0.0625, 10.0, WALL_Z),
+            Vec3::new(-10.0, 10.0, WALL_Z),
+        ];
+        SourceDepth::rasterise(&[camera()], &v, &[[0, 1, 2], [0, 2, 3]], TOL).unwrap()
+    }
+
+    #[test]
+    fn a_point_behind_the_body_is_hidden_and_one_in_front_is_not() {
+        let d = depth();
+        let covered = Vec2::new(3.0, 8.0);
+        assert_eq!(d.unhidden(0, covered, 3.0), 0.0, "behind the wall");
+        assert_eq!(d.unhidden(0, covered, 1.5), 1.0, "in front of it");
+        assert_eq!(
+            d.unhidden(0, covered, WALL_Z + 0.5 * TOL),
+            1.0,
+            "within tol"
+        );
+        assert_eq!(d.unhidden(0, covered, WALL_Z + 2.0 * TOL), 0.0, "past tol");
+    }
+
+    #[test]
+    fn empty_pixels_and_pixels_outside_the_image_pass() {
+        let d = depth();
+        assert_eq!(d.unhidden(0, Vec2::new(12.0, 8.0), 3.0), 1.0, "uncovered");
+        assert_eq!(
+            d.unhidden(0, Vec2::new(-5.0, 8.0), 3.0),
+            1.0,
+            "left of the image"
+        );
+        assert_eq!(
+            d.unhidden(0, Vec2::new(30.0, 40.0), 3.0),
+            1.0,
+            "below the image"
+        );
+        assert_eq!(
+            d.unhidden(0, Vec2::new(f32::NAN, 8.0), 1.0),
+            0.0,
+            "NaN projection"
+        );
+    }
+
+    #[test]
+    fn the_share_is_bilinear_across_an_occlusion_edge() {
+        let d = depth();
+        // Column 7 is the wall's last, column 8 the first empty one.
+        for (u, expected) in [
+            (7.0, 0.0),
+            (7.25, 0.25),
+            (7.5, 0.5),
+            (7.75, 0.75),
+            (8.0, 1.0),
+        ] {
+            let got = d.unhidden(0, Vec2::new(u, 8.3), 3.0);
+            assert!(
+                (got - expected).abs() < 1e-6,
+                "u = {u}: {got} vs {expected}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_bad_tolerance_is_an_error_naming_it() {
+        let v = [Vec3::new(0.0, 0.0, 2.0), Vec3::X, Vec3::Y];
+        for tol in [-0.01, f32::NAN, f32::INFINITY] {
+            let err = SourceDepth::rasterise(&[camera()], &v, &[[0, 1, 2]], tol).unwrap_err();
+            assert!(err.to_string().contains("tol_m"), "{err}");
+        }
+    }
+}

@@ -56,6 +56,10 @@ pub struct ModelConfig {
     /// model files and checkpoints written before this switch carry) or once per ray at the
     /// expected surface point (not in the paper; see `surface_ibr`).
     pub source_colours_at: Option<SourceColoursAt>,
+    /// o_n also passes a depth test against the posed body's z-buffer in each source view,
+    /// with this tolerance in metres (not in the paper; `None`, also what older model files
+    /// carry, is the paper's per-vertex visibility alone; see `nia_data::scene::source_depth`).
+    pub visibility_depth_tol_m: Option<f32>,
 }
 
 /// Largest layer width [`ModelConfig::check`] accepts (the paper's widest is 512 channels).
@@ -108,6 +112,13 @@ impl ModelConfig {
             ));
         }
         self.ray_sampler.check()?;
+        if let Some(tol) = self.visibility_depth_tol_m {
+            if !(tol.is_finite() && tol >= 0.0) {
+                return Err(format!(
+                    "`visibility_depth_tol_m` = {tol}, expected a finite value >= 0 metres"
+                ));
+            }
+        }
         if !(bv.norm_epsilon.is_finite() && bv.norm_epsilon > 0.0) {
             return Err(format!(
                 "`body_volume.norm_epsilon` = {}, expected a finite value > 0",

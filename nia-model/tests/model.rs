@@ -629,3 +629,25 @@ fn c0_shuffling_changes_the_blend_but_not_the_nerf_composite() {
         assert!(g.iter().any(|&x| x != 0.0), "{name}: no gradient");
     }
 }
+
+#[test]
+fn the_depth_test_tolerance_is_checked_and_optional() {
+    let mut config = ModelConfig::tiny();
+    assert!(config.check().is_ok(), "no depth test: the paper's o_n");
+    for tol in [0.0, 0.03] {
+        config.visibility_depth_tol_m = Some(tol);
+        assert!(config.check().is_ok(), "{tol}");
+    }
+    for tol in [-0.01, f32::NAN, f32::INFINITY] {
+        config.visibility_depth_tol_m = Some(tol);
+        let err = config.check().unwrap_err();
+        assert!(err.contains("visibility_depth_tol_m"), "{err}");
+    }
+    // Model files written before the switch carry no such key: the paper's o_n.
+    let mut json: serde_json::Value = serde_json::to_value(ModelConfig::tiny()).unwrap();
+    json.as_object_mut()
+        .unwrap()
+        .remove("visibility_depth_tol_m");
+    let old: ModelConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(old.visibility_depth_tol_m, None);
+}

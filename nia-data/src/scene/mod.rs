@@ -3,10 +3,12 @@
 //! batch reuses (SMPL frame, ray box, nearest-surface index, voxel box).
 
 pub mod point_inputs;
+pub mod source_depth;
 
 pub use point_inputs::{
     projection_grid, view_direction_feature, PointInputs, VIEW_DIR_FEATURE_DIM,
 };
+pub use source_depth::SourceDepth;
 
 use glam::{Mat3, Vec3};
 
@@ -138,6 +140,9 @@ pub struct SceneGeometry {
     pub faces: Vec<[u32; 3]>,
     /// The voxel grid of the body volume (SMPL frame).
     pub voxel_box: VoxelBox,
+    /// The depth test of o_n (`None`: the paper's per-vertex visibility alone); see
+    /// [`Self::with_depth_test`].
+    pub source_depth: Option<SourceDepth>,
 }
 
 impl SceneGeometry {
@@ -228,7 +233,20 @@ impl SceneGeometry {
             vertices_world: body.vertices.clone(),
             faces: body.faces.clone(),
             voxel_box,
+            source_depth: None,
         })
+    }
+
+    /// The same geometry whose o_n also passes the depth test of [`source_depth`] with
+    /// tolerance `tol_m` metres: the posed body is rasterised into every source view.
+    pub fn with_depth_test(mut self, tol_m: f32) -> Result<Self, SceneError> {
+        self.source_depth = Some(SourceDepth::rasterise(
+            &self.cameras,
+            &self.vertices_world,
+            &self.faces,
+            tol_m,
+        )?);
+        Ok(self)
     }
 
     /// Number of source views N.

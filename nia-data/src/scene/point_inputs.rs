@@ -30,7 +30,8 @@ pub struct PointInputs {
     pub proj_grid: Vec<f32>,
     /// [N, M, 4] d_hat_n = (d - d_n, d . d_n).
     pub view_dir_features: Vec<f32>,
-    /// [N, M] o_n: visibility interpolated on the nearest body face.
+    /// [N, M] o_n: visibility interpolated on the nearest body face (times the depth test of
+    /// [`super::SourceDepth`] when the geometry has one).
     pub visibility: Vec<f32>,
     /// [M, 3] unit target directions d (input of gamma(d)).
     pub dirs: Vec<f32>,
@@ -106,6 +107,17 @@ impl PointInputs {
                         0.0
                     };
                 });
+            if let Some(depth) = &geometry.source_depth {
+                let camera = &geometry.cameras[view];
+                out.par_iter_mut()
+                    .zip(image_points.par_iter())
+                    .for_each(|(o, &x)| {
+                        *o *= match camera.project(x) {
+                            Some((uv, z)) => depth.unhidden(view, uv, z),
+                            None => 0.0,
+                        };
+                    });
+            }
         }
         let corners = match volume {
             Some((scales, points)) => scales
