@@ -69,9 +69,10 @@ impl SourceDepth {
     /// The share in [0, 1] of the projection `uv` (pixels) of a point at camera depth `z` in
     /// view `view` that is not hidden: the bilinear weights of the four pixels around `uv`
     /// whose z-buffer is at least `z - tol_m` (pixels outside the image or not covered by the
-    /// body pass; a non-finite projection has nothing to read and gets 0). The projection is
-    /// taken again here, not read back from the normalised grid, because the test also needs
-    /// the camera depth; it costs one projection per point and view, with the switch on only.
+    /// body pass; a non-finite projection has nothing to read and gets 0). `PointInputs`
+    /// projects each point again for it rather than reading the normalised grid back, because
+    /// the test also needs the camera depth: one projection per point and view, with the
+    /// switch on only.
     pub fn unhidden(&self, view: usize, uv: Vec2, z: f32) -> f32 {
         let map = &self.maps[view];
         let p = uv - Vec2::splat(PIXEL_CENTRE_OFFSET);
