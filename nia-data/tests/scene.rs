@@ -103,11 +103,15 @@ mod depth_test {
     }
 
     #[test]
-    fn a_bad_tolerance_is_an_error_naming_it() {
+    fn a_bad_tolerance_or_mixed_sizes_are_errors_naming_them() {
         let v = [Vec3::new(0.0, 0.0, 2.0), Vec3::X, Vec3::Y];
         for tol in [-0.01, f32::NAN, f32::INFINITY] {
             let err = SourceDepth::rasterise(&[camera()], &v, &[[0, 1, 2]], tol).unwrap_err();
             assert!(err.to_string().contains("tol_m"), "{err}");
         }
+        let mut small = camera();
+        small.width = SIZE / 2;
+        let err = SourceDepth::rasterise(&[camera(), small], &v, &[[0, 1, 2]], TOL).unwrap_err();
+        assert!(err.to_string().contains("cameras"), "{err}");
     }
 }

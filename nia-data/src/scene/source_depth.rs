@@ -37,7 +37,8 @@ pub struct SourceDepth {
 }
 
 impl SourceDepth {
-    /// Rasterises the body (`vertices` [V] world, `faces` [F]) into every camera (equal sizes).
+    /// Rasterises the body (`vertices` [V] world, `faces` [F]) into every camera; the cameras
+    /// must share one image size (an error naming `cameras` otherwise).
     pub fn rasterise(
         cameras: &[Camera],
         vertices: &[Vec3],
@@ -54,6 +55,17 @@ impl SourceDepth {
         let (width, height) = cameras
             .first()
             .map_or((0, 0), |c| (c.width as usize, c.height as usize));
+        // One size for every map, so `unhidden` can index any of them with it.
+        if cameras
+            .iter()
+            .any(|c| (c.width as usize, c.height as usize) != (width, height))
+        {
+            return Err(MeshError::Invalid {
+                what: "source depth test",
+                field: "cameras",
+                expected: "every source camera of one image size",
+            });
+        }
         let maps = cameras
             .iter()
             .map(|camera| rasterize(camera, vertices, faces).map(|f| f.depth))
