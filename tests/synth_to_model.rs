@@ -59,6 +59,7 @@ fn a_synthetic_subject_renders_through_reader_and_network() {
         );
         views.push(SourceView {
             image: hwc_to_chw(&v.image, w, h),
+            mask: v.mask.iter().map(|&m| m as u8 as f32).collect(),
             camera: v.camera,
             vertex_visibility: vis.iter().map(|&b| b as f32).collect(),
         });

@@ -115,3 +115,81 @@ mod depth_test {
         assert!(err.to_string().contains("cameras"), "{err}");
     }
 }
+
+mod visual_hull {
+    use glam::Vec2;
+    use nia_data::scene::VisualHull;
+
+    const SIZE: usize = 16;
+
+    /// A 16 x 16 mask whose columns 0..=7 are the person.
+    fn left_half() -> Vec<f32> {
+        (0..SIZE * SIZE)
+            .map(|i| ((i % SIZE) < 8) as u8 as f32)
+            .collect()
+    }
+
+    fn hull(dilate_px: usize) -> VisualHull {
+        VisualHull::new(&[&left_half()], SIZE, SIZE, dilate_px).unwrap()
+    }
+
+    #[test]
+    fn inside_the_mask_reads_one_and_outside_reads_zero() {
+        let h = hull(0);
+        assert_eq!(h.inside(0, Vec2::new(3.0, 8.0)), 1.0, "on the person");
+        assert_eq!(h.inside(0, Vec2::new(12.0, 8.0)), 0.0, "off the person");
+    }
+
+    #[test]
+    fn the_read_is_bilinear_across_the_outline() {
+        let h = hull(0);
+        // Column 7 is the person's last, column 8 the first empty one.
+        for (u, expected) in [(7.0, 1.0), (7.25, 0.75), (7.5, 0.5), (8.0, 0.0)] {
+            let got = h.inside(0, Vec2::new(u, 8.3));
+            assert!((got - expected).abs() < 1e-6, "u = {u}: {got}");
+        }
+    }
+
+    #[test]
+    fn a_view_that_does_not_see_the_point_does_not_carve_it() {
+        let h = hull(0);
+        for uv in [
+            Vec2::new(-5.0, 8.0),
+            Vec2::new(40.0, 8.0),
+            Vec2::new(12.0, -3.0),
+            Vec2::new(f32::NAN, 8.0),
+            Vec2::new(f32::INFINITY, f32::NEG_INFINITY),
+        ] {
+            assert_eq!(h.inside(0, uv), 1.0, "{uv:?}");
+        }
+    }
+
+    #[test]
+    fn dilation_moves_the_outline_out_by_whole_pixels() {
+        let h = hull(2);
+        assert_eq!(
+            h.inside(0, Vec2::new(9.0, 8.0)),
+            1.0,
+            "column 9 is inside now"
+        );
+        assert_eq!(h.inside(0, Vec2::new(9.5, 8.0)), 0.5);
+        assert_eq!(h.inside(0, Vec2::new(10.0, 8.0)), 0.0);
+    }
+
+    #[test]
+    fn bad_masks_are_errors_naming_the_view_and_what_was_expected() {
+        let short = vec![1.0f32; SIZE * SIZE - 1];
+        let err = VisualHull::new(&[&left_half(), &short], SIZE, SIZE, 0).unwrap_err();
+        assert!(err.to_string().contains("views[1].mask"), "{err}");
+        for bad in [f32::NAN, 1.5, -0.1] {
+            let mut m = left_half();
+            m[37] = bad;
+            let err = VisualHull::new(&[&m], SIZE, SIZE, 0).unwrap_err();
+            assert!(err.to_string().contains("views[0].mask[37]"), "{err}");
+        }
+        let err = VisualHull::new(&[&left_half()], SIZE, SIZE, 1000).unwrap_err();
+        assert!(err.to_string().contains("dilate_px"), "{err}");
+        let err = VisualHull::new(&[], 0, SIZE, 0).unwrap_err();
+        assert!(err.to_string().contains("image size"), "{err}");
+    }
+}

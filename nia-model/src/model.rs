@@ -101,6 +101,9 @@ pub struct NiaModel {
     /// Tolerance of o_n's depth test, metres (`None`: the paper's o_n).
     #[module(skip)]
     pub visibility_depth_tol_m: Option<f32>,
+    /// Pixels the visual hull grows the source masks by (`None`: no carving).
+    #[module(skip)]
+    pub visual_hull_dilate_px: Option<usize>,
 }
 
 impl ModelConfig {
@@ -125,6 +128,7 @@ impl ModelConfig {
             ray_sampler: self.ray_sampler,
             source_colours_at: self.source_colours_at.unwrap_or_default(),
             visibility_depth_tol_m: self.visibility_depth_tol_m,
+            visual_hull_dilate_px: self.visual_hull_dilate_px,
         }
     }
 }

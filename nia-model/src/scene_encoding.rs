@@ -132,6 +132,9 @@ impl NiaModel {
         if let Some(tol) = self.visibility_depth_tol_m {
             geometry = geometry.with_depth_test(tol)?;
         }
+        if let Some(px) = self.visual_hull_dilate_px {
+            geometry = geometry.with_visual_hull(input, px)?;
+        }
         let geometry = Arc::new(geometry);
         let n = input.views.len();
         let [h, w] = geometry.image_hw;

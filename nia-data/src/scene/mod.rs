@@ -4,11 +4,13 @@
 
 pub mod point_inputs;
 pub mod source_depth;
+pub mod visual_hull;
 
 pub use point_inputs::{
     projection_grid, view_direction_feature, PointInputs, VIEW_DIR_FEATURE_DIM,
 };
 pub use source_depth::SourceDepth;
+pub use visual_hull::{VisualHull, VisualHullError};
 
 use glam::{Mat3, Vec3};
 
@@ -36,6 +38,8 @@ pub enum SceneError {
     Mesh(#[from] crate::geometry::raster::MeshError),
     #[error("scene: {0}")]
     Grid(#[from] SparseGridError),
+    #[error("scene: {0}")]
+    Hull(#[from] VisualHullError),
 }
 
 fn invalid(
@@ -57,6 +61,8 @@ pub struct SourceView {
     pub camera: Camera,
     /// [3, H, W] RGB in [0, 1], black outside the person.
     pub image: Vec<f32>,
+    /// [H * W] the person's mask in [0, 1] (read by the visual hull only).
+    pub mask: Vec<f32>,
     /// [V] per-vertex visibility in this view (0 or 1).
     pub vertex_visibility: Vec<f32>,
 }
@@ -99,6 +105,7 @@ impl SceneInput {
                 SourceView {
                     camera: s.image.camera,
                     image: planar,
+                    mask: s.image.mask.iter().map(|&m| m as u8 as f32).collect(),
                     vertex_visibility: s.visibility.iter().map(|&v| v as f32).collect(),
                 }
             })
@@ -143,6 +150,9 @@ pub struct SceneGeometry {
     /// The depth test of o_n (`None`: the paper's per-vertex visibility alone); see
     /// [`Self::with_depth_test`].
     pub source_depth: Option<SourceDepth>,
+    /// The visual hull that carves the density (`None`: the paper's density); see
+    /// [`Self::with_visual_hull`].
+    pub visual_hull: Option<VisualHull>,
 }
 
 impl SceneGeometry {
@@ -206,6 +216,20 @@ impl SceneGeometry {
                     view.vertex_visibility.len(),
                 ));
             }
+            if view.mask.len() != w * h {
+                return Err(invalid(
+                    format!("views[{i}].mask"),
+                    format!("[{h} * {w}] = {} values", w * h),
+                    view.mask.len(),
+                ));
+            }
+            if view.mask.iter().any(|m| !(0.0..=1.0).contains(m)) {
+                return Err(invalid(
+                    format!("views[{i}].mask"),
+                    "values in [0, 1]",
+                    "a value outside [0, 1] or NaN",
+                ));
+            }
         }
         let smpl_rotation = rodrigues(body.rh);
         let rt = smpl_rotation.transpose();
@@ -234,6 +258,7 @@ impl SceneGeometry {
             faces: body.faces.clone(),
             voxel_box,
             source_depth: None,
+            visual_hull: None,
         })
     }
 
@@ -246,6 +271,27 @@ impl SceneGeometry {
             &self.faces,
             tol_m,
         )?);
+        Ok(self)
+    }
+
+    /// The same geometry whose density is carved by the visual hull of `input`'s source masks,
+    /// each grown by `dilate_px` pixels (see [`visual_hull`]). `input` is the scene this
+    /// geometry was built from.
+    pub fn with_visual_hull(
+        mut self,
+        input: &SceneInput,
+        dilate_px: usize,
+    ) -> Result<Self, SceneError> {
+        let [h, w] = self.image_hw;
+        let masks: Vec<&[f32]> = input.views.iter().map(|v| v.mask.as_slice()).collect();
+        if masks.len() != self.num_views() {
+            return Err(invalid(
+                "views",
+                format!("the {} views of this geometry", self.num_views()),
+                masks.len(),
+            ));
+        }
+        self.visual_hull = Some(VisualHull::new(&masks, w, h, dilate_px)?);
         Ok(self)
     }
 

@@ -11,6 +11,7 @@ use clap::Args;
 use glam::{Vec2, Vec3};
 use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
 use nia_data::geometry::camera::Camera;
+use nia_data::geometry::raster::rasterize;
 use nia_data::geometry::rays::{near_far, pixel_ray, Aabb, RayBundle};
 use nia_data::geometry::visibility::visibility;
 use nia_data::rng::Rng;
@@ -98,9 +99,16 @@ fn bench_scene(args: &BenchArgs) -> anyhow::Result<(SceneInput, RayBundle)> {
         let image = (0..3 * (size * size) as usize)
             .map(|_| rng.uniform())
             .collect();
+        // The body's silhouette: what a person mask would be (read by the visual hull only).
+        let mask = rasterize(&camera, &vertices, &model.faces)?
+            .mask()
+            .iter()
+            .map(|&m| m as u8 as f32)
+            .collect();
         views.push(SourceView {
             camera,
             image,
+            mask,
             vertex_visibility: vis.iter().map(|&b| b as f32).collect(),
         });
     }

@@ -77,6 +77,8 @@ pub struct PointTensors {
     pub visibility: Tensor<2>,
     /// [M, 3]
     pub dirs: Tensor<2>,
+    /// [M] the visual hull's carving of the density (`None`: no hull).
+    pub hull: Option<Tensor<1>>,
     /// Per scale of the body volume (empty without one, or when `body` holds the read).
     pub corners: Vec<TrilinearTensors>,
     /// [N, M, sum_s C_s] the body volume already read at the points (the fused host read,
@@ -100,6 +102,10 @@ impl PointTensors {
                 device,
             ),
             dirs: Tensor::from_data(TensorData::new(inputs.dirs.clone(), [m, 3]), device),
+            hull: inputs
+                .hull
+                .as_ref()
+                .map(|h| Tensor::from_data(TensorData::new(h.clone(), [m]), device)),
             corners: inputs
                 .corners
                 .iter()
@@ -281,6 +287,11 @@ impl NiaModel {
             (_, false) => view_mean(l.clone().swap_dims(0, 1)),
         }; // [M, d]
         let sigma = self.density.forward(mean_z.clone())?;
+        // Visual-hull carving (a switch): no density where a source mask says empty space.
+        let sigma = match &points.hull {
+            Some(hull) => sigma * hull.clone(),
+            None => sigma,
+        };
         watch.mark(Stage::Mlps);
         Ok(DensityPass {
             sigma,

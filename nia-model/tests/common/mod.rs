@@ -7,6 +7,7 @@ use burn::prelude::*;
 use glam::Vec3;
 use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
 use nia_data::geometry::camera::Camera;
+use nia_data::geometry::raster::rasterize;
 use nia_data::geometry::rays::{near_far, pixel_ray, Aabb, RayBundle};
 use nia_data::geometry::visibility::visibility;
 use nia_data::scene::{SceneBody, SceneInput, SourceView, RAY_BOX_PADDING_M};
@@ -56,9 +57,17 @@ pub fn scene(views: usize, size: u32) -> SceneInput {
                     }
                 }
             }
+            // The body's silhouette as the person's mask.
+            let mask = rasterize(&camera, &vertices, &faces)
+                .unwrap()
+                .mask()
+                .iter()
+                .map(|&m| m as u8 as f32)
+                .collect();
             SourceView {
                 camera,
                 image,
+                mask,
                 vertex_visibility: vis.iter().map(|&b| b as f32).collect(),
             }
         })
