@@ -303,7 +303,9 @@ pub fn evaluate_images(
             .map_err(model_err)?
             .with_occupancy(occupancy)
             .with_termination(options.adaptive.termination())
-            .with_colour_culling(options.adaptive.culling());
+            .with_colour_culling(options.adaptive.culling())
+            .with_visual_hull(&input, options.adaptive.hull())
+            .map_err(model_err)?;
         let rays =
             RayBundle::through_pixels(&image.camera, &target_scene.body_box, Some(mask_at_box));
         let mut rendered = render_image(

@@ -14,7 +14,7 @@ use nia_infer::perceptual::LpipsFiles;
 use nia_infer::run_settings::RunSettings;
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::lpips::{Lpips, LpipsNet};
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::sampler::{AdaptiveConfig, MAX_HULL_DILATE_PX};
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
 
@@ -52,6 +52,14 @@ pub struct ModelArgs {
     /// evaluation; 0 turns it off (default: the model's `[render]` setting, 1e-3).
     #[arg(long)]
     pub colour_culling: Option<f32>,
+    /// Visual-hull carving with the source views' person masks: on or off (default: the
+    /// model's `[render]` setting, on).
+    #[arg(long, value_parser = parse_switch)]
+    pub visual_hull: Option<bool>,
+    /// Pixels the masks are grown by before carving (default: the model's `[render]`
+    /// setting, 0).
+    #[arg(long)]
+    pub hull_dilate_px: Option<usize>,
 }
 
 pub fn parse_switch(s: &str) -> Result<bool, String> {
@@ -101,6 +109,12 @@ impl LoadedModel {
             .is_some_and(|e| !(0.0..1.0).contains(&e))
         {
             anyhow::bail!("--colour-culling must be a weight in [0, 1) (0: off)");
+        }
+        if args
+            .hull_dilate_px
+            .is_some_and(|px| px > MAX_HULL_DILATE_PX)
+        {
+            anyhow::bail!("--hull-dilate-px must be at most {MAX_HULL_DILATE_PX} pixels");
         }
         let path = &args.model;
         let file = ModelFile::read(path)?;
@@ -152,6 +166,12 @@ impl LoadedModel {
         }
         if let Some(e) = args.colour_culling {
             a.colour_culling = e;
+        }
+        if let Some(on) = args.visual_hull {
+            a.visual_hull = on;
+        }
+        if let Some(px) = args.hull_dilate_px {
+            a.hull_dilate_px = px;
         }
         a
     }

@@ -341,3 +341,78 @@ fn reposed_rendering_skips_and_counts_like_novel_views() {
     );
     let _ = std::fs::remove_dir_all(&c.root);
 }
+
+/// With visual-hull carving (the default `[render]`), skipping also leaves out what the hull carves: exactly the
+/// samples whose density the hull sets to 0, so the image is the one rendered without any
+/// skipping (float reordering aside) from fewer point evaluations.
+#[test]
+fn the_visual_hull_skips_exactly_what_it_zeroes() {
+    let c = case("hull");
+    let file = ModelFile::read(&fixture()).unwrap();
+    let device = device();
+    let model = file.load(&fixture(), &device).unwrap();
+    let request = SceneRequest {
+        subject: 0,
+        frame: 0,
+        input_views: vec![0, 1, 2],
+        target_view: 3,
+        target: TargetKind::Image,
+        seed: 0,
+    };
+    let scene = load_scene(&c.source, &request, 0, &loader()).unwrap();
+    let SceneTarget::Image { image, mask_at_box } = &scene.target else {
+        unreachable!()
+    };
+    let input = SceneInput::from_loaded(&scene, &c.source.faces);
+    let encoding = model
+        .encode(&input, None, &device, None)
+        .unwrap()
+        .with_visual_hull(&input, Some(1))
+        .unwrap();
+    let rays = RayBundle::through_pixels(&image.camera, &scene.body_box, Some(mask_at_box));
+    let render = |adaptive: AdaptiveConfig| {
+        let grid = adaptive
+            .occupancy(&scene.vertices, &c.source.faces)
+            .unwrap();
+        render_image(
+            &model,
+            &encoding.clone().with_occupancy(grid),
+            &rays,
+            [image.width() as usize, image.height() as usize],
+            ImageRenderOptions {
+                samples: 16,
+                chunk: 512,
+                timed: false,
+            },
+            &mut |_, _| {},
+        )
+        .unwrap()
+    };
+    // Every sample evaluated (the hull still multiplies the density) against an occupancy
+    // grid that keeps the whole box (1 m from the body), so the hull is all that skips.
+    let full = render(AdaptiveConfig::exhaustive());
+    let hull_only = render(AdaptiveConfig {
+        skip_empty_space: true,
+        empty_space_m: 1.0,
+        ..AdaptiveConfig::exhaustive()
+    });
+    assert_eq!(full.point_evaluations, (rays.len() * 16) as u64);
+    eprintln!(
+        "points: every sample {}, hull skipping {}",
+        full.point_evaluations, hull_only.point_evaluations
+    );
+    assert!(
+        hull_only.point_evaluations * 2 < full.point_evaluations,
+        "the hull leaves out most of the box"
+    );
+    for &p in &rays.pixels {
+        let p = p as usize;
+        for k in 0..3 {
+            let d = (hull_only.rgb[3 * p + k] - full.rgb[3 * p + k]).abs();
+            assert!(d <= EXACT_TOL, "pixel {p}: colour moved by {d}");
+        }
+        let d = (hull_only.acc[p] - full.acc[p]).abs();
+        assert!(d <= EXACT_TOL, "pixel {p}: opacity moved by {d}");
+    }
+    let _ = std::fs::remove_dir_all(&c.root);
+}

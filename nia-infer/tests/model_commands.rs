@@ -412,8 +412,10 @@ fn orbit_turns_around_the_subject() {
             .to_rgb8();
         assert_eq!((png.width(), png.height()), (40, 40));
         let lit = png.pixels().filter(|p| p.0.iter().any(|&c| c > 8)).count();
+        // At 40 px the person is a few pixels wide; measured with the default visual-hull
+        // carving 31 and 19 lit pixels in the first two views (43 and 30 without it).
         assert!(
-            lit > 20,
+            lit > 10,
             "view {k}: the person is in view ({lit} lit pixels)"
         );
     }

@@ -60,14 +60,7 @@ pub struct ModelConfig {
     /// with this tolerance in metres (not in the paper; `None`, also what older model files
     /// carry, is the paper's per-vertex visibility alone; see `nia_data::scene::source_depth`).
     pub visibility_depth_tol_m: Option<f32>,
-    /// The density is carved by the visual hull of the source views' person masks, each grown
-    /// by this many pixels (not in the paper; `None`, also what older model files carry, is the
-    /// paper's density; see `nia_data::scene::visual_hull`).
-    pub visual_hull_dilate_px: Option<usize>,
 }
-
-/// Largest [`ModelConfig::visual_hull_dilate_px`] accepted.
-pub const MAX_HULL_DILATE_PX: usize = 256;
 
 /// Largest layer width [`ModelConfig::check`] accepts (the paper's widest is 512 channels).
 const MAX_WIDTH: usize = 1 << 14;
@@ -123,13 +116,6 @@ impl ModelConfig {
             if !(tol.is_finite() && tol >= 0.0) {
                 return Err(format!(
                     "`visibility_depth_tol_m` = {tol}, expected a finite value >= 0 metres"
-                ));
-            }
-        }
-        if let Some(px) = self.visual_hull_dilate_px {
-            if px > MAX_HULL_DILATE_PX {
-                return Err(format!(
-                    "`visual_hull_dilate_px` = {px}, expected at most {MAX_HULL_DILATE_PX} pixels"
                 ));
             }
         }

@@ -101,9 +101,6 @@ pub struct NiaModel {
     /// Tolerance of o_n's depth test, metres (`None`: the paper's o_n).
     #[module(skip)]
     pub visibility_depth_tol_m: Option<f32>,
-    /// Pixels the visual hull grows the source masks by (`None`: no carving).
-    #[module(skip)]
-    pub visual_hull_dilate_px: Option<usize>,
 }
 
 impl ModelConfig {
@@ -128,7 +125,6 @@ impl ModelConfig {
             ray_sampler: self.ray_sampler,
             source_colours_at: self.source_colours_at.unwrap_or_default(),
             visibility_depth_tol_m: self.visibility_depth_tol_m,
-            visual_hull_dilate_px: self.visual_hull_dilate_px,
         }
     }
 }
@@ -162,12 +158,20 @@ impl NiaModel {
         let mut watch = Stopwatch::new(times, &device);
         rays.check().map_err(ModelError::Rays)?;
         let r = rays.len();
-        let ray_samples = match &scene.band {
+        let mut ray_samples = match &scene.band {
             Some(band) => {
                 RaySamples::in_band(rays, samples, jitter, band, scene.occupancy.as_deref())?
             }
             None => RaySamples::new(rays, samples, jitter, scene.occupancy.as_deref())?,
         };
+        // With empty-space skipping, what the visual hull carves is empty space too: its
+        // density is exactly 0 whatever the network says, so it is not evaluated. (A reposed
+        // scene reads the hull at the mapped points, inside the field; nothing is skipped.)
+        if let (Some(_), Some(hull), None) = (&scene.occupancy, &scene.visual_hull, &scene.reposer)
+        {
+            let cameras = &scene.geometry.cameras;
+            ray_samples.retain(|x| hull.carving(cameras, x) > 0.0);
+        }
         let total = ray_samples.total();
         let mut evaluated = ray_samples.evaluated();
         let mut colour_evaluated = evaluated;

@@ -34,6 +34,7 @@ use glam::Vec3;
 use nia_data::geometry::occupancy::{OccupancyError, OccupancyGrid};
 use nia_data::geometry::occupancy_memo::shared_grid;
 use nia_data::geometry::rays::RayBundle;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Errors of the sampler, naming the argument.
@@ -290,6 +291,31 @@ impl RaySamples {
         })
     }
 
+    /// Keeps only the evaluated points for which `keep` (world point) is true; the others join
+    /// the skipped samples (zero density, never evaluated).
+    pub fn retain(&mut self, keep: impl Fn(Vec3) -> bool + Sync) {
+        let flags: Vec<bool> = self.points.par_iter().map(|&p| keep(p)).collect();
+        if flags.iter().all(|&k| k) {
+            return;
+        }
+        let index: Vec<usize> = match &self.kept {
+            Some(k) => k.clone(),
+            None => (0..self.total()).collect(),
+        };
+        let mut kept = Vec::with_capacity(index.len());
+        let (mut points, mut dirs) = (Vec::new(), Vec::new());
+        for (j, &i) in index.iter().enumerate() {
+            if flags[j] {
+                kept.push(i);
+                points.push(self.points[j]);
+                dirs.push(self.dirs[j]);
+            }
+        }
+        self.kept = Some(kept);
+        self.points = points;
+        self.dirs = dirs;
+    }
+
     /// Samples in all, R * S.
     pub fn total(&self) -> usize {
         self.t.len()
@@ -371,6 +397,11 @@ impl RaySampler {
 /// space are gone). Loose clothing that stands farther off the fitted SMPL surface needs a
 /// larger value; `nia-infer sweep` measures the trade.
 pub const DEFAULT_EMPTY_SPACE_M: f32 = 0.03;
+/// Default of [`AdaptiveConfig::hull_dilate_px`]: the masks as they are (see the constant's
+/// measurement in the README, "Quickstart").
+pub const DEFAULT_HULL_DILATE_PX: usize = 0;
+/// Largest [`AdaptiveConfig::hull_dilate_px`] accepted.
+pub const MAX_HULL_DILATE_PX: usize = 256;
 /// Default occupancy cell edge, metres.
 pub const DEFAULT_OCCUPANCY_CELL_M: f32 = 0.02;
 
@@ -390,6 +421,13 @@ pub struct AdaptiveConfig {
     /// Colour culling: per ray, samples whose weights sum to at most this get no colour
     /// evaluation (`colour_culling`); 0 colours every evaluated sample.
     pub colour_culling: f32,
+    /// Visual-hull carving (not in the paper; `nia_data::scene::visual_hull`): the density is
+    /// zero wherever a source view's person mask says empty space, and with skipping those
+    /// samples are not evaluated. Off gives the paper's density.
+    pub visual_hull: bool,
+    /// Pixels the masks are grown by before carving (noisy masks of real captures need a
+    /// margin; the synthetic masks are exact).
+    pub hull_dilate_px: usize,
 }
 
 impl Default for AdaptiveConfig {
@@ -400,6 +438,8 @@ impl Default for AdaptiveConfig {
             occupancy_cell_m: DEFAULT_OCCUPANCY_CELL_M,
             early_termination: DEFAULT_TERMINATION,
             colour_culling: DEFAULT_COLOUR_CULLING,
+            visual_hull: true,
+            hull_dilate_px: DEFAULT_HULL_DILATE_PX,
         }
     }
 }
@@ -425,6 +465,12 @@ impl AdaptiveConfig {
     /// `None` when culling is off.
     pub fn culling(&self) -> Option<f32> {
         (self.colour_culling > 0.0).then_some(self.colour_culling)
+    }
+
+    /// The dilation of visual-hull carving (`SceneEncoding::with_visual_hull`); `None` when
+    /// carving is off.
+    pub fn hull(&self) -> Option<usize> {
+        self.visual_hull.then_some(self.hull_dilate_px)
     }
 
     /// The occupancy grid of the posed mesh (`vertices` [V] world metres) when skipping is on.

@@ -10,7 +10,7 @@ use std::sync::Arc;
 use burn::prelude::*;
 use nia_data::body::reposing::Reposer;
 use nia_data::geometry::occupancy::OccupancyGrid;
-use nia_data::scene::{projection_grid, SceneGeometry, SceneInput};
+use nia_data::scene::{projection_grid, SceneError, SceneGeometry, SceneInput, VisualHull};
 
 use crate::c0_shuffle::C0Shuffle;
 use crate::device::is_host;
@@ -61,6 +61,11 @@ pub struct SceneEncoding {
     /// Band sampling (`ModelConfig::ray_sampler`): the band's occupancy grid of the rendered
     /// pose's mesh; `None` for stratified sampling.
     pub band: Option<Arc<OccupancyGrid>>,
+    /// Visual-hull carving (`[render] visual_hull`, not in the paper): the density is
+    /// multiplied by how far inside every source view's dilated person mask a point projects
+    /// ([`VisualHull`]), and with empty-space skipping what it carves is not evaluated. `None`
+    /// (the default, and in training) is the paper's density.
+    pub visual_hull: Option<Arc<VisualHull>>,
 }
 
 impl SceneEncoding {
@@ -69,6 +74,32 @@ impl SceneEncoding {
     pub fn with_occupancy(mut self, grid: Option<Arc<OccupancyGrid>>) -> Self {
         self.occupancy = grid;
         self
+    }
+
+    /// This encoding with visual-hull carving from the person masks of `input` (the scene this
+    /// encoding was made from), each grown by `dilate_px` pixels (`None`: off).
+    pub fn with_visual_hull(
+        mut self,
+        input: &SceneInput,
+        dilate_px: Option<usize>,
+    ) -> Result<Self, ModelError> {
+        self.visual_hull = match dilate_px {
+            None => None,
+            Some(px) => {
+                let [h, w] = self.geometry.image_hw;
+                if input.views.len() != self.num_views() {
+                    return Err(ModelError::Input(format!(
+                        "visual hull: {} source views, the encoding has {}",
+                        input.views.len(),
+                        self.num_views()
+                    )));
+                }
+                let masks: Vec<&[f32]> = input.views.iter().map(|v| v.mask.as_slice()).collect();
+                let hull = VisualHull::new(&masks, w, h, px).map_err(SceneError::from)?;
+                Some(Arc::new(hull))
+            }
+        };
+        Ok(self)
     }
 
     /// This encoding with early ray termination below transmittance `epsilon` (`None`: off).
@@ -132,9 +163,6 @@ impl NiaModel {
         if let Some(tol) = self.visibility_depth_tol_m {
             geometry = geometry.with_depth_test(tol)?;
         }
-        if let Some(px) = self.visual_hull_dilate_px {
-            geometry = geometry.with_visual_hull(input, px)?;
-        }
         let geometry = Arc::new(geometry);
         let n = input.views.len();
         let [h, w] = geometry.image_hw;
@@ -183,6 +211,7 @@ impl NiaModel {
             colour_culling: None,
             c0_shuffle: None,
             band,
+            visual_hull: None,
         };
         // Inference on a CPU backend reads the body volume on the host (fused).
         encoding.with_host_reads(self, on_host)
@@ -190,7 +219,8 @@ impl NiaModel {
 
     /// The same scene rendered in another pose: the body volume rebuilt on `reposer`'s target
     /// vertices, reusing the source images' feature maps (per-pose work only, for animating one
-    /// scene through many poses). The occupancy grid is not carried over (it belongs to a pose).
+    /// scene through many poses). The occupancy grid is not carried over (it belongs to a pose);
+    /// the visual hull is (it belongs to the source views).
     pub fn encode_pose(
         &self,
         scene: &SceneEncoding,
@@ -232,6 +262,7 @@ impl NiaModel {
             colour_culling: scene.colour_culling,
             c0_shuffle: scene.c0_shuffle,
             band,
+            visual_hull: scene.visual_hull.clone(),
         })
     }
 

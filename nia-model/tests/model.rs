@@ -651,22 +651,3 @@ fn the_depth_test_tolerance_is_checked_and_optional() {
     let old: ModelConfig = serde_json::from_value(json).unwrap();
     assert_eq!(old.visibility_depth_tol_m, None);
 }
-
-#[test]
-fn the_visual_hull_dilation_is_checked_and_optional() {
-    let mut config = ModelConfig::tiny();
-    for px in [0, 3, 256] {
-        config.visual_hull_dilate_px = Some(px);
-        assert!(config.check().is_ok(), "{px}");
-    }
-    config.visual_hull_dilate_px = Some(257);
-    let err = config.check().unwrap_err();
-    assert!(err.contains("visual_hull_dilate_px"), "{err}");
-    // Model files written before the switch carry no such key: the paper's density.
-    let mut json: serde_json::Value = serde_json::to_value(ModelConfig::tiny()).unwrap();
-    json.as_object_mut()
-        .unwrap()
-        .remove("visual_hull_dilate_px");
-    let old: ModelConfig = serde_json::from_value(json).unwrap();
-    assert_eq!(old.visual_hull_dilate_px, None);
-}

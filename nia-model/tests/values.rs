@@ -355,18 +355,20 @@ fn the_depth_test_hides_what_the_body_hides_and_keeps_what_a_view_sees() {
     );
 }
 
-/// The visual hull (`visual_hull_dilate_px`) on one network's weights: the density is the
-/// plain density times the hull of the source masks (here the body's rasterised silhouettes),
+/// The visual hull (`[render] visual_hull`) on one encoding: the density is the plain density
+/// times the hull of the source masks (here the body's rasterised silhouettes),
 /// about 1 on the body and exactly 0 for more than half of the points 15 cm off it.
 #[test]
 fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() {
     let dev = device();
     let input = scene(3, SIZE);
-    let plain = ModelConfig::tiny().init(&dev);
-    let mut hulled = plain.clone();
-    hulled.visual_hull_dilate_px = Some(1);
-    let plain_scene = plain.encode(&input, None, &dev, None).unwrap();
-    let hulled_scene = hulled.encode(&input, None, &dev, None).unwrap();
+    let model = ModelConfig::tiny().init(&dev);
+    let plain_scene = model.encode(&input, None, &dev, None).unwrap();
+    let hulled_scene = plain_scene
+        .clone()
+        .with_visual_hull(&input, Some(1))
+        .unwrap();
+    let hull = hulled_scene.visual_hull.clone().expect("a hull");
     let vertices = &input.body.vertices;
     let centre = common::body_centre(vertices);
     // 15 cm further out, horizontally away from the body's vertical axis.
@@ -379,19 +381,15 @@ fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() 
         .collect();
     for (points, on_body) in [(&vertices[..], true), (&off[..], false)] {
         let dirs = vec![Vec3::Z; points.len()];
-        let hull = PointInputs::compute(&hulled_scene.geometry, points, &dirs, None)
+        let geometry = &plain_scene.geometry;
+        let inputs = PointInputs::compute(geometry, points, &dirs, None);
+        assert!(inputs.hull.is_none(), "no hull without carving");
+        let hull = inputs
+            .carved(&hull, &geometry.cameras, points)
             .hull
             .expect("a hull");
-        assert!(
-            PointInputs::compute(&plain_scene.geometry, points, &dirs, None)
-                .hull
-                .is_none(),
-            "no hull without the switch"
-        );
-        let sigma = |model: &nia_model::NiaModel, s: &SceneEncoding| {
-            values(model.field(s, points, &dirs, None).unwrap().sigma)
-        };
-        let (a, b) = (sigma(&plain, &plain_scene), sigma(&hulled, &hulled_scene));
+        let sigma = |s: &SceneEncoding| values(model.field(s, points, &dirs, None).unwrap().sigma);
+        let (a, b) = (sigma(&plain_scene), sigma(&hulled_scene));
         assert!(
             hull.iter().all(|h| (0.0..=1.0).contains(h)),
             "hull in [0, 1]"

@@ -7,7 +7,7 @@ use nia_data::dataset::{DataConfig, ProtocolName};
 use nia_data::synth::SynthSection;
 use nia_infer::perceptual::LpipsFiles;
 use nia_model::device::{Backend, DeviceSpec};
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::sampler::{AdaptiveConfig, MAX_HULL_DILATE_PX};
 use nia_model::store::checkpoint;
 use nia_model::ModelConfig;
 use serde::{Deserialize, Serialize};
@@ -515,6 +515,13 @@ impl TrainConfig {
                 "render.early_termination",
                 "a transmittance in [0, 1) (0: off)",
                 r.early_termination.to_string(),
+            ));
+        }
+        if r.hull_dilate_px > MAX_HULL_DILATE_PX {
+            return Err(bad(
+                "render.hull_dilate_px",
+                "at most 256 pixels",
+                r.hull_dilate_px.to_string(),
             ));
         }
         if !(0.0..1.0).contains(&r.colour_culling) {

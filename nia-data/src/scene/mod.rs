@@ -150,9 +150,6 @@ pub struct SceneGeometry {
     /// The depth test of o_n (`None`: the paper's per-vertex visibility alone); see
     /// [`Self::with_depth_test`].
     pub source_depth: Option<SourceDepth>,
-    /// The visual hull that carves the density (`None`: the paper's density); see
-    /// [`Self::with_visual_hull`].
-    pub visual_hull: Option<VisualHull>,
 }
 
 impl SceneGeometry {
@@ -258,7 +255,6 @@ impl SceneGeometry {
             faces: body.faces.clone(),
             voxel_box,
             source_depth: None,
-            visual_hull: None,
         })
     }
 
@@ -271,27 +267,6 @@ impl SceneGeometry {
             &self.faces,
             tol_m,
         )?);
-        Ok(self)
-    }
-
-    /// The same geometry whose density is carved by the visual hull of `input`'s source masks,
-    /// each grown by `dilate_px` pixels (see [`visual_hull`]). `input` is the scene this
-    /// geometry was built from.
-    pub fn with_visual_hull(
-        mut self,
-        input: &SceneInput,
-        dilate_px: usize,
-    ) -> Result<Self, SceneError> {
-        let [h, w] = self.image_hw;
-        let masks: Vec<&[f32]> = input.views.iter().map(|v| v.mask.as_slice()).collect();
-        if masks.len() != self.num_views() {
-            return Err(invalid(
-                "views",
-                format!("the {} views of this geometry", self.num_views()),
-                masks.len(),
-            ));
-        }
-        self.visual_hull = Some(VisualHull::new(&masks, w, h, dilate_px)?);
         Ok(self)
     }
 

@@ -5,10 +5,11 @@
 
 use std::sync::Arc;
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{SceneGeometry, VisualHull};
+use crate::geometry::camera::Camera;
 use crate::geometry::sparse::{ScaleGeometry, TrilinearCorners};
 
 /// Width of d_hat_n: (d - d_n) (3 channels) and d . d_n (1 channel).
@@ -35,8 +36,8 @@ pub struct PointInputs {
     pub visibility: Vec<f32>,
     /// [M, 3] unit target directions d (input of gamma(d)).
     pub dirs: Vec<f32>,
-    /// [M] the visual hull's carving of the density, in [0, 1] (`None` without a hull; see
-    /// [`super::VisualHull`]).
+    /// [M] the visual hull's carving of the density, in [0, 1] (`None` without a hull;
+    /// [`Self::carved`] sets it).
     pub hull: Option<Vec<f32>>,
     /// Per scale of the body volume, the trilinear corners of the points (empty without one).
     pub corners: Vec<TrilinearCorners>,
@@ -122,10 +123,6 @@ impl PointInputs {
                     });
             }
         }
-        let hull = geometry
-            .visual_hull
-            .as_ref()
-            .map(|hull| visual_hull_of(hull, geometry.image_hw, &proj_grid, m));
         let corners = match volume {
             Some((scales, points)) => scales
                 .iter()
@@ -140,31 +137,24 @@ impl PointInputs {
             view_dir_features,
             visibility,
             dirs: dirs.iter().flat_map(|d| d.to_array()).collect(),
-            hull,
+            hull: None,
             corners,
         }
     }
 }
 
-/// [M] `min_n` of how far inside view n's dilated mask each point projects, read from the
-/// normalised projections `proj_grid` ([N, M, 2]; points behind a camera sit far outside the
-/// image there and read 1).
-fn visual_hull_of(hull: &VisualHull, [h, w]: [usize; 2], proj_grid: &[f32], m: usize) -> Vec<f32> {
-    let mut out = vec![1.0f32; m];
-    for view in 0..hull.num_views() {
-        let grid = &proj_grid[view * m * 2..(view + 1) * m * 2];
-        out.par_iter_mut()
-            .zip(grid.par_chunks(2))
-            .for_each(|(o, g)| {
-                // Inverse of x_norm = (2u + 1) / W - 1.
-                let uv = Vec2::new(
-                    ((g[0] + 1.0) * w as f32 - 1.0) * 0.5,
-                    ((g[1] + 1.0) * h as f32 - 1.0) * 0.5,
-                );
-                *o = o.min(hull.inside(view, uv));
-            });
+impl PointInputs {
+    /// These inputs with the carving of `hull` ([`VisualHull::carving`]) at `image_points`
+    /// (the points [`Self::compute`] was given), projected by the scene's `cameras`.
+    pub fn carved(mut self, hull: &VisualHull, cameras: &[Camera], image_points: &[Vec3]) -> Self {
+        self.hull = Some(
+            image_points
+                .par_iter()
+                .map(|&x| hull.carving(cameras, x))
+                .collect(),
+        );
+        self
     }
-    out
 }
 
 /// d_hat_n for one point and view: `(d - d_n, d . d_n)`, with `target_dir` d the unit

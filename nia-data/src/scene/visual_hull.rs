@@ -22,9 +22,9 @@
 //! grazes the person along a source camera's line of sight: at the outline of a target view
 //! opposite a source view, where the synthetic protocol's targets sit.
 
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 
-use crate::geometry::camera::PIXEL_CENTRE_OFFSET;
+use crate::geometry::camera::{Camera, PIXEL_CENTRE_OFFSET};
 
 /// Errors in the hull's inputs, naming the field and what was expected.
 #[derive(Debug, thiserror::Error)]
@@ -103,6 +103,20 @@ impl VisualHull {
     /// Number of views N.
     pub fn num_views(&self) -> usize {
         self.maps.len()
+    }
+
+    /// `hull(x)` of the module docs for the world point `x`, in [0, 1]: the least of
+    /// [`Self::inside`] over the views, `cameras` ([N], the source cameras in view order)
+    /// projecting it. A view behind whose camera `x` lies does not carve it.
+    pub fn carving(&self, cameras: &[Camera], x: Vec3) -> f32 {
+        cameras
+            .iter()
+            .enumerate()
+            .map(|(view, camera)| match camera.project(x) {
+                Some((uv, _depth)) => self.inside(view, uv),
+                None => 1.0,
+            })
+            .fold(1.0, f32::min)
     }
 
     /// How far inside view `view`'s dilated mask the projection `uv` (pixels, OpenCV centres

@@ -158,7 +158,10 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
 
     let input = SceneInput::from_loaded(&scene, &opened.source.faces);
-    let base = loaded.model.encode(&input, None, &loaded.device, None)?;
+    let base = loaded
+        .model
+        .encode(&input, None, &loaded.device, None)?
+        .with_visual_hull(&input, adaptive.hull())?;
     let camera = opened.camera(args.target);
     let bar = progress_bar(poses.len() as u64, "poses");
     let mut frames = Vec::new();

@@ -91,7 +91,8 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
         .encode(&input, None, &loaded.device, None)?
         .with_occupancy(occupancy)
         .with_termination(adaptive.termination())
-        .with_colour_culling(adaptive.culling());
+        .with_colour_culling(adaptive.culling())
+        .with_visual_hull(&input, adaptive.hull())?;
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let bar = progress_bar(orbit.len() as u64, "orbit");

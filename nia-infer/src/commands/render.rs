@@ -93,7 +93,8 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         .encode(&input, None, &loaded.device, Some(&mut encode_times))?
         .with_occupancy(occupancy)
         .with_termination(adaptive.termination())
-        .with_colour_culling(adaptive.culling());
+        .with_colour_culling(adaptive.culling())
+        .with_visual_hull(&input, adaptive.hull())?;
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let mut images = Vec::new();

@@ -167,7 +167,8 @@ impl ViewerScene {
             .encode(&input, None, &loaded.device, None)?
             .with_occupancy(occupancy)
             .with_termination(adaptive.termination())
-            .with_colour_culling(adaptive.culling());
+            .with_colour_culling(adaptive.culling())
+            .with_visual_hull(&input, adaptive.hull())?;
         Ok(ViewerScene {
             encode_seconds: started.elapsed().as_secs_f64(),
             loaded,

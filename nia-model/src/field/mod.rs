@@ -172,12 +172,17 @@ impl NiaModel {
     ) -> Result<PointTensors, ModelError> {
         let geometry = &scene.geometry;
         let scales = scene.volume.as_ref().map(|(vg, _)| &vg.levels[1..]);
+        // The visual hull is read where the source views are: at x, or x' when reposed.
+        let carve = |inputs: PointInputs, image_points: &[Vec3]| match &scene.visual_hull {
+            Some(hull) => inputs.carved(hull, &geometry.cameras, image_points),
+            None => inputs,
+        };
         let inputs = match &scene.reposer {
             None => {
                 let volume_points: Option<Vec<[f32; 3]>> =
                     scales.map(|_| points.iter().map(|&p| geometry.to_smpl(p)).collect());
                 let volume = scales.zip(volume_points.as_deref());
-                PointInputs::compute(geometry, points, dirs, volume)
+                carve(PointInputs::compute(geometry, points, dirs, volume), points)
             }
             Some(reposer) => {
                 // The body volume lives in the target pose (SMPL frame of the target); pixel
@@ -192,7 +197,8 @@ impl NiaModel {
                     .map_points(points, dirs)
                     .map_err(|e| ModelError::Input(format!("reposing: {e}")))?;
                 let volume = scales.zip(volume_points.as_deref());
-                PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume)
+                let inputs = PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume);
+                carve(inputs, &mapped.points)
             }
         };
         let device = scene.images.device();

@@ -70,6 +70,14 @@ pub(super) fn cases() -> Vec<Case> {
             },
         ),
         case(
+            "config_hull_dilation_too_large",
+            &["tiny.toml", "render.hull_dilate_px", "at most 256", "1000"],
+            |c| {
+                let config = c.config(&[("[train]", "[render]\nhull_dilate_px = 1000\n\n[train]")]);
+                c.train_args(&config, &[])
+            },
+        ),
+        case(
             "config_c0_shuffle_out_of_range",
             &["tiny.toml", "train.c0_shuffle", "[0, 1]", "2"],
             |c| {
