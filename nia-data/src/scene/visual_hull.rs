@@ -1,6 +1,6 @@
-//! Visual-hull carving of the density (not in the paper; `ModelConfig::visual_hull_dilate_px`):
-//! the source views' person masks, dilated by a margin, and how far inside all of them a point
-//! projects.
+//! Visual-hull carving of the density (not in the paper; `[render] visual_hull` and
+//! `hull_dilate_px`, at evaluation and inference only): the source views' person masks, dilated
+//! by a margin, and how far inside all of them a point projects.
 //!
 //! F_sigma reads the person's outline only through SMPL-anchored features and pixel features of
 //! the masked source images, a few pixels wide after the encoder's strides, so on a person
@@ -20,7 +20,13 @@
 //! way), so a view that does not see a point never carves it. The hull is loose between the
 //! source views (three views carve a hexagon around a round limb) and tight where a target ray
 //! grazes the person along a source camera's line of sight: at the outline of a target view
-//! opposite a source view, where the synthetic protocol's targets sit.
+//! opposite a source view, where the synthetic protocol's targets sit (on ZJU-MoCap's ring of
+//! 21-23 cameras, a few targets are near-opposite a source view).
+//!
+//! The carving is applied when rendering, not in training: a network trained with it no longer
+//! has to place empty space next to the person itself, and some such runs left holes in the
+//! person (README, Quickstart). Where the hull says 0 the density is exactly 0, so empty-space
+//! skipping leaves those samples out of the network.
 
 use glam::{Vec2, Vec3};
 
