@@ -207,3 +207,40 @@ fn metrics_of_mismatched_images_fail_with_a_message() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.png"));
 }
+
+/// The visual-hull flags are checked before the model file is read: a dilation past the limit
+/// and a switch that is not on or off are errors naming the flag.
+#[test]
+fn bad_visual_hull_flags_fail_naming_the_flag() {
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/quickstart_tiny.nia");
+    let out = nia_infer(&[
+        "eval",
+        "--model",
+        model.to_str().unwrap(),
+        "--out",
+        "/nonexistent/eval",
+        "--hull-dilate-px",
+        "1000",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--hull-dilate-px") && err.contains("256"),
+        "{err}"
+    );
+    let out = nia_infer(&[
+        "eval",
+        "--model",
+        model.to_str().unwrap(),
+        "--out",
+        "/nonexistent/eval",
+        "--visual-hull",
+        "maybe",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--visual-hull") && err.contains("on or off"),
+        "{err}"
+    );
+}

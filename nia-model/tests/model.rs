@@ -651,3 +651,34 @@ fn the_depth_test_tolerance_is_checked_and_optional() {
     let old: ModelConfig = serde_json::from_value(json).unwrap();
     assert_eq!(old.visibility_depth_tol_m, None);
 }
+
+/// The person masks the visual hull reads are checked with the rest of the scene: a mask of
+/// the wrong size or with a value outside [0, 1] is an error naming the view, and a hull
+/// built from another scene's views is refused.
+#[test]
+fn bad_person_masks_are_errors_naming_the_view() {
+    let device = Device::ndarray();
+    let model = ModelConfig::tiny().init(&device);
+    let good = common::scene(3, 16);
+    let mut short = good.clone();
+    short.views[1].mask.pop();
+    let mut nan = good.clone();
+    nan.views[2].mask[5] = f32::NAN;
+    for (input, field) in [(short, "views[1].mask"), (nan, "views[2].mask")] {
+        let err = model.encode(&input, None, &device, None).unwrap_err();
+        assert!(err.to_string().contains(field), "{err}");
+    }
+    let encoded = model.encode(&good, None, &device, None).unwrap();
+    let mut fewer = good.clone();
+    fewer.views.pop();
+    let err = encoded
+        .clone()
+        .with_visual_hull(&fewer, Some(0))
+        .unwrap_err();
+    assert!(err.to_string().contains("visual hull"), "{err}");
+    assert!(encoded
+        .with_visual_hull(&good, None)
+        .unwrap()
+        .visual_hull
+        .is_none());
+}

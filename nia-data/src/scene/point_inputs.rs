@@ -1,7 +1,8 @@
 //! Per-point inputs of the fields, computed on the CPU from the scene geometry (query points are
 //! data: no gradient flows through them): the projections into every source view, the
 //! view-direction features d_hat_n, the visibility o_n, the trilinear corners in the body
-//! volume, the target directions and (with a visual hull) the density's carving. The model uploads them as a few tensors.
+//! volume, the target directions and (with a visual hull) the density's carving. The model
+//! uploads them as a few tensors.
 
 use std::sync::Arc;
 
@@ -141,9 +142,7 @@ impl PointInputs {
             corners,
         }
     }
-}
 
-impl PointInputs {
     /// These inputs with the carving of `hull` ([`VisualHull::carving`]) at `image_points`
     /// (the points [`Self::compute`] was given), projected by the scene's `cameras`.
     pub fn carved(mut self, hull: &VisualHull, cameras: &[Camera], image_points: &[Vec3]) -> Self {

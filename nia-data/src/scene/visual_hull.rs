@@ -113,10 +113,12 @@ impl VisualHull {
 
     /// `hull(x)` of the module docs for the world point `x`, in [0, 1]: the least of
     /// [`Self::inside`] over the views, `cameras` ([N], the source cameras in view order)
-    /// projecting it. A view behind whose camera `x` lies does not carve it.
+    /// projecting it; views beyond the shorter of the two lists are not read. A view behind
+    /// whose camera `x` lies does not carve it.
     pub fn carving(&self, cameras: &[Camera], x: Vec3) -> f32 {
         cameras
             .iter()
+            .take(self.maps.len())
             .enumerate()
             .map(|(view, camera)| match camera.project(x) {
                 Some((uv, _depth)) => self.inside(view, uv),
