@@ -11,7 +11,7 @@ use burn::prelude::*;
 use nia_data::body::reposing::Reposer;
 use nia_data::body::BodyModel;
 use nia_data::dataset::loader::{
-    load_scene, LoaderConfig, SceneRequest, SceneSource, SceneTarget, TargetKind,
+    load_scene, LoaderConfig, Scene, SceneRequest, SceneSource, SceneTarget, TargetKind,
 };
 use nia_data::dataset::sampling::BoxPadding;
 use nia_data::dataset::{DatasetConfig, Subject};
@@ -23,6 +23,7 @@ use nia_model::image::{render_image, ImageRenderOptions, RenderedImage};
 use nia_model::renderer::render_rays;
 use nia_model::sampler::{stratified_t, AdaptiveConfig};
 use nia_model::store::model_file::ModelFile;
+use nia_model::NiaModel;
 
 // What the skipped samples carried in the full computation. The trained tiny network leaves
 // faint density ("floaters") in empty space; at the default 3 cm it measured: mean opacity
@@ -106,26 +107,31 @@ fn device() -> burn::prelude::Device {
     burn::prelude::Device::ndarray()
 }
 
+/// The trained test fixture on `device`.
+fn fixture_model(device: &burn::prelude::Device) -> NiaModel {
+    let file = ModelFile::read(&fixture()).unwrap();
+    file.load(&fixture(), device).unwrap()
+}
+
+/// Frame 0 of the case's subject: sources 0, 1, 2, the whole image of camera 3 as target.
+fn frame_0(c: &Case) -> Scene {
+    let request = SceneRequest {
+        subject: 0,
+        frame: 0,
+        input_views: vec![0, 1, 2],
+        target_view: 3,
+        target: TargetKind::Image,
+        seed: 0,
+    };
+    load_scene(&c.source, &request, 0, &loader()).unwrap()
+}
+
 #[test]
 fn skipped_samples_would_have_contributed_under_the_tolerance() {
     let c = case("novel-view");
-    let file = ModelFile::read(&fixture()).unwrap();
     let device = device();
-    let model = file.load(&fixture(), &device).unwrap();
-    let scene = load_scene(
-        &c.source,
-        &SceneRequest {
-            subject: 0,
-            frame: 0,
-            input_views: vec![0, 1, 2],
-            target_view: 3,
-            target: TargetKind::Image,
-            seed: 0,
-        },
-        0,
-        &loader(),
-    )
-    .unwrap();
+    let model = fixture_model(&device);
+    let scene = frame_0(&c);
     let SceneTarget::Image { image, mask_at_box } = &scene.target else {
         unreachable!()
     };
@@ -277,18 +283,9 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
 #[test]
 fn reposed_rendering_skips_and_counts_like_novel_views() {
     let c = case("reposed");
-    let file = ModelFile::read(&fixture()).unwrap();
     let device = device();
-    let model = file.load(&fixture(), &device).unwrap();
-    let request = SceneRequest {
-        subject: 0,
-        frame: 0,
-        input_views: vec![0, 1, 2],
-        target_view: 3,
-        target: TargetKind::Image,
-        seed: 0,
-    };
-    let scene = load_scene(&c.source, &request, 0, &loader()).unwrap();
+    let model = fixture_model(&device);
+    let scene = frame_0(&c);
     let target_params = c.source.subjects[0].load_params(1).unwrap();
     let reposer = Arc::new(Reposer::new(&c.body, &scene.params, &target_params).unwrap());
     assert!(!reposer.is_identity(), "frame 1 has another pose");
@@ -342,24 +339,15 @@ fn reposed_rendering_skips_and_counts_like_novel_views() {
     let _ = std::fs::remove_dir_all(&c.root);
 }
 
-/// With visual-hull carving (the default `[render]`), skipping also leaves out what the hull carves: exactly the
-/// samples whose density the hull sets to 0, so the image is the one rendered without any
-/// skipping (float reordering aside) from fewer point evaluations.
+/// With visual-hull carving (the default `[render]`), skipping also leaves out what the hull
+/// carves: exactly the samples whose density the hull sets to 0, so the image is the one
+/// rendered without any skipping (float reordering aside) from fewer point evaluations.
 #[test]
 fn the_visual_hull_skips_exactly_what_it_zeroes() {
     let c = case("hull");
-    let file = ModelFile::read(&fixture()).unwrap();
     let device = device();
-    let model = file.load(&fixture(), &device).unwrap();
-    let request = SceneRequest {
-        subject: 0,
-        frame: 0,
-        input_views: vec![0, 1, 2],
-        target_view: 3,
-        target: TargetKind::Image,
-        seed: 0,
-    };
-    let scene = load_scene(&c.source, &request, 0, &loader()).unwrap();
+    let model = fixture_model(&device);
+    let scene = frame_0(&c);
     let SceneTarget::Image { image, mask_at_box } = &scene.target else {
         unreachable!()
     };

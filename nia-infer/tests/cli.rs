@@ -213,34 +213,21 @@ fn metrics_of_mismatched_images_fail_with_a_message() {
 #[test]
 fn bad_visual_hull_flags_fail_naming_the_flag() {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/quickstart_tiny.nia");
-    let out = nia_infer(&[
-        "eval",
-        "--model",
-        model.to_str().unwrap(),
-        "--out",
-        "/nonexistent/eval",
-        "--hull-dilate-px",
-        "1000",
-    ]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("--hull-dilate-px") && err.contains("256"),
-        "{err}"
-    );
-    let out = nia_infer(&[
-        "eval",
-        "--model",
-        model.to_str().unwrap(),
-        "--out",
-        "/nonexistent/eval",
-        "--visual-hull",
-        "maybe",
-    ]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("--visual-hull") && err.contains("on or off"),
-        "{err}"
-    );
+    for (flag, value, expected) in [
+        ("--hull-dilate-px", "1000", "256"),
+        ("--visual-hull", "maybe", "on or off"),
+    ] {
+        let out = nia_infer(&[
+            "eval",
+            "--model",
+            model.to_str().unwrap(),
+            "--out",
+            "/nonexistent/eval",
+            flag,
+            value,
+        ]);
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(flag) && err.contains(expected), "{err}");
+    }
 }

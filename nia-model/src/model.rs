@@ -166,7 +166,9 @@ impl NiaModel {
         };
         // With empty-space skipping, what the visual hull carves is empty space too: its
         // density is exactly 0 whatever the network says, so it is not evaluated. (A reposed
-        // scene reads the hull at the mapped points, inside the field; nothing is skipped.)
+        // scene reads the hull at the mapped points, inside the field; nothing is skipped.) The
+        // kept points read it once more in the field (three projections and bilinear reads
+        // each, next to a network evaluation).
         if let (Some(_), Some(hull), None) = (&scene.occupancy, &scene.visual_hull, &scene.reposer)
         {
             let cameras = &scene.geometry.cameras;
