@@ -22,6 +22,7 @@ use nia_data::synth::{self, SynthSpec, BODY_MODEL_FILE};
 use nia_model::image::{render_image, ImageRenderOptions, RenderedImage};
 use nia_model::renderer::render_rays;
 use nia_model::sampler::{stratified_t, AdaptiveConfig};
+use nia_model::scene_encoding::SceneEncoding;
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
 
@@ -126,6 +127,29 @@ fn frame_0(c: &Case) -> Scene {
     load_scene(&c.source, &request, 0, &loader()).unwrap()
 }
 
+/// `encoding` rendered through `rays` into a `size` image, `samples` per ray, in chunks of 512.
+fn render_rays_of(
+    model: &NiaModel,
+    encoding: &SceneEncoding,
+    rays: &RayBundle,
+    size: [usize; 2],
+    samples: usize,
+) -> RenderedImage {
+    render_image(
+        model,
+        encoding,
+        rays,
+        size,
+        ImageRenderOptions {
+            samples,
+            chunk: 512,
+            timed: false,
+        },
+        &mut |_, _| {},
+    )
+    .unwrap()
+}
+
 #[test]
 fn skipped_samples_would_have_contributed_under_the_tolerance() {
     let c = case("novel-view");
@@ -150,19 +174,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
             .clone()
             .with_occupancy(grid)
             .with_termination(termination);
-        render_image(
-            &model,
-            &encoding,
-            &rays,
-            size,
-            ImageRenderOptions {
-                samples: 32,
-                chunk: 512,
-                timed: false,
-            },
-            &mut |_, _| {},
-        )
-        .unwrap()
+        render_rays_of(&model, &encoding, &rays, size, 32)
     };
     let render = |adaptive: AdaptiveConfig| render_with(adaptive, None);
     let full = render(AdaptiveConfig::exhaustive());
@@ -302,19 +314,9 @@ fn reposed_rendering_skips_and_counts_like_novel_views() {
         let grid = adaptive
             .occupancy(reposer.target_vertices(), &c.source.faces)
             .unwrap();
-        render_image(
-            &model,
-            &encoding.clone().with_occupancy(grid),
-            &rays,
-            [camera.width as usize, camera.height as usize],
-            ImageRenderOptions {
-                samples: 16,
-                chunk: 512,
-                timed: false,
-            },
-            &mut |_, _| {},
-        )
-        .unwrap()
+        let encoding = encoding.clone().with_occupancy(grid);
+        let size = [camera.width as usize, camera.height as usize];
+        render_rays_of(&model, &encoding, &rays, size, 16)
     };
     let full = render(AdaptiveConfig::exhaustive());
     let skip = render(AdaptiveConfig::default());
@@ -362,19 +364,9 @@ fn the_visual_hull_skips_exactly_what_it_zeroes() {
         let grid = adaptive
             .occupancy(&scene.vertices, &c.source.faces)
             .unwrap();
-        render_image(
-            &model,
-            &encoding.clone().with_occupancy(grid),
-            &rays,
-            [image.width() as usize, image.height() as usize],
-            ImageRenderOptions {
-                samples: 16,
-                chunk: 512,
-                timed: false,
-            },
-            &mut |_, _| {},
-        )
-        .unwrap()
+        let encoding = encoding.clone().with_occupancy(grid);
+        let size = [image.width() as usize, image.height() as usize];
+        render_rays_of(&model, &encoding, &rays, size, 16)
     };
     // Every sample evaluated (the hull still multiplies the density) against an occupancy
     // grid that keeps the whole box (1 m from the body), so the hull is all that skips.
