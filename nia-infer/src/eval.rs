@@ -306,8 +306,12 @@ pub fn evaluate_images(
             .with_colour_culling(options.adaptive.culling())
             .with_visual_hull(&input, options.adaptive.hull())
             .map_err(model_err)?;
-        let rays =
-            RayBundle::through_pixels(&image.camera, &target_scene.body_box, Some(mask_at_box));
+        let rays = RayBundle::through_pixel_footprints(
+            &image.camera,
+            &target_scene.body_box,
+            Some(mask_at_box),
+            options.adaptive.supersample,
+        );
         let mut rendered = render_image(
             &model,
             &encoding,

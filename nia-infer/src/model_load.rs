@@ -14,7 +14,7 @@ use nia_infer::perceptual::LpipsFiles;
 use nia_infer::run_settings::RunSettings;
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::lpips::{Lpips, LpipsNet};
-use nia_model::sampler::{AdaptiveConfig, MAX_HULL_DILATE_PX};
+use nia_model::sampler::{AdaptiveConfig, MAX_HULL_DILATE_PX, MAX_SUPERSAMPLE};
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
 
@@ -60,6 +60,11 @@ pub struct ModelArgs {
     /// setting, 0).
     #[arg(long)]
     pub hull_dilate_px: Option<usize>,
+    /// Rays per pixel side: every pixel the mean of N x N rays over its square, N x N times
+    /// the work of 1 (one ray through the centre, the paper's) (default: the model's
+    /// `[render]` setting).
+    #[arg(long)]
+    pub supersample: Option<usize>,
 }
 
 pub fn parse_switch(s: &str) -> Result<bool, String> {
@@ -115,6 +120,12 @@ impl LoadedModel {
             .is_some_and(|px| px > MAX_HULL_DILATE_PX)
         {
             anyhow::bail!("--hull-dilate-px must be at most {MAX_HULL_DILATE_PX} pixels");
+        }
+        if args
+            .supersample
+            .is_some_and(|s| !(1..=MAX_SUPERSAMPLE).contains(&s))
+        {
+            anyhow::bail!("--supersample must be 1 to {MAX_SUPERSAMPLE} rays per pixel side");
         }
         let path = &args.model;
         let file = ModelFile::read(path)?;
@@ -172,6 +183,9 @@ impl LoadedModel {
         }
         if let Some(px) = args.hull_dilate_px {
             a.hull_dilate_px = px;
+        }
+        if let Some(s) = args.supersample {
+            a.supersample = s;
         }
         a
     }

@@ -208,14 +208,17 @@ fn metrics_of_mismatched_images_fail_with_a_message() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.png"));
 }
 
-/// The visual-hull flags are checked before the model file is read: a dilation past the limit
-/// and a switch that is not on or off are errors naming the flag.
+/// The render flags are checked before the model file is read: a dilation past the limit, a
+/// switch that is not on or off and a supersampling of 0 or past the limit are errors naming
+/// the flag.
 #[test]
-fn bad_visual_hull_flags_fail_naming_the_flag() {
+fn bad_render_flags_fail_naming_the_flag() {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/quickstart_tiny.nia");
     for (flag, value, expected) in [
         ("--hull-dilate-px", "1000", "256"),
         ("--visual-hull", "maybe", "on or off"),
+        ("--supersample", "0", "1 to 8"),
+        ("--supersample", "9", "1 to 8"),
     ] {
         let out = nia_infer(&[
             "eval",

@@ -545,11 +545,13 @@ fn sweep_writes_the_table_and_the_plot() {
         "--model",
         s(&t.model),
         "--sample-counts",
-        "4,8",
+        "8",
         "--view-counts",
         "1,3",
         "--ratios",
         "1.0",
+        "--supersamples",
+        "1,2",
         "--limit",
         "1",
         "--out",
@@ -557,7 +559,8 @@ fn sweep_writes_the_table_and_the_plot() {
     ]);
     ok(&out);
     let csv = std::fs::read_to_string(out_dir.join("sweep.csv")).unwrap();
-    // 2 sample counts x 2 view counts x 1 ratio x skipping on/off, plus the header.
+    // 1 sample count x 2 view counts x 1 ratio x 2 supersamplings x skipping on/off, plus the
+    // header.
     assert_eq!(csv.lines().count(), 1 + 8, "{csv}");
     let rows: Vec<Vec<&str>> = csv
         .lines()
@@ -565,28 +568,32 @@ fn sweep_writes_the_table_and_the_plot() {
         .map(|l| l.split(',').collect())
         .collect();
     assert!(
-        rows.iter().any(|r| r[9] == "true"),
+        rows.iter().any(|r| r[10] == "true"),
         "a Pareto front is marked"
     );
     for r in &rows {
-        let (psnr, evals): (f64, f64) = (r[5].parse().unwrap(), r[8].parse().unwrap());
+        let (psnr, evals): (f64, f64) = (r[6].parse().unwrap(), r[9].parse().unwrap());
         assert!(psnr.is_finite() && evals > 0.0);
     }
-    // Skipping on evaluates fewer points than off at the same setting.
-    let evals = |skip: &str| -> f64 {
+    let evals = |supersample: &str, skip: &str| -> f64 {
         rows.iter()
-            .find(|r| r[0] == "8" && r[1] == "3" && r[3] == skip)
-            .unwrap()[8]
+            .find(|r| r[1] == "3" && r[3] == supersample && r[4] == skip)
+            .unwrap()[9]
             .parse()
             .unwrap()
     };
-    assert!(evals("true") < evals("false"));
+    // Skipping on evaluates fewer points than off at the same setting.
+    assert!(evals("1", "true") < evals("1", "false"));
+    // 2 x 2 rays per pixel: four times the rays (pixels whose centre ray misses the box but
+    // another of their rays does not add a few more).
+    let ratio = evals("2", "false") / evals("1", "false");
+    assert!((4.0..4.5).contains(&ratio), "{ratio}");
     let svg = std::fs::read_to_string(out_dir.join("sweep.svg")).unwrap();
     assert!(svg.starts_with("<svg"));
     // Every setting is a labelled dot (once with skipping on, once off), and the legend
     // names both series and the front.
     for r in &rows {
-        let label = format!("r{} v{} s{}", r[2], r[1], r[0]);
+        let label = format!("r{} v{} s{} x{}", r[2], r[1], r[0], r[3]);
         let drawn = svg.lines().filter(|l| l.trim() == label).count();
         assert_eq!(drawn, 2, "{label}");
     }

@@ -4,6 +4,13 @@
 //!
 //! Pixels whose ray misses the box never reach the network: they keep the black background
 //! (NHP/NIA's convention) with zero opacity and zero blend weights.
+//!
+//! A pixel may have several rays (supersampling, [`RayBundle::through_pixel_footprints`]):
+//! every value of the image (colours, opacity, depth, blend weights) is then the mean over the
+//! pixel's rays in the bundle, the box filter of its footprint. A camera integrates light over
+//! the pixel's area, and so do the synthetic images (rendered at twice the size and averaged):
+//! one ray through the centre gives the outline's pixels all or nothing where the photograph
+//! has a mix (README, "What accuracy costs").
 
 use burn::prelude::*;
 
@@ -93,6 +100,14 @@ pub fn render_image_cancellable(
             "pixel index {p} outside the {w}x{h} image"
         )));
     }
+    // [H * W] 1 / (rays of the pixel in the bundle): each ray's share of its pixel.
+    let mut share = vec![0.0f32; w * h];
+    for &p in &rays.pixels {
+        share[p as usize] += 1.0;
+    }
+    for s in share.iter_mut().filter(|s| **s > 0.0) {
+        *s = 1.0 / *s;
+    }
     let mut out = RenderedImage {
         width: w,
         height: h,
@@ -156,12 +171,22 @@ pub fn render_image_cancellable(
         }
         for (i, &p) in batch.pixels.iter().enumerate() {
             let p = p as usize;
-            out.rgb[3 * p..3 * p + 3].copy_from_slice(&rgb[3 * i..3 * i + 3]);
-            out.rgb0[3 * p..3 * p + 3].copy_from_slice(&rgb0[3 * i..3 * i + 3]);
-            out.rgb_ibr[3 * p..3 * p + 3].copy_from_slice(&rgb_ibr[3 * i..3 * i + 3]);
-            out.acc[p] = acc[i];
-            out.depth[p] = depth[i];
-            out.blend_weights[k * p..k * p + k].copy_from_slice(&weights[k * i..k * i + k]);
+            let f = share[p];
+            let add = |to: &mut [f32], from: &[f32]| {
+                to.iter_mut().zip(from).for_each(|(t, v)| *t += f * v);
+            };
+            add(&mut out.rgb[3 * p..3 * p + 3], &rgb[3 * i..3 * i + 3]);
+            add(&mut out.rgb0[3 * p..3 * p + 3], &rgb0[3 * i..3 * i + 3]);
+            add(
+                &mut out.rgb_ibr[3 * p..3 * p + 3],
+                &rgb_ibr[3 * i..3 * i + 3],
+            );
+            add(&mut out.acc[p..p + 1], &acc[i..i + 1]);
+            add(&mut out.depth[p..p + 1], &depth[i..i + 1]);
+            add(
+                &mut out.blend_weights[k * p..k * p + k],
+                &weights[k * i..k * i + k],
+            );
         }
         out.rays += n;
         out.point_evaluations += point_evaluations as u64;

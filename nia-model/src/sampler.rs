@@ -402,6 +402,11 @@ pub const DEFAULT_EMPTY_SPACE_M: f32 = 0.03;
 pub const DEFAULT_HULL_DILATE_PX: usize = 0;
 /// Largest [`AdaptiveConfig::hull_dilate_px`] accepted.
 pub const MAX_HULL_DILATE_PX: usize = 256;
+/// Default of [`AdaptiveConfig::supersample`]: one ray through each pixel's centre (NeRF's,
+/// NHP's and NIA's rendering).
+pub const DEFAULT_SUPERSAMPLE: usize = 1;
+/// Largest [`AdaptiveConfig::supersample`] accepted (64 rays per pixel).
+pub const MAX_SUPERSAMPLE: usize = 8;
 /// Default occupancy cell edge, metres.
 pub const DEFAULT_OCCUPANCY_CELL_M: f32 = 0.02;
 
@@ -428,6 +433,10 @@ pub struct AdaptiveConfig {
     /// Pixels the masks are grown by before carving (noisy masks of real captures need a
     /// margin; the synthetic masks are exact).
     pub hull_dilate_px: usize,
+    /// Rays per pixel side s (not in the paper): every pixel is the mean of s x s rays spread
+    /// over its square (`RayBundle::through_pixel_footprints`), as a camera integrates over the
+    /// pixel's area; s x s times the rays of 1, the paper's one ray through the centre.
+    pub supersample: usize,
 }
 
 impl Default for AdaptiveConfig {
@@ -440,6 +449,7 @@ impl Default for AdaptiveConfig {
             colour_culling: DEFAULT_COLOUR_CULLING,
             visual_hull: true,
             hull_dilate_px: DEFAULT_HULL_DILATE_PX,
+            supersample: DEFAULT_SUPERSAMPLE,
         }
     }
 }

@@ -10,10 +10,11 @@ use burn::prelude::*;
 use common::{assert_close, device, scene, values};
 use glam::{Vec2, Vec3};
 use nia_data::geometry::camera::Camera;
-use nia_data::geometry::rays::{pixel_ray, Aabb, RayBundle};
+use nia_data::geometry::rays::{pixel_ray, Aabb, Ray, RayBundle};
 use nia_data::scene::{PointInputs, SceneInput, RAY_BOX_PADDING_M};
 use nia_model::field::ibr::fetch_source_colours;
 use nia_model::field::PointTensors;
+use nia_model::image::{render_image, ImageRenderOptions};
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::SceneEncoding;
 use nia_model::surface_ibr::{surface_colours, SourceColoursAt, SURFACE_ACC_FLOOR};
@@ -411,5 +412,67 @@ fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() 
                 "carved points have density 0"
             );
         }
+    }
+}
+
+/// A pixel with several rays (supersampling) is the mean of its rays: the same ray twice gives
+/// the one-ray image, and a ray with a zero-length partner (a sub-ray that misses the box)
+/// gives half its colour, opacity, depth and blend weights.
+#[test]
+fn a_pixel_is_the_mean_of_its_rays() {
+    let dev = device();
+    let input = scene(3, SIZE);
+    let model = ModelConfig::tiny().init(&dev);
+    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    let all = rays_through_view_0(&input);
+    let one = all.slice(all.len() / 2..all.len() / 2 + 48);
+    let (mut twice, mut with_blank) = (RayBundle::default(), RayBundle::default());
+    for i in 0..one.len() {
+        let ray = Ray {
+            origin: one.origins[i],
+            dir: one.dirs[i],
+        };
+        let (near, far, p) = (one.near[i], one.far[i], one.pixels[i]);
+        twice.push(ray, near, far, p);
+        twice.push(ray, near, far, p);
+        with_blank.push(ray, near, far, p);
+        with_blank.push(ray, near, near, p);
+    }
+    let options = ImageRenderOptions {
+        samples: 16,
+        chunk: 20,
+        timed: false,
+    };
+    let render = |rays: &RayBundle| {
+        render_image(
+            &model,
+            &encoded,
+            rays,
+            [SIZE as usize; 2],
+            options,
+            &mut |_, _| {},
+        )
+        .unwrap()
+    };
+    let (a, b, c) = (render(&one), render(&twice), render(&with_blank));
+    assert!(a.acc.iter().any(|&v| v > 0.05), "some opacity to compare");
+    assert_eq!((b.rays, c.rays), (2 * a.rays, 2 * a.rays));
+    for (got, expected, what) in [
+        (&b.rgb, &a.rgb, "colour"),
+        (&b.acc, &a.acc, "opacity"),
+        (&b.depth, &a.depth, "depth"),
+        (&b.blend_weights, &a.blend_weights, "blend weights"),
+    ] {
+        assert_close(got, expected, 1e-6, what);
+    }
+    let half = |v: &[f32]| v.iter().map(|x| 0.5 * x).collect::<Vec<_>>();
+    for (got, full, what) in [
+        (&c.rgb, &a.rgb, "colour"),
+        (&c.rgb0, &a.rgb0, "NeRF colour"),
+        (&c.acc, &a.acc, "opacity"),
+        (&c.depth, &a.depth, "depth"),
+        (&c.blend_weights, &a.blend_weights, "blend weights"),
+    ] {
+        assert_close(got, &half(full), 1e-6, what);
     }
 }

@@ -7,7 +7,7 @@ use nia_data::dataset::{DataConfig, ProtocolName};
 use nia_data::synth::SynthSection;
 use nia_infer::perceptual::LpipsFiles;
 use nia_model::device::{Backend, DeviceSpec};
-use nia_model::sampler::{AdaptiveConfig, MAX_HULL_DILATE_PX};
+use nia_model::sampler::{AdaptiveConfig, MAX_HULL_DILATE_PX, MAX_SUPERSAMPLE};
 use nia_model::store::checkpoint;
 use nia_model::ModelConfig;
 use serde::{Deserialize, Serialize};
@@ -522,6 +522,13 @@ impl TrainConfig {
                 "render.hull_dilate_px",
                 "at most 256 pixels",
                 r.hull_dilate_px.to_string(),
+            ));
+        }
+        if !(1..=MAX_SUPERSAMPLE).contains(&r.supersample) {
+            return Err(bad(
+                "render.supersample",
+                "1 to 8 rays per pixel side",
+                r.supersample.to_string(),
             ));
         }
         if !(0.0..1.0).contains(&r.colour_culling) {

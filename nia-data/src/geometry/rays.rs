@@ -133,19 +133,54 @@ impl RayBundle {
     }
 
     /// The rays of `camera`'s pixels (all, or those where `mask` ([H * W]) is true) whose
-    /// centre ray crosses `aabb` over a positive length, in pixel order.
+    /// centre ray crosses `aabb` over a positive length, in pixel order: one ray per pixel
+    /// ([`Self::through_pixel_footprints`] with `supersample` 1).
     pub fn through_pixels(camera: &Camera, aabb: &Aabb, mask: Option<&[bool]>) -> Self {
+        Self::through_pixel_footprints(camera, aabb, mask, 1)
+    }
+
+    /// `s x s` rays per pixel (`s = supersample`, at least 1), through the centres of the
+    /// `s x s` equal cells of the pixel's square: offsets `((i + 1/2) / s - 1/2, (j + 1/2) / s -
+    /// 1/2)` pixels from its centre, `i, j < s`, row by row (`s = 1`: the centre ray alone). A
+    /// pixel (all, or those where `mask` ([H * W]) is true) is kept when at least one of its rays
+    /// crosses `aabb` over a positive length; then all `s * s` of them are, those that miss the
+    /// box as zero-length rays (`near == far`, which render black with zero opacity), so the
+    /// mean over a pixel's rays is the box filter of its square over a black background (the
+    /// pixel's value for `nia_model::image::render_image`). Pixels in order, each pixel's rays
+    /// together.
+    pub fn through_pixel_footprints(
+        camera: &Camera,
+        aabb: &Aabb,
+        mask: Option<&[bool]>,
+        supersample: usize,
+    ) -> Self {
         let (w, h) = (camera.width as usize, camera.height as usize);
+        let s = supersample.max(1);
+        let offsets: Vec<Vec2> = (0..s * s)
+            .map(|k| {
+                let cell = |i: usize| (i as f32 + 0.5) / s as f32 - 0.5;
+                Vec2::new(cell(k % s), cell(k / s))
+            })
+            .collect();
         let mut bundle = RayBundle::default();
+        let mut footprint = Vec::with_capacity(s * s);
         for p in 0..w * h {
             if mask.is_some_and(|m| !m.get(p).copied().unwrap_or(false)) {
                 continue;
             }
-            let ray = pixel_ray(camera, pixel_centre(p % w, p / w));
-            if let Some((near, far)) = near_far(&ray, aabb) {
-                if far > near {
-                    bundle.push(ray, near, far, p as u32);
-                }
+            let centre = pixel_centre(p % w, p / w);
+            footprint.clear();
+            footprint.extend(offsets.iter().map(|&offset| {
+                let ray = pixel_ray(camera, centre + offset);
+                let interval = near_far(&ray, aabb).filter(|(near, far)| far > near);
+                (ray, interval)
+            }));
+            if footprint.iter().all(|(_, interval)| interval.is_none()) {
+                continue;
+            }
+            for &(ray, interval) in &footprint {
+                let (near, far) = interval.unwrap_or((0.0, 0.0));
+                bundle.push(ray, near, far, p as u32);
             }
         }
         bundle

@@ -197,3 +197,73 @@ fn mask_at_box_is_the_projected_hull() {
     let around = Aabb::new(Vec3::splat(-10.0), Vec3::splat(10.0));
     assert!(mask_at_box(&c, &around).iter().all(|m| *m));
 }
+
+/// Supersampling: s x s rays per pixel through the centres of the s x s cells of the pixel's
+/// square, all of a pixel's rays kept when one crosses the box (those that miss as zero-length
+/// rays), and s = 1 is the one centre ray of `through_pixels`.
+#[test]
+fn pixel_footprints_cover_the_pixel_square() {
+    let c = Camera::look_at(
+        Vec3::new(0.0, 0.5, 3.0),
+        Vec3::new(0.0, 0.5, 0.0),
+        Vec3::Y,
+        60.0,
+        60.0,
+        32,
+        24,
+    )
+    .unwrap();
+    let aabb = Aabb::new(Vec3::new(-0.3, 0.0, -0.3), Vec3::new(0.3, 1.0, 0.3));
+    let one = RayBundle::through_pixels(&c, &aabb, None);
+    assert_eq!(RayBundle::through_pixel_footprints(&c, &aabb, None, 1), one);
+    assert!(
+        !one.is_empty() && one.len() < 32 * 24,
+        "the box covers part of the image"
+    );
+
+    let s = 3;
+    let many = RayBundle::through_pixel_footprints(&c, &aabb, None, s);
+    assert_eq!(many.len() % (s * s), 0);
+    let mut pixels: Vec<u32> = many.pixels.chunks(s * s).map(|p| p[0]).collect();
+    for (chunk, &p) in many.pixels.chunks(s * s).zip(&pixels) {
+        assert!(chunk.iter().all(|&q| q == p), "a pixel's rays are together");
+    }
+    // Every pixel whose centre ray crosses the box is there, and a few more at the outline.
+    assert!(one.pixels.iter().all(|p| pixels.contains(p)));
+    assert!(pixels.len() > one.len());
+    pixels.dedup();
+    assert_eq!(pixels.len() * s * s, many.len(), "each pixel once");
+    let mut zero_length = 0;
+    for (k, chunk) in (0..many.len())
+        .collect::<Vec<_>>()
+        .chunks(s * s)
+        .enumerate()
+    {
+        let p = pixels[k] as usize;
+        let (x, y) = ((p % 32) as f32, (p / 32) as f32);
+        for (cell, &i) in chunk.iter().enumerate() {
+            // The ray passes through the centre of its cell: 1/3 px apart, within the pixel.
+            let expected = Vec2::new(
+                x + (cell % s) as f32 / 3.0 - 1.0 / 3.0,
+                y + (cell / s) as f32 / 3.0 - 1.0 / 3.0,
+            );
+            let through = c.project(many.origins[i] + many.dirs[i]).unwrap().0;
+            assert!(
+                (through - expected).length() < 1e-3,
+                "{through} vs {expected}"
+            );
+            if many.near[i] == many.far[i] {
+                zero_length += 1;
+                assert!(
+                    near_far(&pixel_ray(&c, expected), &aabb).is_none_or(|(near, far)| far <= near)
+                );
+            } else {
+                assert!(many.far[i] > many.near[i]);
+            }
+        }
+    }
+    assert!(
+        zero_length > 0,
+        "rays of outline pixels that miss the box are kept"
+    );
+}

@@ -187,7 +187,8 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
             .with_occupancy(occupancy)
             .with_termination(adaptive.termination())
             .with_colour_culling(adaptive.culling());
-        let rays = RayBundle::through_pixels(&camera, &body_box, None);
+        let rays =
+            RayBundle::through_pixel_footprints(&camera, &body_box, None, adaptive.supersample);
         let img = render_image(
             &loaded.model,
             &encoding,

@@ -100,7 +100,12 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
     let mut frames = Vec::with_capacity(orbit.len());
     let mut points = 0u64;
     for (k, camera) in orbit.iter().enumerate() {
-        let rays = RayBundle::through_pixels(camera, &scene.body_box, None);
+        let rays = RayBundle::through_pixel_footprints(
+            camera,
+            &scene.body_box,
+            None,
+            adaptive.supersample,
+        );
         let img = render_image(
             &loaded.model,
             &encoding,

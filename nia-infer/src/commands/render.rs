@@ -100,7 +100,12 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let mut images = Vec::new();
     for &target in &targets {
         let camera = opened.camera(target);
-        let rays = RayBundle::through_pixels(&camera, &scene.body_box, None);
+        let rays = RayBundle::through_pixel_footprints(
+            &camera,
+            &scene.body_box,
+            None,
+            adaptive.supersample,
+        );
         let bar = progress_bar(rays.len() as u64, &format!("view {target:>2}"));
         let t0 = std::time::Instant::now();
         let img = render_image(

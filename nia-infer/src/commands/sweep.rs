@@ -1,5 +1,6 @@
 //! `nia-infer sweep`: what accuracy costs in time. Over samples per ray, source views,
-//! resolution ratio and empty-space skipping, the protocol's PSNR and SSIM with milliseconds
+//! resolution ratio, rays per pixel (supersampling) and empty-space skipping, the protocol's
+//! PSNR and SSIM with milliseconds
 //! and network point evaluations per image: `sweep.csv`, `sweep.md` and `sweep.svg` (PSNR
 //! against time, Pareto front marked).
 
@@ -10,7 +11,7 @@ use anyhow::Context;
 use clap::Args;
 use nia_data::dataset::protocol::{EvalItem, EvalSplit};
 use nia_infer::eval::{eval_items, evaluate_images, EvalOptions, EvalSummary, EvalTask};
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::sampler::{AdaptiveConfig, MAX_SUPERSAMPLE};
 use serde::Serialize;
 
 use crate::model_load::{LoadedModel, ModelArgs};
@@ -34,6 +35,10 @@ pub struct SweepArgs {
     /// Image resize ratios to try (of the dataset's native resolution).
     #[arg(long, value_delimiter = ',', default_value = "0.25,0.5")]
     pub ratios: Vec<f32>,
+    /// Rays per pixel side to try (every pixel the mean of N x N rays; 1 is the paper's one
+    /// ray through the centre).
+    #[arg(long, value_delimiter = ',', default_value = "1,2")]
+    pub supersamples: Vec<usize>,
     /// Images per setting (the first N of the unseen-subject split).
     #[arg(long, default_value_t = 6)]
     pub limit: usize,
@@ -47,6 +52,7 @@ struct Row {
     samples: usize,
     views: usize,
     ratio: f32,
+    supersample: usize,
     skip_empty_space: bool,
     images: usize,
     psnr: f64,
@@ -67,11 +73,22 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     if let Some(r) = args.ratios.iter().find(|r| !(**r > 0.0 && **r <= 1.0)) {
         anyhow::bail!("--ratios: {r} is not in (0, 1]");
     }
+    if let Some(s) = args
+        .supersamples
+        .iter()
+        .find(|s| !(1..=MAX_SUPERSAMPLE).contains(*s))
+    {
+        anyhow::bail!("--supersamples: {s} is not 1 to {MAX_SUPERSAMPLE} rays per pixel side");
+    }
     let split = EvalSplit::UnseenSubjects;
     let base_adaptive = loaded.adaptive(&args.model);
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let total = args.ratios.len() * args.view_counts.len() * args.sample_counts.len() * 2;
+    let total = args.ratios.len()
+        * args.view_counts.len()
+        * args.sample_counts.len()
+        * args.supersamples.len()
+        * 2;
     let bar = progress_bar(total as u64, "sweep");
     let mut rows = Vec::new();
     for &ratio in &args.ratios {
@@ -96,51 +113,56 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                     ..i.clone()
                 })
                 .collect();
-            for &samples in &args.sample_counts {
-                for skip in [false, true] {
-                    bar.set_message(format!(
-                        "ratio {ratio}, {views} views, {samples} samples, skipping {}",
+            for (&samples, &supersample, skip) in args
+                .sample_counts
+                .iter()
+                .flat_map(|s| args.supersamples.iter().map(move |x| (s, x)))
+                .flat_map(|(s, x)| [false, true].map(|skip| (s, x, skip)))
+            {
+                bar.set_message(format!(
+                        "ratio {ratio}, {views} views, {samples} samples, {supersample}x{supersample} rays per pixel, skipping {}",
                         if skip { "on" } else { "off" }
                     ));
-                    let results = evaluate_images(
-                        &loaded.model,
-                        &data,
-                        split,
-                        &items,
-                        EvalOptions {
-                            task: EvalTask::NovelView,
-                            samples,
-                            chunk: args.model.chunk,
-                            timed: false,
-                            adaptive: AdaptiveConfig {
-                                skip_empty_space: skip,
-                                ..base_adaptive
-                            },
-                            lpips: None,
-                        },
-                        &loaded.device,
-                        &mut |_| Ok(()),
-                    )?;
-                    let summary = EvalSummary::of(&results).context("no image evaluated")?;
-                    let n = results.len() as f64;
-                    rows.push(Row {
+                let results = evaluate_images(
+                    &loaded.model,
+                    &data,
+                    split,
+                    &items,
+                    EvalOptions {
+                        task: EvalTask::NovelView,
                         samples,
-                        views,
-                        ratio,
-                        skip_empty_space: skip,
-                        images: summary.images,
-                        psnr: summary.psnr,
-                        ssim: summary.ssim,
-                        ms_per_image: results.iter().map(|r| r.seconds).sum::<f64>() * 1e3 / n,
-                        point_evaluations_per_image: results
-                            .iter()
-                            .map(|r| r.point_evaluations as f64)
-                            .sum::<f64>()
-                            / n,
-                        pareto: false,
-                    });
-                    bar.inc(1);
-                }
+                        chunk: args.model.chunk,
+                        timed: false,
+                        adaptive: AdaptiveConfig {
+                            skip_empty_space: skip,
+                            supersample,
+                            ..base_adaptive
+                        },
+                        lpips: None,
+                    },
+                    &loaded.device,
+                    &mut |_| Ok(()),
+                )?;
+                let summary = EvalSummary::of(&results).context("no image evaluated")?;
+                let n = results.len() as f64;
+                rows.push(Row {
+                    samples,
+                    views,
+                    ratio,
+                    supersample,
+                    skip_empty_space: skip,
+                    images: summary.images,
+                    psnr: summary.psnr,
+                    ssim: summary.ssim,
+                    ms_per_image: results.iter().map(|r| r.seconds).sum::<f64>() * 1e3 / n,
+                    point_evaluations_per_image: results
+                        .iter()
+                        .map(|r| r.point_evaluations as f64)
+                        .sum::<f64>()
+                        / n,
+                    pareto: false,
+                });
+                bar.inc(1);
             }
         }
     }
@@ -151,15 +173,16 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     }
 
     let mut csv = String::from(
-        "samples,views,ratio,skip_empty_space,images,psnr,ssim,ms_per_image,point_evaluations_per_image,pareto\n",
+        "samples,views,ratio,supersample,skip_empty_space,images,psnr,ssim,ms_per_image,point_evaluations_per_image,pareto\n",
     );
     for r in &rows {
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{:.4},{:.5},{:.2},{:.0},{}",
+            "{},{},{},{},{},{},{:.4},{:.5},{:.2},{:.0},{}",
             r.samples,
             r.views,
             r.ratio,
+            r.supersample,
             r.skip_empty_space,
             r.images,
             r.psnr,
@@ -173,7 +196,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
 
     let mut md = format!(
-        "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
+        "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | rays / pixel | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
         loaded.path.display(),
         loaded.step,
         args.data.as_ref().unwrap_or(&loaded.run.data.root).display(),
@@ -183,10 +206,11 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     for r in &rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {:.2} | {:.4} | {:.0} | {:.0} | {} |",
+            "| {} | {} | {} | {} | {} | {:.2} | {:.4} | {:.0} | {:.0} | {} |",
             r.ratio,
             r.views,
             r.samples,
+            r.supersample * r.supersample,
             if r.skip_empty_space { "on" } else { "off" },
             r.psnr,
             r.ssim,
@@ -208,7 +232,10 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                 (
                     r.ms_per_image,
                     r.psnr,
-                    format!("r{} v{} s{}", r.ratio, r.views, r.samples),
+                    format!(
+                        "r{} v{} s{} x{}",
+                        r.ratio, r.views, r.samples, r.supersample
+                    ),
                 )
             })
             .collect(),

@@ -250,7 +250,12 @@ impl ViewerScene {
             request.scale,
         )?;
         let (encoding, body_box, pose_ms) = self.pose(request.frame)?;
-        let rays = RayBundle::through_pixels(&camera, &body_box, None);
+        let rays = RayBundle::through_pixel_footprints(
+            &camera,
+            &body_box,
+            None,
+            self.adaptive.supersample,
+        );
         let (w, h) = (camera.width as usize, camera.height as usize);
         let Some(img) = render_image_cancellable(
             &self.loaded.model,

@@ -78,6 +78,14 @@ pub(super) fn cases() -> Vec<Case> {
             },
         ),
         case(
+            "config_supersample_zero",
+            &["tiny.toml", "render.supersample", "1 to 8", "0"],
+            |c| {
+                let config = c.config(&[("[train]", "[render]\nsupersample = 0\n\n[train]")]);
+                c.train_args(&config, &[])
+            },
+        ),
+        case(
             "config_c0_shuffle_out_of_range",
             &["tiny.toml", "train.c0_shuffle", "[0, 1]", "2"],
             |c| {
