@@ -250,12 +250,14 @@ impl ViewerScene {
             request.scale,
         )?;
         let (encoding, body_box, pose_ms) = self.pose(request.frame)?;
-        let rays = RayBundle::through_pixel_footprints(
-            &camera,
-            &body_box,
-            None,
-            self.adaptive.supersample,
-        );
+        // The previews of a drag (scale < 1) take one ray per pixel; the picture the camera
+        // rests on takes the `[render]` supersampling.
+        let supersample = if request.scale < 1.0 {
+            1
+        } else {
+            self.adaptive.supersample
+        };
+        let rays = RayBundle::through_pixel_footprints(&camera, &body_box, None, supersample);
         let (w, h) = (camera.width as usize, camera.height as usize);
         let Some(img) = render_image_cancellable(
             &self.loaded.model,
