@@ -1,8 +1,7 @@
 //! `nia-infer sweep`: what accuracy costs in time. Over samples per ray, source views,
 //! resolution ratio, rays per pixel (supersampling) and empty-space skipping, the protocol's
-//! PSNR and SSIM with milliseconds
-//! and network point evaluations per image: `sweep.csv`, `sweep.md` and `sweep.svg` (PSNR
-//! against time, Pareto front marked).
+//! PSNR and SSIM with milliseconds and network point evaluations per image: `sweep.csv`,
+//! `sweep.md` and `sweep.svg` (PSNR against time, Pareto front marked).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -119,10 +118,11 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                 .flat_map(|s| args.supersamples.iter().map(move |x| (s, x)))
                 .flat_map(|(s, x)| [false, true].map(|skip| (s, x, skip)))
             {
+                let skipping = if skip { "on" } else { "off" };
                 bar.set_message(format!(
-                        "ratio {ratio}, {views} views, {samples} samples, {supersample}x{supersample} rays per pixel, skipping {}",
-                        if skip { "on" } else { "off" }
-                    ));
+                    "ratio {ratio}, {views} views, {samples} samples, \
+                     {supersample}x{supersample} rays per pixel, skipping {skipping}"
+                ));
                 let results = evaluate_images(
                     &loaded.model,
                     &data,
