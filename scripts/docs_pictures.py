@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The README's evaluation pictures from a run's evaluation folder.
+"""The evaluation pictures of docs/results.md from a run's evaluation folder.
 
     python3 scripts/docs_pictures.py runs/quickstart/evaluation docs/
 

@@ -24,9 +24,9 @@ use glam::Vec3;
 use nia_data::dataset::loader::Scene;
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::raster::{rasterize, EMPTY_FACE};
-use nia_data::geometry::rays::RayBundle;
+use nia_data::geometry::rays::image_rays;
 use nia_data::metrics::{evaluate, psnr_masked, ImageView, MetricsError, SsimOptions};
-use nia_model::image::RenderedImage;
+use nia_model::renderer::image::RenderedImage;
 use serde::Serialize;
 
 /// Opacity above which a pixel's expected depth is compared with the mesh.
@@ -121,8 +121,6 @@ pub fn silhouette_split(
 /// What [`BlendDiagnostics::measure`] reads.
 pub struct DiagnosticsInput<'a> {
     pub rendered: &'a RenderedImage,
-    /// The rays of the render (their origins and directions give the expected depth's point).
-    pub rays: &'a RayBundle,
     /// The target camera.
     pub camera: &'a Camera,
     /// [H * W * 3] ground truth.
@@ -182,10 +180,8 @@ impl BlendDiagnostics {
                     .any(|s| s.visibility.get(v).is_some_and(|&x| x > 0)),
             )
         };
-        let mut ray_of = vec![usize::MAX; w * h];
-        for (i, &p) in input.rays.pixels.iter().enumerate() {
-            ray_of[p as usize] = i;
-        }
+        // The ray through each pixel's centre: the expected depth along it gives the point.
+        let centre_rays = frags.as_ref().map(|_| image_rays(input.camera));
 
         let (mut seen_sum, mut seen_n, mut unseen_sum, mut unseen_n) = (0.0, 0, 0.0, 0);
         let (mut depth_sum, mut depth_n) = (0.0, 0);
@@ -217,12 +213,11 @@ impl BlendDiagnostics {
                     None => {}
                 }
             }
-            let ray = ray_of[p];
-            if let (Some(frags), true) = (frags.as_ref(), acc > OPAQUE && ray != usize::MAX) {
+            if let (Some(frags), Some(rays), true) = (&frags, &centre_rays, acc > OPAQUE) {
                 let z_mesh = frags.depth[p];
                 if z_mesh.is_finite() {
                     let t = r.depth[p] / acc;
-                    let point = input.rays.origins[ray] + input.rays.dirs[ray] * t;
+                    let point = rays[p].origin + rays[p].dir * t;
                     let z = (input.camera.r * point + input.camera.t).z;
                     depth_sum += (z - z_mesh).abs() as f64;
                     depth_n += 1;

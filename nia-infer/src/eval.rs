@@ -1,6 +1,6 @@
 //! Held-out evaluation, used by `nia-infer eval` and `sweep` and by the trainer (validation and
 //! the final evaluation): whole target images rendered without autodiff
-//! ([`nia_model::image`]), scored as NHP/NIA report them (PSNR over `mask_at_box`, SSIM on its
+//! ([`nia_model::renderer::image`]), scored as NHP/NIA report them (PSNR over `mask_at_box`, SSIM on its
 //! bounding-rectangle crop, [`nia_data::metrics::evaluate`]). The data is an
 //! [`OpenedDataset`] (a run's `[data]` section, opened).
 //!
@@ -23,12 +23,12 @@ use nia_data::dataset::loader::{
 };
 use nia_data::dataset::protocol::{EvalItem, EvalSplit, ProtocolError};
 use nia_data::dataset::OpenedDataset;
-use nia_data::geometry::rays::RayBundle;
 use nia_data::metrics::{evaluate, ImageMetrics, ImageView, MetricsError, SsimOptions};
 use nia_data::scene::SceneInput;
-use nia_model::image::{render_image, ImageRenderOptions, RenderedImage};
 use nia_model::lpips::Lpips;
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::render_options::RenderOptions;
+use nia_model::renderer::image::{ImageRenderOptions, RenderedImage};
+use nia_model::renderer::view::{prepare_scene, render_view, TargetView};
 use nia_model::timing::StageTimes;
 use nia_model::{ModelError, NiaModel};
 use serde::Serialize;
@@ -109,8 +109,8 @@ pub struct EvalOptions {
     pub chunk: usize,
     /// Collect per-stage timings (synchronises the device after each stage).
     pub timed: bool,
-    /// Empty-space skipping.
-    pub adaptive: AdaptiveConfig,
+    /// The `[render]` options (skipping, termination, culling, carving, supersampling).
+    pub render: RenderOptions,
     /// Also score LPIPS with this network (on the evaluation device), on SSIM's crop.
     pub lpips: Option<Arc<Lpips>>,
 }
@@ -284,47 +284,27 @@ pub fn evaluate_images(
                 .map_err(|e| eval_err(format!("reposing from frame {reference}: {e}")))?,
             )),
         };
-        // The occupancy grid of the rendered pose's mesh (per frame and pose).
-        let posed_vertices = match &reposer {
-            Some(r) => r.target_vertices(),
-            None => &target_scene.vertices[..],
-        };
-        let occupancy = options
-            .adaptive
-            .occupancy(posed_vertices, &data.source.faces)
-            .map_err(|e| eval_err(e.to_string()))?;
-        let encoding = model
-            .encode(
-                &input,
-                reposer.clone(),
-                &plain,
-                options.timed.then_some(&mut times),
-            )
-            .map_err(model_err)?
-            .with_occupancy(occupancy)
-            .with_termination(options.adaptive.termination())
-            .with_colour_culling(options.adaptive.culling())
-            .with_visual_hull(&input, options.adaptive.hull())
-            .map_err(model_err)?;
-        let rays = RayBundle::through_pixel_footprints(
-            &image.camera,
-            &target_scene.body_box,
-            Some(mask_at_box),
-            options.adaptive.supersample,
-        );
-        let mut rendered = render_image(
+        let encoding = prepare_scene(
             &model,
-            &encoding,
-            &rays,
-            [image.width() as usize, image.height() as usize],
-            ImageRenderOptions {
+            &input,
+            reposer,
+            &options.render,
+            &plain,
+            options.timed.then_some(&mut times),
+        )
+        .map_err(model_err)?;
+        let view = TargetView {
+            camera: &image.camera,
+            body_box: &target_scene.body_box,
+            pixels: Some(mask_at_box),
+            image: ImageRenderOptions {
                 samples: options.samples,
                 chunk: options.chunk,
                 timed: options.timed,
             },
-            &mut |_, _| {},
-        )
-        .map_err(model_err)?;
+        };
+        let mut rendered = render_view(&model, &encoding, &view, &options.render, &mut |_, _| {})
+            .map_err(model_err)?;
         times.merge(&rendered.times);
         rendered.times = times.clone();
         let seconds = started.elapsed().as_secs_f64();
@@ -343,12 +323,14 @@ pub fn evaluate_images(
         };
         let diagnostics = BlendDiagnostics::measure(&DiagnosticsInput {
             rendered: &rendered,
-            rays: &rays,
             camera: &image.camera,
             ground_truth: &image.image,
             person_mask: &image.mask,
             mask_at_box,
-            posed_vertices,
+            posed_vertices: encoding
+                .reposer
+                .as_ref()
+                .map_or(&target_scene.vertices[..], |r| r.target_vertices()),
             faces: &data.source.faces,
             sources,
         })
@@ -391,7 +373,7 @@ pub fn evaluate_items(
     items: &[EvalItem],
     samples: usize,
     chunk: usize,
-    adaptive: AdaptiveConfig,
+    render: RenderOptions,
     lpips: Option<Arc<Lpips>>,
     device: &Device,
     on_done: &mut dyn FnMut(usize, &EvaluatedImage<'_>),
@@ -407,7 +389,7 @@ pub fn evaluate_items(
             samples,
             chunk,
             timed: false,
-            adaptive,
+            render,
             lpips,
         },
         device,

@@ -11,7 +11,7 @@
 //! [`keep_freed_memory`] makes the heap keep and reuse what tensors free: no `mmap` for large
 //! blocks (they come from the heap, which then grows once and is reused) and no trimming of the
 //! heap's top. What it costs: the heap stays at its high-water mark and fragments, so the peak
-//! resident memory is higher (measured in the README's Speed section). Only binaries call it,
+//! resident memory is higher (measured in docs/speed.md, "What made it fast"). Only binaries call it,
 //! first thing in `main`; `NIA_HEAP=system` leaves malloc as it is, and any other value of
 //! `NIA_HEAP` is refused ([`HeapError`]) rather than silently ignored.
 

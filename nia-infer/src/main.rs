@@ -6,6 +6,7 @@
 mod commands;
 mod model_load;
 mod output;
+mod session;
 mod subject_scene;
 mod viewer;
 

@@ -14,7 +14,7 @@ use nia_infer::perceptual::LpipsFiles;
 use nia_infer::run_settings::RunSettings;
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::lpips::{Lpips, LpipsNet};
-use nia_model::sampler::{AdaptiveConfig, MAX_HULL_DILATE_PX, MAX_SUPERSAMPLE};
+use nia_model::render_options::RenderOptions;
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
 
@@ -53,7 +53,7 @@ pub struct ModelArgs {
     #[arg(long)]
     pub colour_culling: Option<f32>,
     /// Visual-hull carving with the source views' person masks: on or off (default: the
-    /// model's `[render]` setting, on).
+    /// model's `[render]` setting; off where it has none).
     #[arg(long, value_parser = parse_switch)]
     pub visual_hull: Option<bool>,
     /// Pixels the masks are grown by before carving (default: the model's `[render]`
@@ -65,6 +65,62 @@ pub struct ModelArgs {
     /// `[render]` setting).
     #[arg(long)]
     pub supersample: Option<usize>,
+}
+
+impl ModelArgs {
+    /// `base` (the `[render]` options of the model file `source`) with this command line's
+    /// overrides, checked ([`RenderOptions::check`]): a value out of bounds is an error naming
+    /// its flag, or the model file's key where no flag set it.
+    pub fn render_options(
+        &self,
+        base: RenderOptions,
+        source: &Path,
+    ) -> anyhow::Result<RenderOptions> {
+        let mut options = base;
+        let overrides = [
+            ("skip_empty_space", self.skip_empty_space.is_some()),
+            ("empty_space_m", self.empty_space_m.is_some()),
+            ("early_termination", self.early_termination.is_some()),
+            ("colour_culling", self.colour_culling.is_some()),
+            ("visual_hull", self.visual_hull.is_some()),
+            ("hull_dilate_px", self.hull_dilate_px.is_some()),
+            ("supersample", self.supersample.is_some()),
+        ];
+        if let Some(on) = self.skip_empty_space {
+            options.skip_empty_space = on;
+        }
+        if let Some(m) = self.empty_space_m {
+            options.empty_space_m = m;
+        }
+        if let Some(e) = self.early_termination {
+            options.early_termination = e;
+        }
+        if let Some(e) = self.colour_culling {
+            options.colour_culling = e;
+        }
+        if let Some(on) = self.visual_hull {
+            options.visual_hull = on;
+        }
+        if let Some(px) = self.hull_dilate_px {
+            options.hull_dilate_px = px;
+        }
+        if let Some(s) = self.supersample {
+            options.supersample = s;
+        }
+        if let Err(e) = options.check() {
+            let from_flag = overrides.iter().any(|&(key, set)| set && key == e.key);
+            if from_flag {
+                anyhow::bail!(
+                    "--{} {}: expected {}",
+                    e.key.replace('_', "-"),
+                    e.got,
+                    e.expected
+                );
+            }
+            anyhow::bail!("{}: `[render] {e}`", source.display());
+        }
+        Ok(options)
+    }
 }
 
 pub fn parse_switch(s: &str) -> Result<bool, String> {
@@ -97,36 +153,8 @@ impl LoadedModel {
         if args.samples.is_some_and(|s| s < 2) {
             anyhow::bail!("--samples must be at least 2");
         }
-        if args
-            .empty_space_m
-            .is_some_and(|m| !(m.is_finite() && m >= 0.0))
-        {
-            anyhow::bail!("--empty-space-m must be a distance >= 0 (metres)");
-        }
-        if args
-            .early_termination
-            .is_some_and(|e| !(0.0..1.0).contains(&e))
-        {
-            anyhow::bail!("--early-termination must be a transmittance in [0, 1) (0: off)");
-        }
-        if args
-            .colour_culling
-            .is_some_and(|e| !(0.0..1.0).contains(&e))
-        {
-            anyhow::bail!("--colour-culling must be a weight in [0, 1) (0: off)");
-        }
-        if args
-            .hull_dilate_px
-            .is_some_and(|px| px > MAX_HULL_DILATE_PX)
-        {
-            anyhow::bail!("--hull-dilate-px must be at most {MAX_HULL_DILATE_PX} pixels");
-        }
-        if args
-            .supersample
-            .is_some_and(|s| !(1..=MAX_SUPERSAMPLE).contains(&s))
-        {
-            anyhow::bail!("--supersample must be 1 to {MAX_SUPERSAMPLE} rays per pixel side");
-        }
+        // The flags alone, before the model file is read (the defaults are in bounds).
+        args.render_options(RenderOptions::default(), &args.model)?;
         let path = &args.model;
         let file = ModelFile::read(path)?;
         let run = RunSettings::from_json(&file.header.run).with_context(|| {
@@ -163,31 +191,9 @@ impl LoadedModel {
         })
     }
 
-    /// Adaptive work: the model's `[render]` setting with the command line's overrides.
-    pub fn adaptive(&self, args: &ModelArgs) -> AdaptiveConfig {
-        let mut a = self.run.render;
-        if let Some(on) = args.skip_empty_space {
-            a.skip_empty_space = on;
-        }
-        if let Some(m) = args.empty_space_m {
-            a.empty_space_m = m;
-        }
-        if let Some(e) = args.early_termination {
-            a.early_termination = e;
-        }
-        if let Some(e) = args.colour_culling {
-            a.colour_culling = e;
-        }
-        if let Some(on) = args.visual_hull {
-            a.visual_hull = on;
-        }
-        if let Some(px) = args.hull_dilate_px {
-            a.hull_dilate_px = px;
-        }
-        if let Some(s) = args.supersample {
-            a.supersample = s;
-        }
-        a
+    /// The model's `[render]` setting with the command line's overrides, checked.
+    pub fn render_options(&self, args: &ModelArgs) -> anyhow::Result<RenderOptions> {
+        args.render_options(self.run.render, &self.path)
     }
 
     /// Samples per ray: the command line's, else the training setting.
@@ -212,14 +218,7 @@ impl LoadedModel {
     /// so a model trained on 8 synthetic people evaluates on a set of 4 from another seed.
     pub fn open_split(&self, data: &DataConfig, split: EvalSplit) -> anyhow::Result<OpenedDataset> {
         let open = || -> anyhow::Result<OpenedDataset> {
-            let run_spec = self.run.synth.as_ref().map(|s| s.spec());
-            let spec = match run_spec {
-                Some(run_spec) if data.root != self.run.data.root => {
-                    Some(data.own_synth_spec()?.unwrap_or(run_spec))
-                }
-                other => other,
-            };
-            let protocol = data.protocol(spec.as_ref())?;
+            let protocol = self.run.protocol_for(data)?;
             Ok(OpenedDataset::open_split(data, protocol, split)?)
         };
         open().with_context(|| format!("opening the `{}` split", split.name()))

@@ -20,6 +20,10 @@ pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
 
 /// Writes `value` as pretty JSON, naming the file on failure.
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> anyhow::Result<()> {
-    std::fs::write(path, serde_json::to_string_pretty(value)?)
-        .with_context(|| format!("writing {}", path.display()))
+    write_text(path, &serde_json::to_string_pretty(value)?)
+}
+
+/// Writes `text` to `path`, naming the file on failure.
+pub fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
 }

@@ -3,10 +3,12 @@
 //! needs, so it does not depend on the trainer.
 
 use crate::perceptual::LpipsFiles;
+use nia_data::dataset::opened::OpenError;
+use nia_data::dataset::protocol::Protocol;
 use nia_data::dataset::DataConfig;
 use nia_data::synth::SynthSection;
 use nia_model::device::Backend;
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::render_options::RenderOptions;
 use serde::Deserialize;
 
 /// The `[data]`, `[synth]`, `[render]` and sampling settings of a run config (other keys are
@@ -20,7 +22,7 @@ pub struct RunSettings {
     pub synth: Option<SynthSection>,
     /// Adaptive work defaults (empty-space skipping).
     #[serde(default)]
-    pub render: AdaptiveConfig,
+    pub render: RenderOptions,
     /// The `[train]` settings inference reuses.
     pub train: TrainSettings,
 }
@@ -44,5 +46,22 @@ impl RunSettings {
     /// The settings of a run config given as JSON (a model file's header `run`).
     pub fn from_json(run: &serde_json::Value) -> Result<Self, serde_json::Error> {
         RunSettings::deserialize(run)
+    }
+}
+
+impl RunSettings {
+    /// The split protocol of the dataset `data` (the run's own `[data]`, or another root): the
+    /// run's, except that a synthetic set other than the run's own brings its own split (its
+    /// `synth.json`), so a model trained on 8 synthetic people evaluates on a set of 4 from
+    /// another seed, and renders take that set's source views.
+    pub fn protocol_for(&self, data: &DataConfig) -> Result<Protocol, OpenError> {
+        let run_spec = self.synth.as_ref().map(|s| s.spec());
+        let spec = match run_spec {
+            Some(run_spec) if data.root != self.data.root => {
+                Some(data.own_synth_spec()?.unwrap_or(run_spec))
+            }
+            other => other,
+        };
+        data.protocol(spec.as_ref())
     }
 }

@@ -118,8 +118,9 @@ impl OpenedSubject {
         &self.source.subjects[0]
     }
 
-    /// Source views: `given`, else the test-time input views of the model's split protocol
-    /// (NHP: 0,7,15; a synthetic set: its own), checked against the subject.
+    /// Source views: `given`, else the test-time input views of the split protocol of the
+    /// dataset the subject is in (NHP: 0,7,15; a synthetic set: its own `synth.json`, whether
+    /// it is the model's training set or another), checked against the subject.
     pub fn views_or_protocol(
         &self,
         given: Option<&ViewList>,
@@ -128,9 +129,16 @@ impl OpenedSubject {
         let views = match given {
             Some(v) => v.0.clone(),
             None => {
-                let spec = run.synth.as_ref().map(|s| s.spec());
-                let protocol = run.data.protocol(spec.as_ref()).with_context(|| {
-                    "the model's split protocol gives the default source views; pass --views"
+                // The dataset the subject is in (`--data`, else the model's training root).
+                let mut data = run.data.clone();
+                if let Some(root) = self.dir.parent() {
+                    data.root = root.to_path_buf();
+                }
+                let protocol = run.protocol_for(&data).with_context(|| {
+                    format!(
+                        "the split protocol of {} gives the default source views; pass --views",
+                        data.root.display()
+                    )
                 })?;
                 protocol
                     .input_views

@@ -19,9 +19,10 @@ use nia_data::geometry::rays::RayBundle;
 use nia_data::metrics::{evaluate, ImageView, SsimOptions};
 use nia_data::scene::SceneInput;
 use nia_data::synth::{self, SynthSpec, BODY_MODEL_FILE};
-use nia_model::image::{render_image, ImageRenderOptions, RenderedImage};
+use nia_model::render_options::RenderOptions;
+use nia_model::renderer::image::{render_image, ImageRenderOptions, RenderedImage};
 use nia_model::renderer::render_rays;
-use nia_model::sampler::{stratified_t, AdaptiveConfig};
+use nia_model::sampler::stratified_t;
 use nia_model::scene_encoding::SceneEncoding;
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
@@ -166,7 +167,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
     let pixels: Vec<usize> = rays.pixels.iter().map(|&p| p as usize).collect();
     // Skipping as `adaptive` says; early termination only when asked (the exactness checks
     // below are of skipping alone).
-    let render_with = |adaptive: AdaptiveConfig, termination: Option<f32>| -> RenderedImage {
+    let render_with = |adaptive: RenderOptions, termination: Option<f32>| -> RenderedImage {
         let grid = adaptive
             .occupancy(&scene.vertices, &c.source.faces)
             .unwrap();
@@ -176,9 +177,9 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
             .with_termination(termination);
         render_rays_of(&model, &encoding, &rays, size, 32)
     };
-    let render = |adaptive: AdaptiveConfig| render_with(adaptive, None);
-    let full = render(AdaptiveConfig::exhaustive());
-    let skip = render(AdaptiveConfig::default());
+    let render = |adaptive: RenderOptions| render_with(adaptive, None);
+    let full = render(RenderOptions::exhaustive());
+    let skip = render(RenderOptions::default());
     assert_eq!(full.point_evaluations, (rays.len() * 32) as u64);
     let ratio = full.point_evaluations as f64 / skip.point_evaluations as f64;
     assert!(ratio > 2.0, "skipping evaluates {ratio:.2}x fewer points");
@@ -199,7 +200,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
     );
     // Skipping is exactly the full computation with the skipped samples' density set to zero:
     // the full per-sample fields of the first rays, masked by the grid, composited.
-    let grid = AdaptiveConfig::default()
+    let grid = RenderOptions::default()
         .occupancy(&scene.vertices, &c.source.faces)
         .unwrap()
         .unwrap();
@@ -269,7 +270,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
 
     // Early ray termination on top of skipping (the default `[render]`): the trained model's
     // colours and opacities move by at most the transmittance threshold, with no more points.
-    let adaptive = AdaptiveConfig::default();
+    let adaptive = RenderOptions::default();
     let epsilon = adaptive.termination().expect("on by default");
     let terminated = render_with(adaptive, Some(epsilon));
     assert!(terminated.point_evaluations <= skip.point_evaluations);
@@ -310,7 +311,7 @@ fn reposed_rendering_skips_and_counts_like_novel_views() {
         .unwrap();
     let camera = c.source.subjects[0].cameras[3];
     let rays = RayBundle::through_pixels(&camera, &body_box, None);
-    let render = |adaptive: AdaptiveConfig| {
+    let render = |adaptive: RenderOptions| {
         let grid = adaptive
             .occupancy(reposer.target_vertices(), &c.source.faces)
             .unwrap();
@@ -318,8 +319,8 @@ fn reposed_rendering_skips_and_counts_like_novel_views() {
         let size = [camera.width as usize, camera.height as usize];
         render_rays_of(&model, &encoding, &rays, size, 16)
     };
-    let full = render(AdaptiveConfig::exhaustive());
-    let skip = render(AdaptiveConfig::default());
+    let full = render(RenderOptions::exhaustive());
+    let skip = render(RenderOptions::default());
     assert_eq!(full.point_evaluations, (rays.len() * 16) as u64);
     assert!(skip.point_evaluations * 2 < full.point_evaluations);
     let mean_change = rays
@@ -360,7 +361,7 @@ fn the_visual_hull_skips_exactly_what_it_zeroes() {
         .with_visual_hull(&input, Some(1))
         .unwrap();
     let rays = RayBundle::through_pixels(&image.camera, &scene.body_box, Some(mask_at_box));
-    let render = |adaptive: AdaptiveConfig| {
+    let render = |adaptive: RenderOptions| {
         let grid = adaptive
             .occupancy(&scene.vertices, &c.source.faces)
             .unwrap();
@@ -370,11 +371,11 @@ fn the_visual_hull_skips_exactly_what_it_zeroes() {
     };
     // Every sample evaluated (the hull still multiplies the density) against an occupancy
     // grid that keeps the whole box (1 m from the body), so the hull is all that skips.
-    let full = render(AdaptiveConfig::exhaustive());
-    let hull_only = render(AdaptiveConfig {
+    let full = render(RenderOptions::exhaustive());
+    let hull_only = render(RenderOptions {
         skip_empty_space: true,
         empty_space_m: 1.0,
-        ..AdaptiveConfig::exhaustive()
+        ..RenderOptions::exhaustive()
     });
     assert_eq!(full.point_evaluations, (rays.len() * 16) as u64);
     eprintln!(

@@ -344,7 +344,7 @@ fn exported_file_renders_what_the_checkpoint_renders() {
         samples: 8,
         chunk: 256,
         timed: false,
-        adaptive: run.render,
+        render: run.render,
         lpips: None,
     };
     let render = |model| {

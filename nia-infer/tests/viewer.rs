@@ -80,7 +80,7 @@ impl Drop for Viewer {
 }
 
 /// The viewer on the tiny model, or on `NIA_VIEWER_MODEL` with `NIA_VIEWER_DATA` and
-/// `NIA_VIEWER_SUBJECT` (how the README's screenshot and timings were taken with the
+/// `NIA_VIEWER_SUBJECT` (how the screenshot and timings of docs/speed.md were taken with the
 /// quickstart model).
 fn start_viewer() -> Viewer {
     let (model, data, subject) = match (
@@ -638,7 +638,7 @@ fn chromium_drags_the_person_around() {
         "the drag turned the view: {after}"
     );
 
-    // The screenshot the README shows.
+    // The screenshot docs/speed.md shows.
     let shot = dt.call(
         "Page.captureScreenshot",
         serde_json::json!({ "format": "png" }),

@@ -12,7 +12,7 @@ use burn::prelude::*;
 use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
 use nia_data::geometry::sparse::VoxelBox;
 use nia_data::rng::Rng;
-use nia_model::field::body_volume::{
+use nia_model::body_volume::{
     BodyVolumeGeometry, BodyVolumeNetConfig, ConvMethod, RulebookTensors, SparseConv3dConfig,
     TrilinearTensors,
 };

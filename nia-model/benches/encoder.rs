@@ -11,10 +11,10 @@ use std::time::Instant;
 
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use nia_model::field::bilinear::ViewRows;
-use nia_model::field::encoder::{ImageEncoder, ImageEncoderConfig, ENCODER_CHANNELS};
-use nia_model::field::encoder_host::HostTrunk;
-use nia_model::field::pyramid_host::{reduce_to_rows, HostPyramid};
+use nia_model::encoder::bilinear::ViewRows;
+use nia_model::encoder::host::HostTrunk;
+use nia_model::encoder::pyramid_host::{reduce_to_rows, HostPyramid};
+use nia_model::encoder::{ImageEncoder, ImageEncoderConfig, ENCODER_CHANNELS};
 
 const VIEWS: usize = 3;
 const SIZE: usize = 512;

@@ -1,16 +1,16 @@
 //! `ModelConfig`: every size and switch of the NIA network, with the paper's defaults.
 
 use burn::prelude::*;
+use serde::{Deserialize, Serialize};
 
+use crate::body_volume::BodyVolumeNetConfig;
+use crate::encoder::ImageEncoderConfig;
 use crate::field::attention::ViewCrossAttentionConfig;
-use crate::field::blender::BlenderConfig;
-use crate::field::body_volume::BodyVolumeNetConfig;
-use crate::field::encoder::ImageEncoderConfig;
 use crate::field::heads::{ColourHeadConfig, DensityHeadConfig};
-use crate::field::ibr::PixelFeatureConfig;
 use crate::field::positional_encoding::PositionalEncodingConfig;
+use crate::ibr::blender::BlenderConfig;
+use crate::ibr::PixelFeatureConfig;
 use crate::sampler::RaySampler;
-use crate::surface_ibr::SourceColoursAt;
 use crate::variant::Variant;
 
 /// The whole network. `ModelConfig::new()` is the paper setting.
@@ -54,12 +54,23 @@ pub struct ModelConfig {
     pub blend_view_statistics: bool,
     /// Where the source colours c_n are read: at every sample (the paper; also `None`, which
     /// model files and checkpoints written before this switch carry) or once per ray at the
-    /// expected surface point (not in the paper; see `surface_ibr`).
+    /// expected surface point (not in the paper; see `ibr::surface`).
     pub source_colours_at: Option<SourceColoursAt>,
     /// o_n also passes a depth test against the posed body's z-buffer in each source view,
     /// with this tolerance in metres (not in the paper; `None`, also what older model files
     /// carry, is the paper's per-vertex visibility alone; see `nia_data::scene::source_depth`).
     pub visibility_depth_tol_m: Option<f32>,
+}
+
+/// Where the source colours c_n are read (`ibr::surface`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceColoursAt {
+    /// At every sample's projection (the paper).
+    #[default]
+    Samples,
+    /// Once per ray, at the projection of the expected surface point.
+    Surface,
 }
 
 /// Largest layer width [`ModelConfig::check`] accepts (the paper's widest is 512 channels).

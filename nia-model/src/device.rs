@@ -185,7 +185,7 @@ mod tests {
 }
 
 /// Whether `device` computes in host memory (the flex and ndarray backends, not under
-/// autodiff): where the renderers read the body volume on the host ([`crate::field::body_volume::HostVolume`]).
+/// autodiff): where the renderers read the body volume on the host ([`crate::body_volume::HostVolume`]).
 pub fn is_host(device: &Device) -> bool {
     use burn_dispatch::DispatchDevice;
     matches!(

@@ -7,7 +7,7 @@ mod common;
 use burn::prelude::*;
 use common::{assert_close, device, tensor, values};
 use nia_data::rng::Rng;
-use nia_model::field::bilinear::{grid_sample_reference, sample};
+use nia_model::encoder::bilinear::{grid_sample_reference, sample};
 
 const N: usize = 2;
 const C: usize = 3;
@@ -216,7 +216,7 @@ fn shape_errors_and_empty_grids() {
 /// coordinates; a grid that carries gradients still takes the tensor path.
 #[test]
 fn host_read_matches_the_tensor_read() {
-    use nia_model::field::bilinear::ViewRows;
+    use nia_model::encoder::bilinear::ViewRows;
     let dev = device();
     let (mut grid, m) = grid_values();
     grid[0] = f32::NAN;

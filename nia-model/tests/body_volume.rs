@@ -13,8 +13,8 @@ use nia_data::geometry::sparse::{
     VoxelBox, CORNERS, KERNEL_VOLUME,
 };
 use nia_data::rng::Rng;
-use nia_model::field::body_volume::trilinear::{sample, sample_in_chunks};
-use nia_model::field::body_volume::{
+use nia_model::body_volume::trilinear::{sample, sample_in_chunks};
+use nia_model::body_volume::{
     BodyVolumeGeometry, BodyVolumeNetConfig, ConvMethod, RulebookTensors, SiteNormConfig,
     SparseConv3d, SparseConv3dConfig, TrilinearTensors, NUM_SCALES,
 };
@@ -531,7 +531,7 @@ fn trilinear_matches_dense_grid_sample() {
 /// box faces and non-finite; and a mismatched set of corners is an error.
 #[test]
 fn host_read_matches_the_tensor_read_on_every_scale() {
-    use nia_model::field::body_volume::{BodyVolume, HostVolume, ScaleVolume};
+    use nia_model::body_volume::{BodyVolume, HostVolume, ScaleVolume};
     use std::sync::Arc;
     let dev = device();
     let mut rng = Rng::new(47);
@@ -589,7 +589,7 @@ fn host_read_matches_the_tensor_read_on_every_scale() {
     // Through a reduction to d = 4: the 5-channel scale is stored reduced per site (4 <= 5),
     // the 3-channel one as it is; the reduced read equals the reduction of the full read.
     use burn::nn::LinearConfig;
-    use nia_model::field::linear_rows::linear_rows;
+    use nia_model::linear_rows::linear_rows;
     let linear = LinearConfig::new(8, 4).init(&dev);
     let reducing = HostVolume::read(&volume, Some(linear.weight.val())).unwrap();
     assert_eq!(reducing.channels(), 3 + 4);

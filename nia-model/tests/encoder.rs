@@ -6,7 +6,7 @@
 use burn::prelude::*;
 use burn::tensor::module::interpolate;
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
-use nia_model::field::encoder::{upsample_bilinear, ImageEncoderConfig};
+use nia_model::encoder::{upsample_bilinear, ImageEncoderConfig};
 
 /// Both compute the same 4-tap weighted sums in f32, in different orders.
 const UPSAMPLE_TOLERANCE: f32 = 1e-5;

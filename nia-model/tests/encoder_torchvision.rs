@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use burn::tensor::DType;
-use nia_model::field::encoder::{ImageEncoder, ImageEncoderConfig};
-use nia_model::field::encoder_import::EncoderLoadError;
+use nia_model::encoder::import::EncoderLoadError;
+use nia_model::encoder::{ImageEncoder, ImageEncoderConfig};
 
 /// The fixture's trunk width (conv1 3 -> 8, layer2 16, layer3 32).
 const FIXTURE_BASE_WIDTH: usize = 8;

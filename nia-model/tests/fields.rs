@@ -9,12 +9,12 @@ use burn::prelude::*;
 use common::{assert_close, device, tensor, values};
 use nia_data::rng::Rng;
 use nia_model::field::attention::ViewCrossAttentionConfig;
-use nia_model::field::blender::{blend, BlendInputs, Blender, BlenderConfig};
 use nia_model::field::heads::{view_mean, ColourHeadConfig, DensityHead, DensityHeadConfig};
-use nia_model::field::ibr::{
+use nia_model::field::positional_encoding::PositionalEncodingConfig;
+use nia_model::ibr::blender::{blend, BlendInputs, Blender, BlenderConfig};
+use nia_model::ibr::{
     cosine_weights, fetch_source_colours, sample_views, simple_average_weights, PixelFeatureConfig,
 };
-use nia_model::field::positional_encoding::PositionalEncodingConfig;
 use nia_model::renderer::render_rays;
 use nia_model::shape::ShapeError;
 use nia_model::softmax::stable_softmax;
@@ -475,7 +475,7 @@ fn logits_of(blender: &Blender, x: &BlendInputs) -> Tensor<2> {
 /// weights stacked, then the remaining layers.
 fn concatenated_token_logits(blender: &Blender, x: &BlendInputs) -> Vec<f32> {
     use burn::tensor::activation::relu;
-    use nia_model::field::view_statistics::{mean_and_variance, view_weights};
+    use nia_model::ibr::view_statistics::{mean_and_variance, view_weights};
     let [n, m, _] = x.pixel_feature.dims();
     let dev = x.c0.device();
     let weight = Tensor::cat(

@@ -8,9 +8,9 @@ mod common;
 use std::sync::Arc;
 
 use burn::prelude::*;
+use nia_model::config::SourceColoursAt;
 use nia_model::loss::{ibr_loss, render_loss};
-use nia_model::surface_ibr::SourceColoursAt;
-use nia_model::termination::TERMINATION_SEGMENTS;
+use nia_model::renderer::termination::TERMINATION_SEGMENTS;
 use nia_model::{ModelConfig, Variant};
 
 const SAMPLES: usize = 8;
@@ -552,7 +552,7 @@ fn render_plain_and_shuffled(
     nia_model::renderer::RenderOutput,
     usize,
 ) {
-    use nia_model::c0_shuffle::C0Shuffle;
+    use nia_model::ibr::c0_shuffle::C0Shuffle;
     let input = common::scene(3, 32);
     let scene = model.encode(&input, None, device, None).unwrap();
     let rays = common::target_rays(&input, 3);

@@ -12,12 +12,13 @@ use glam::{Vec2, Vec3};
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::rays::{pixel_ray, Aabb, Ray, RayBundle};
 use nia_data::scene::{PointInputs, SceneInput, RAY_BOX_PADDING_M};
-use nia_model::field::ibr::fetch_source_colours;
+use nia_model::config::SourceColoursAt;
 use nia_model::field::PointTensors;
-use nia_model::image::{render_image, ImageRenderOptions};
+use nia_model::ibr::fetch_source_colours;
+use nia_model::ibr::surface::{surface_colours, SURFACE_ACC_FLOOR};
+use nia_model::renderer::image::{render_image, ImageRenderOptions};
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::SceneEncoding;
-use nia_model::surface_ibr::{surface_colours, SourceColoursAt, SURFACE_ACC_FLOOR};
 use nia_model::variant::Variant;
 use nia_model::ModelConfig;
 

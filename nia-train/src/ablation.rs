@@ -198,7 +198,7 @@ pub fn run(
                     samples: run_config.train.samples,
                     chunk: run_config.train.rays_per_step,
                     timed: false,
-                    adaptive,
+                    render: adaptive,
                     lpips: None,
                 },
                 &device,

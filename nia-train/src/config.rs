@@ -7,7 +7,7 @@ use nia_data::dataset::{DataConfig, ProtocolName};
 use nia_data::synth::SynthSection;
 use nia_infer::perceptual::LpipsFiles;
 use nia_model::device::{Backend, DeviceSpec};
-use nia_model::sampler::{AdaptiveConfig, MAX_HULL_DILATE_PX, MAX_SUPERSAMPLE};
+use nia_model::render_options::RenderOptions;
 use nia_model::store::checkpoint;
 use nia_model::ModelConfig;
 use serde::{Deserialize, Serialize};
@@ -33,8 +33,8 @@ pub enum ConfigError {
     #[error("{}: `{key}`: expected {expected}, got {got}", path.display())]
     Invalid {
         path: PathBuf,
-        key: &'static str,
-        expected: &'static str,
+        key: String,
+        expected: String,
         got: String,
     },
 }
@@ -275,11 +275,11 @@ pub struct TrainSection {
     #[serde(default)]
     pub ibr_loss_weight: f32,
     /// Fraction of training points whose c0 in the blend is another point's (0: off, the
-    /// paper's training; see `nia_model::c0_shuffle`).
+    /// paper's training; see `nia_model::ibr::c0_shuffle`).
     #[serde(default)]
     pub c0_shuffle: f32,
     /// Shuffle c0 only at points some source view sees; unseen points keep their own c0
-    /// (false: every point may be shuffled; see `nia_model::c0_shuffle`).
+    /// (false: every point may be shuffled; see `nia_model::ibr::c0_shuffle`).
     #[serde(default)]
     pub c0_shuffle_seen_only: bool,
 }
@@ -353,7 +353,7 @@ pub struct TrainConfig {
     pub synth: Option<SynthSection>,
     /// `[render]`: adaptive work of evaluation and inference (empty-space skipping).
     #[serde(default)]
-    pub render: AdaptiveConfig,
+    pub render: RenderOptions,
 }
 
 impl TrainConfig {
@@ -419,10 +419,10 @@ impl TrainConfig {
 
     /// Range checks, and the data root must exist unless `[synth]` generates it.
     pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
-        let bad = |key: &'static str, expected: &'static str, got: String| ConfigError::Invalid {
+        let bad = |key: &str, expected: &str, got: String| ConfigError::Invalid {
             path: path.to_path_buf(),
-            key,
-            expected,
+            key: key.to_string(),
+            expected: expected.to_string(),
             got,
         };
         let t = &self.train;
@@ -478,8 +478,8 @@ impl TrainConfig {
             {
                 return Err(ConfigError::Invalid {
                     path: path.to_path_buf(),
-                    key: SynthSection::key(field),
-                    expected,
+                    key: SynthSection::key(field).to_string(),
+                    expected: expected.to_string(),
                     got,
                 });
             }
@@ -495,48 +495,8 @@ impl TrainConfig {
                 d.body_fraction.to_string(),
             ));
         }
-        let r = &self.render;
-        if !(r.empty_space_m.is_finite() && r.empty_space_m >= 0.0) {
-            return Err(bad(
-                "render.empty_space_m",
-                "a distance >= 0 (metres)",
-                r.empty_space_m.to_string(),
-            ));
-        }
-        if !(r.occupancy_cell_m.is_finite() && r.occupancy_cell_m >= 0.005) {
-            return Err(bad(
-                "render.occupancy_cell_m",
-                "a cell edge >= 0.005 (metres)",
-                r.occupancy_cell_m.to_string(),
-            ));
-        }
-        if !(0.0..1.0).contains(&r.early_termination) {
-            return Err(bad(
-                "render.early_termination",
-                "a transmittance in [0, 1) (0: off)",
-                r.early_termination.to_string(),
-            ));
-        }
-        if r.hull_dilate_px > MAX_HULL_DILATE_PX {
-            return Err(bad(
-                "render.hull_dilate_px",
-                "at most 256 pixels",
-                r.hull_dilate_px.to_string(),
-            ));
-        }
-        if !(1..=MAX_SUPERSAMPLE).contains(&r.supersample) {
-            return Err(bad(
-                "render.supersample",
-                "1 to 8 rays per pixel side",
-                r.supersample.to_string(),
-            ));
-        }
-        if !(0.0..1.0).contains(&r.colour_culling) {
-            return Err(bad(
-                "render.colour_culling",
-                "a weight in [0, 1) (0: off)",
-                r.colour_culling.to_string(),
-            ));
+        if let Err(e) = self.render.check() {
+            return Err(bad(&format!("render.{}", e.key), &e.expected, e.got));
         }
         let o = &self.optim;
         for (key, beta) in [("optim.beta1", o.beta1), ("optim.beta2", o.beta2)] {

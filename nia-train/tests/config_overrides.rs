@@ -1,7 +1,7 @@
 //! `--set section.key=value` overrides of a run config: TOML values and bare words, nested
 //! keys, the order of several, and errors that name the override or the key.
 
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::render_options::RenderOptions;
 use nia_model::sampler::RaySampler;
 use nia_train::config::{ConfigError, TrainConfig};
 
@@ -40,14 +40,14 @@ fn overrides_write_over_the_file() {
     assert!(!config.render.skip_empty_space);
     assert_eq!(
         config.model.source_colours_at,
-        Some(nia_model::surface_ibr::SourceColoursAt::Surface)
+        Some(nia_model::config::SourceColoursAt::Surface)
     );
     assert_eq!(config.train.ibr_loss_weight, 0.5);
     // Keys the overrides do not touch keep the file's values.
     assert_eq!(config.train.rays_per_step, 32);
     assert_eq!(
         config.render.empty_space_m,
-        AdaptiveConfig::default().empty_space_m
+        RenderOptions::default().empty_space_m
     );
     // No overrides: the same as `load`.
     let plain = TrainConfig::load_with(&path, &[]).unwrap();

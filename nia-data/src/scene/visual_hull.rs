@@ -5,7 +5,7 @@
 //! F_sigma reads the person's outline only through SMPL-anchored features and pixel features of
 //! the masked source images, a few pixels wide after the encoder's strides, so on a person
 //! whose clothes stand off the body by more or less than the training people's, the outline
-//! it draws is the training people's average margin (the seed-8 person of the README is drawn
+//! it draws is the training people's average margin (the seed-8 person of docs/results.md is drawn
 //! half a pixel fat). The masks are inputs the reader loads anyway and they state the outline
 //! exactly: a point that projects outside the person in any source view is empty space (the
 //! visual hull, Laurentini 1994). The carving multiplies the density by
@@ -25,7 +25,7 @@
 //!
 //! The carving is applied when rendering, not in training: a network trained with it no longer
 //! has to place empty space next to the person itself, and some such runs left holes in the
-//! person (README, Quickstart). Where the hull says 0 the density is exactly 0, so empty-space
+//! person (docs/results.md, "Tried and not kept"). Where the hull says 0 the density is exactly 0, so empty-space
 //! skipping leaves those samples out of the network.
 
 use glam::{Vec2, Vec3};

@@ -16,15 +16,13 @@ use nia_data::body::reposing::Reposer;
 use nia_data::body::SmplParams;
 use nia_data::dataset::sampling::BoxPadding;
 use nia_data::dataset::zju::read_params;
-use nia_data::geometry::rays::RayBundle;
-use nia_data::scene::SceneInput;
 use nia_infer::pictures::{rgb8, save_gif, save_png};
-use nia_model::image::{render_image, ImageRenderOptions};
 use nia_model::timing::StageTimes;
 use serde::Serialize;
 
-use crate::model_load::{LoadedModel, ModelArgs};
+use crate::model_load::ModelArgs;
 use crate::output::{progress_bar, write_json};
+use crate::session::RenderSession;
 use crate::subject_scene::{parse_views, OpenedSubject, SubjectArgs, ViewList};
 
 #[derive(Args, Debug)]
@@ -145,23 +143,17 @@ fn poses(args: &AnimateArgs, opened: &OpenedSubject) -> anyhow::Result<Vec<(Stri
 }
 
 pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
-    let loaded = LoadedModel::open(&args.model)?;
-    let samples = loaded.samples(&args.model);
-    let adaptive = loaded.adaptive(&args.model);
-    let opened = OpenedSubject::open(&args.subject, &loaded.run)?;
+    let session = RenderSession::open(&args.model, &args.subject)?;
+    let opened = &session.opened;
     opened.check_views("--target", &[args.target])?;
     opened.check_frame("--ref-frame", args.ref_frame)?;
-    let poses = poses(args, &opened)?;
-    let views = opened.views_or_protocol(args.views.as_ref(), &loaded.run)?;
+    let poses = poses(args, opened)?;
+    let views = session.views(args.views.as_ref())?;
     let scene = opened.scene(args.ref_frame, &views)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 
-    let input = SceneInput::from_loaded(&scene, &opened.source.faces);
-    let base = loaded
-        .model
-        .encode(&input, None, &loaded.device, None)?
-        .with_visual_hull(&input, adaptive.hull())?;
+    let base = session.prepare(&scene, None)?;
     let camera = opened.camera(args.target);
     let bar = progress_bar(poses.len() as u64, "poses");
     let mut frames = Vec::new();
@@ -180,28 +172,10 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
         let body_box = BoxPadding::nhp()
             .body_box(reposer.target_vertices())
             .with_context(|| format!("{label}: the posed body has no finite vertices"))?;
-        let occupancy = adaptive.occupancy(reposer.target_vertices(), &opened.source.faces)?;
-        let encoding = loaded
-            .model
-            .encode_pose(&base, reposer.clone(), Some(&mut times))?
-            .with_occupancy(occupancy)
-            .with_termination(adaptive.termination())
-            .with_colour_culling(adaptive.culling());
-        let rays =
-            RayBundle::through_pixel_footprints(&camera, &body_box, None, adaptive.supersample);
-        let img = render_image(
-            &loaded.model,
-            &encoding,
-            &rays,
-            [camera.width as usize, camera.height as usize],
-            ImageRenderOptions {
-                samples,
-                chunk: args.model.chunk,
-                timed: true,
-            },
-            &mut |_, _| {},
-        )
-        .with_context(|| format!("rendering {label}"))?;
+        let encoding = session.prepare_pose(&base, reposer, Some(&mut times))?;
+        let img = session
+            .render(&encoding, &camera, &body_box, true, &mut |_, _| {})
+            .with_context(|| format!("rendering {label}"))?;
         times.merge(&img.times);
         let file = format!("pose_{i:04}.png");
         let picture = rgb8(&img.rgb, img.width, img.height);
@@ -221,12 +195,12 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
     let gif = "animation.gif";
     save_gif(&args.out.join(gif), &frames, 1000 / args.fps.max(1))?;
     let report = Report {
-        model: loaded.path.clone(),
+        model: session.loaded.path.clone(),
         subject: opened.dir.clone(),
         ref_frame: args.ref_frame,
         views,
         target: args.target,
-        samples,
+        samples: session.samples,
         gif: gif.into(),
         poses: reports,
     };

@@ -16,11 +16,11 @@ use nia_infer::eval::{
 };
 use nia_infer::perceptual::LpipsFiles;
 use nia_infer::pictures::{save_evaluated, ERROR_MAP_MAX};
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::render_options::RenderOptions;
 use serde::Serialize;
 
 use crate::model_load::{LoadedModel, LpipsArgs, ModelArgs};
-use crate::output::{progress_bar, write_json};
+use crate::output::{progress_bar, write_json, write_text};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 #[value(rename_all = "snake_case")]
@@ -118,7 +118,7 @@ struct Metrics<'a> {
     data: PathBuf,
     split: &'static str,
     task: &'static str,
-    adaptive: AdaptiveConfig,
+    adaptive: RenderOptions,
     /// Novel pose: the source frame given on the command line (`None`: each subject's first).
     reference_frame: Option<usize>,
     samples: usize,
@@ -139,7 +139,7 @@ fn task_name(task: TaskArg) -> &'static str {
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let loaded = LoadedModel::open(&args.model)?;
     let samples = loaded.samples(&args.model);
-    let adaptive = loaded.adaptive(&args.model);
+    let adaptive = loaded.render_options(&args.model)?;
     let split = args.split.split();
     let task = match args.task {
         TaskArg::NovelView => EvalTask::NovelView,
@@ -179,7 +179,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             samples,
             chunk: args.model.chunk,
             timed: true,
-            adaptive,
+            render: adaptive,
             lpips: lpips.as_ref().map(|(_, net)| net.clone()),
         },
         &loaded.device,
@@ -250,8 +250,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             r.seconds
         );
     }
-    let csv_path = args.out.join("metrics.csv");
-    std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
+    write_text(&args.out.join("metrics.csv"), &csv)?;
 
     let task_title = match args.task {
         TaskArg::NovelView => "novel view",
@@ -296,8 +295,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     rows.push(("**all**".into(), overall.diagnostics));
     md.push('\n');
     md.push_str(&diagnostics_table(&rows));
-    let md_path = args.out.join("report.md");
-    std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+    write_text(&args.out.join("report.md"), &md)?;
     println!(
         "{}",
         serde_json::json!({

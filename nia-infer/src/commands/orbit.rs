@@ -9,15 +9,13 @@ use std::process::Command;
 use anyhow::Context;
 use clap::Args;
 use nia_data::geometry::orbit::Ring;
-use nia_data::geometry::rays::RayBundle;
-use nia_data::scene::SceneInput;
 use nia_infer::pictures::{rgb8, save_gif, save_png};
-use nia_model::image::{render_image, ImageRenderOptions};
 use serde::Serialize;
 
-use crate::model_load::{LoadedModel, ModelArgs};
+use crate::model_load::ModelArgs;
 use crate::output::{progress_bar, write_json};
-use crate::subject_scene::{parse_views, OpenedSubject, SubjectArgs, ViewList};
+use crate::session::RenderSession;
+use crate::subject_scene::{parse_views, SubjectArgs, ViewList};
 
 #[derive(Args, Debug)]
 pub struct OrbitArgs {
@@ -69,10 +67,9 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
     if args.fps == 0 {
         anyhow::bail!("--fps must be at least 1");
     }
-    let loaded = LoadedModel::open(&args.model)?;
-    let samples = loaded.samples(&args.model);
-    let opened = OpenedSubject::open(&args.subject, &loaded.run)?;
-    let views = opened.views_or_protocol(args.views.as_ref(), &loaded.run)?;
+    let session = RenderSession::open(&args.model, &args.subject)?;
+    let opened = &session.opened;
+    let views = session.views(args.views.as_ref())?;
     let scene = opened.scene(args.frame, &views)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -83,16 +80,7 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
     let orbit = ring.orbit(args.steps, &cameras[0])?;
 
     let started = std::time::Instant::now();
-    let input = SceneInput::from_loaded(&scene, &opened.source.faces);
-    let adaptive = loaded.adaptive(&args.model);
-    let occupancy = adaptive.occupancy(&scene.vertices, &opened.source.faces)?;
-    let encoding = loaded
-        .model
-        .encode(&input, None, &loaded.device, None)?
-        .with_occupancy(occupancy)
-        .with_termination(adaptive.termination())
-        .with_colour_culling(adaptive.culling())
-        .with_visual_hull(&input, adaptive.hull())?;
+    let encoding = session.prepare(&scene, None)?;
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let bar = progress_bar(orbit.len() as u64, "orbit");
@@ -100,25 +88,9 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
     let mut frames = Vec::with_capacity(orbit.len());
     let mut points = 0u64;
     for (k, camera) in orbit.iter().enumerate() {
-        let rays = RayBundle::through_pixel_footprints(
-            camera,
-            &scene.body_box,
-            None,
-            adaptive.supersample,
-        );
-        let img = render_image(
-            &loaded.model,
-            &encoding,
-            &rays,
-            [camera.width as usize, camera.height as usize],
-            ImageRenderOptions {
-                samples,
-                chunk: args.model.chunk,
-                timed: false,
-            },
-            &mut |_, _| {},
-        )
-        .with_context(|| format!("rendering orbit view {k}"))?;
+        let img = session
+            .render(&encoding, camera, &scene.body_box, false, &mut |_, _| {})
+            .with_context(|| format!("rendering orbit view {k}"))?;
         points += img.point_evaluations;
         let picture = rgb8(&img.rgb, img.width, img.height);
         save_png(&args.out.join(format!("orbit_{k:03}.png")), &picture)?;
@@ -134,11 +106,11 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
         eprintln!("ffmpeg not found: orbit.mp4 not written (the GIF and the PNG frames are)");
     }
     let report = Report {
-        model: loaded.path.clone(),
+        model: session.loaded.path.clone(),
         subject: opened.dir.clone(),
         frame: args.frame,
         views,
-        samples,
+        samples: session.samples,
         steps: args.steps,
         fps: args.fps,
         radius_m: ring.radius,

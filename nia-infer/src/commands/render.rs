@@ -7,17 +7,15 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use nia_data::geometry::rays::RayBundle;
-use nia_data::scene::SceneInput;
 use nia_infer::pictures::{blend_weight_maps, grey8, rgb8, save_png};
-use nia_model::image::{render_image, ImageRenderOptions};
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::render_options::RenderOptions;
 use nia_model::timing::StageTimes;
 use serde::Serialize;
 
-use crate::model_load::{LoadedModel, ModelArgs};
+use crate::model_load::ModelArgs;
 use crate::output::{progress_bar, write_json};
-use crate::subject_scene::{parse_views, OpenedSubject, SubjectArgs, ViewList};
+use crate::session::RenderSession;
+use crate::subject_scene::{parse_views, SubjectArgs, ViewList};
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
@@ -65,7 +63,7 @@ struct Report {
     views: Vec<usize>,
     samples: usize,
     chunk: usize,
-    adaptive: AdaptiveConfig,
+    adaptive: RenderOptions,
     /// Per-scene work (encoder, body volume), done once for all targets.
     encode_seconds: f64,
     encode_stage_ms: BTreeMap<String, f64>,
@@ -74,10 +72,9 @@ struct Report {
 
 pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let targets: Vec<usize> = args.targets.0.clone();
-    let loaded = LoadedModel::open(&args.model)?;
-    let samples = loaded.samples(&args.model);
-    let opened = OpenedSubject::open(&args.subject, &loaded.run)?;
-    let views = opened.views_or_protocol(args.views.as_ref(), &loaded.run)?;
+    let session = RenderSession::open(&args.model, &args.subject)?;
+    let opened = &session.opened;
+    let views = session.views(args.views.as_ref())?;
     opened.check_views("--targets", &targets)?;
     let scene = opened.scene(args.frame, &views)?;
     std::fs::create_dir_all(&args.out)
@@ -85,40 +82,23 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
 
     let started = std::time::Instant::now();
     let mut encode_times = StageTimes::default();
-    let input = SceneInput::from_loaded(&scene, &opened.source.faces);
-    let adaptive = loaded.adaptive(&args.model);
-    let occupancy = adaptive.occupancy(&scene.vertices, &opened.source.faces)?;
-    let encoding = loaded
-        .model
-        .encode(&input, None, &loaded.device, Some(&mut encode_times))?
-        .with_occupancy(occupancy)
-        .with_termination(adaptive.termination())
-        .with_colour_culling(adaptive.culling())
-        .with_visual_hull(&input, adaptive.hull())?;
+    let encoding = session.prepare(&scene, Some(&mut encode_times))?;
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let mut images = Vec::new();
     for &target in &targets {
         let camera = opened.camera(target);
-        let rays = RayBundle::through_pixel_footprints(
+        let bar = progress_bar(0, &format!("view {target:>2}"));
+        let t0 = std::time::Instant::now();
+        let img = session.render(
+            &encoding,
             &camera,
             &scene.body_box,
-            None,
-            adaptive.supersample,
-        );
-        let bar = progress_bar(rays.len() as u64, &format!("view {target:>2}"));
-        let t0 = std::time::Instant::now();
-        let img = render_image(
-            &loaded.model,
-            &encoding,
-            &rays,
-            [camera.width as usize, camera.height as usize],
-            ImageRenderOptions {
-                samples,
-                chunk: args.model.chunk,
-                timed: true,
+            true,
+            &mut |done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64)
             },
-            &mut |done, _| bar.set_position(done as u64),
         )?;
         bar.finish_and_clear();
         let seconds = t0.elapsed().as_secs_f64();
@@ -155,13 +135,13 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         });
     }
     let report = Report {
-        model: loaded.path.clone(),
+        model: session.loaded.path.clone(),
         subject: opened.dir.clone(),
         frame: args.frame,
         views,
-        samples,
-        chunk: args.model.chunk,
-        adaptive,
+        samples: session.samples,
+        chunk: session.chunk,
+        adaptive: session.options,
         encode_seconds,
         encode_stage_ms: encode_times.milliseconds(),
         images,

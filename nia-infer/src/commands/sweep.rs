@@ -10,11 +10,11 @@ use anyhow::Context;
 use clap::Args;
 use nia_data::dataset::protocol::{EvalItem, EvalSplit};
 use nia_infer::eval::{eval_items, evaluate_images, EvalOptions, EvalSummary, EvalTask};
-use nia_model::sampler::{AdaptiveConfig, MAX_SUPERSAMPLE};
+use nia_model::render_options::RenderOptions;
 use serde::Serialize;
 
 use crate::model_load::{LoadedModel, ModelArgs};
-use crate::output::progress_bar;
+use crate::output::{progress_bar, write_text};
 use nia_infer::plot::{pareto_front, scatter_svg, Series};
 use plotters::style::RGBColor;
 
@@ -72,15 +72,17 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     if let Some(r) = args.ratios.iter().find(|r| !(**r > 0.0 && **r <= 1.0)) {
         anyhow::bail!("--ratios: {r} is not in (0, 1]");
     }
-    if let Some(s) = args
-        .supersamples
-        .iter()
-        .find(|s| !(1..=MAX_SUPERSAMPLE).contains(*s))
-    {
-        anyhow::bail!("--supersamples: {s} is not 1 to {MAX_SUPERSAMPLE} rays per pixel side");
-    }
     let split = EvalSplit::UnseenSubjects;
-    let base_adaptive = loaded.adaptive(&args.model);
+    let base_adaptive = loaded.render_options(&args.model)?;
+    for &supersample in &args.supersamples {
+        let options = RenderOptions {
+            supersample,
+            ..base_adaptive
+        };
+        if let Err(e) = options.check() {
+            anyhow::bail!("--supersamples {supersample}: expected {}", e.expected);
+        }
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let total = args.ratios.len()
@@ -133,7 +135,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                         samples,
                         chunk: args.model.chunk,
                         timed: false,
-                        adaptive: AdaptiveConfig {
+                        render: RenderOptions {
                             skip_empty_space: skip,
                             supersample,
                             ..base_adaptive
@@ -192,8 +194,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             r.pareto
         );
     }
-    let csv_path = args.out.join("sweep.csv");
-    std::fs::write(&csv_path, csv).with_context(|| format!("writing {}", csv_path.display()))?;
+    write_text(&args.out.join("sweep.csv"), &csv)?;
 
     let mut md = format!(
         "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | rays / pixel | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
@@ -219,8 +220,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             if r.pareto { "**yes**" } else { "" }
         );
     }
-    let md_path = args.out.join("sweep.md");
-    std::fs::write(&md_path, md).with_context(|| format!("writing {}", md_path.display()))?;
+    write_text(&args.out.join("sweep.md"), &md)?;
 
     let series = |skip: bool, name: &str, colour: RGBColor| Series {
         name: name.to_string(),
@@ -256,8 +256,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         ],
         &front,
     )?;
-    let svg_path = args.out.join("sweep.svg");
-    std::fs::write(&svg_path, svg).with_context(|| format!("writing {}", svg_path.display()))?;
+    write_text(&args.out.join("sweep.svg"), &svg)?;
     println!("{}", serde_json::to_string_pretty(&rows)?);
     Ok(())
 }

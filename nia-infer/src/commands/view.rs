@@ -6,8 +6,9 @@ use std::sync::Arc;
 use anyhow::Context;
 use clap::Args;
 
-use crate::model_load::{LoadedModel, ModelArgs};
-use crate::subject_scene::{parse_views, OpenedSubject, SubjectArgs, ViewList};
+use crate::model_load::ModelArgs;
+use crate::session::RenderSession;
+use crate::subject_scene::{parse_views, SubjectArgs, ViewList};
 use crate::viewer::server::{serve, Viewer};
 use crate::viewer::ViewerScene;
 
@@ -32,14 +33,10 @@ pub struct ViewArgs {
 }
 
 pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
-    let loaded = LoadedModel::open(&args.model)?;
-    let samples = loaded.samples(&args.model);
-    let adaptive = loaded.adaptive(&args.model);
-    let opened = OpenedSubject::open(&args.subject, &loaded.run)?;
-    opened.check_frame("--frame", args.frame)?;
-    let views = opened.views_or_protocol(args.views.as_ref(), &loaded.run)?;
-    let chunk = args.model.chunk;
-    let scene = ViewerScene::new(loaded, opened, args.frame, views, samples, chunk, adaptive)?;
+    let session = RenderSession::open(&args.model, &args.subject)?;
+    session.opened.check_frame("--frame", args.frame)?;
+    let views = session.views(args.views.as_ref())?;
+    let scene = ViewerScene::new(session, args.frame, views)?;
     let encode = scene.encode_seconds;
     let address = format!("{}:{}", args.host, args.port);
     let server = tiny_http::Server::http(&address)

@@ -21,17 +21,15 @@ use nia_data::dataset::loader::Scene;
 use nia_data::dataset::sampling::BoxPadding;
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::orbit::Ring;
-use nia_data::geometry::rays::{Aabb, RayBundle};
-use nia_data::scene::SceneInput;
+use nia_data::geometry::rays::Aabb;
 use nia_infer::pictures::{grey8, rgb8};
-use nia_model::image::{render_image_cancellable, ImageRenderOptions, RenderedImage};
-use nia_model::sampler::AdaptiveConfig;
+use nia_model::render_options::RenderOptions;
+use nia_model::renderer::image::RenderedImage;
 use nia_model::scene_encoding::SceneEncoding;
 use nia_model::timing::StageTimes;
 use serde::Serialize;
 
-use crate::model_load::LoadedModel;
-use crate::subject_scene::OpenedSubject;
+use crate::session::RenderSession;
 
 /// The page, served at `/`.
 pub const PAGE: &str = include_str!("page.html");
@@ -127,17 +125,14 @@ pub struct ViewStats {
 
 /// The subject, the model and the encoded reference scene.
 pub struct ViewerScene {
-    pub loaded: LoadedModel,
-    pub opened: OpenedSubject,
+    /// The model, the subject and the `[render]` options.
+    pub session: RenderSession,
     pub reference_frame: usize,
     pub views: Vec<usize>,
     scene: Scene,
     base: SceneEncoding,
     pub ring: Ring,
     like: Camera,
-    samples: usize,
-    chunk: usize,
-    adaptive: AdaptiveConfig,
     poses: VecDeque<(usize, SceneEncoding, Aabb)>,
     /// Seconds to encode the reference scene.
     pub encode_seconds: f64,
@@ -146,49 +141,34 @@ pub struct ViewerScene {
 impl ViewerScene {
     /// Opens and encodes the reference frame's scene from `views`.
     pub fn new(
-        loaded: LoadedModel,
-        opened: OpenedSubject,
+        session: RenderSession,
         reference_frame: usize,
         views: Vec<usize>,
-        samples: usize,
-        chunk: usize,
-        adaptive: AdaptiveConfig,
     ) -> anyhow::Result<Self> {
+        let opened = &session.opened;
         let scene = opened.scene(reference_frame, &views)?;
         let cameras = &opened.subject().cameras;
         let ring = Ring::of(cameras, scene.body_box.centre())
             .with_context(|| format!("the camera ring of {}", opened.dir.display()))?;
         let like = cameras[0];
         let started = Instant::now();
-        let input = SceneInput::from_loaded(&scene, &opened.source.faces);
-        let occupancy = adaptive.occupancy(&scene.vertices, &opened.source.faces)?;
-        let base = loaded
-            .model
-            .encode(&input, None, &loaded.device, None)?
-            .with_occupancy(occupancy)
-            .with_termination(adaptive.termination())
-            .with_colour_culling(adaptive.culling())
-            .with_visual_hull(&input, adaptive.hull())?;
+        let base = session.prepare(&scene, None)?;
         Ok(ViewerScene {
             encode_seconds: started.elapsed().as_secs_f64(),
-            loaded,
-            opened,
+            session,
             reference_frame,
             views,
             scene,
             base,
             ring,
             like,
-            samples,
-            chunk,
-            adaptive,
             poses: VecDeque::new(),
         })
     }
 
     /// Frames of the subject (the pose slider's range).
     pub fn num_frames(&self) -> usize {
-        self.opened.subject().num_frames()
+        self.session.opened.subject().num_frames()
     }
 
     /// The source images as thumbnails (`index` into [`Self::views`]).
@@ -208,26 +188,19 @@ impl ViewerScene {
             return Ok((e.clone(), *b, 0.0));
         }
         let started = Instant::now();
-        let params = self.opened.subject().load_params(frame)?;
+        let params = self.session.opened.subject().load_params(frame)?;
         let target = SmplParams {
             shapes: self.scene.params.shapes.clone(),
             ..params
         };
         let reposer = Arc::new(
-            Reposer::new(&self.opened.body, &self.scene.params, &target)
+            Reposer::new(&self.session.opened.body, &self.scene.params, &target)
                 .with_context(|| format!("reposing to frame {frame}"))?,
         );
         let body_box = BoxPadding::nhp()
             .body_box(reposer.target_vertices())
             .with_context(|| format!("frame {frame}: the posed body has no finite vertices"))?;
-        let occupancy = self
-            .adaptive
-            .occupancy(reposer.target_vertices(), &self.opened.source.faces)?;
-        let encoding = self
-            .loaded
-            .model
-            .encode_pose(&self.base, reposer, None)?
-            .with_occupancy(occupancy);
+        let encoding = self.session.prepare_pose(&self.base, reposer, None)?;
         if self.poses.len() >= POSE_CACHE {
             self.poses.pop_front();
         }
@@ -252,23 +225,20 @@ impl ViewerScene {
         let (encoding, body_box, pose_ms) = self.pose(request.frame)?;
         // The previews of a drag (scale < 1) take one ray per pixel; the picture the camera
         // rests on takes the `[render]` supersampling.
-        let supersample = if request.scale < 1.0 {
-            1
+        let options = if request.scale < 1.0 {
+            RenderOptions {
+                supersample: 1,
+                ..self.session.options
+            }
         } else {
-            self.adaptive.supersample
+            self.session.options
         };
-        let rays = RayBundle::through_pixel_footprints(&camera, &body_box, None, supersample);
-        let (w, h) = (camera.width as usize, camera.height as usize);
-        let Some(img) = render_image_cancellable(
-            &self.loaded.model,
+        let Some(img) = self.session.render_with(
             &encoding,
-            &rays,
-            [w, h],
-            ImageRenderOptions {
-                samples: self.samples,
-                chunk: self.chunk,
-                timed: true,
-            },
+            &camera,
+            &body_box,
+            &options,
+            true,
             &mut |_, _| {},
             cancelled,
         )?

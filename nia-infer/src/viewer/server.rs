@@ -38,9 +38,9 @@ pub struct Viewer {
 
 impl Viewer {
     pub fn new(scene: ViewerScene) -> Self {
-        let cam = &scene.opened.subject().cameras[0];
+        let cam = &scene.session.opened.subject().cameras[0];
         let state = serde_json::json!({
-            "subject": scene.opened.subject().name,
+            "subject": scene.session.opened.subject().name,
             "frames": scene.num_frames(),
             "reference_frame": scene.reference_frame,
             "views": scene.views,
@@ -52,8 +52,8 @@ impl Viewer {
             "zoom_range": ZOOM_RANGE,
             "scale_range": SCALE_RANGE,
             "encode_seconds": scene.encode_seconds,
-            "model": scene.loaded.path,
-            "step": scene.loaded.step,
+            "model": scene.session.loaded.path,
+            "step": scene.session.loaded.step,
         });
         let sources = (0..scene.views.len())
             .filter_map(|k| scene.source_png(k))

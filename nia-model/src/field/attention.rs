@@ -16,7 +16,7 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
-use super::linear_rows::linear_rows;
+use crate::linear_rows::linear_rows;
 
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;

@@ -14,7 +14,7 @@ use burn::prelude::*;
 use rayon::prelude::*;
 
 use super::attention::ViewCrossAttention;
-use super::linear_rows::linear_rows;
+use crate::linear_rows::linear_rows;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 

@@ -17,13 +17,13 @@ use std::path::{Path, PathBuf};
 
 use burn::module::Module;
 use burn::prelude::*;
-use burn::store::{ApplyError, ModuleSnapshot, ModuleStore, PytorchStore};
 use burn::tensor::DType;
 
 use super::heads::LinearHeads;
 use super::net::LpipsNet;
 use super::trunk::Trunk;
 use super::{Lpips, LpipsConfig, LpipsConfigError};
+use crate::store::pytorch_import::{import, others_note, preview, ImportFailure, KeyRules};
 
 /// Why LPIPS weights could not be loaded.
 #[derive(Debug, thiserror::Error)]
@@ -96,30 +96,6 @@ pub enum LpipsLoadError {
     },
 }
 
-/// Keys listed in a message before "...".
-const PREVIEW_KEYS: usize = 4;
-
-fn preview(keys: &[String]) -> String {
-    let mut text = keys
-        .iter()
-        .take(PREVIEW_KEYS)
-        .map(|k| format!("`{k}`"))
-        .collect::<Vec<_>>()
-        .join(", ");
-    if keys.len() > PREVIEW_KEYS {
-        text.push_str(", ...");
-    }
-    text
-}
-
-fn others_note(others: usize) -> String {
-    if others == 0 {
-        String::new()
-    } else {
-        format!(" ({others} more tensors have mismatched shapes)")
-    }
-}
-
 /// How one file's keys relate to one module's parameter paths.
 struct KeyMap {
     net: LpipsNet,
@@ -184,92 +160,45 @@ fn heads_keys(net: LpipsNet) -> KeyMap {
 
 /// Loads `file` into `module` through `keys`, with the checks described in the module doc.
 fn load_file<M: Module>(module: M, file: &Path, keys: &KeyMap) -> Result<M, LpipsLoadError> {
-    let mut module = module;
-    let path = file.to_path_buf();
-    let mut store = PytorchStore::from_file(file);
-    for (from, to) in &keys.remapping {
-        store = store.with_key_remapping(from, to);
-    }
-    // The remapping already gives contiguous indices; burn-store's renumbering would let a
-    // file lacking one conv load the next one in its place.
-    let mut store = store
-        .map_indices_contiguous(false)
-        .allow_partial(true)
-        .validate(false);
-    let read_error = |e: &dyn std::fmt::Display| LpipsLoadError::Read {
-        file: path.clone(),
-        message: e.to_string(),
+    let rules = KeyRules {
+        remapping: &keys.remapping,
+        owned: &keys.owned,
+        file_key: &*keys.file_key,
     };
-
-    let tensors = store.get_all_tensors().map_err(|e| read_error(&e))?;
-    if let Some(t) = tensors
-        .values()
-        .find(|t| (keys.owned)(&t.name) && t.dtype != DType::F32)
-    {
-        return Err(LpipsLoadError::UnsupportedDType {
-            file: path,
-            tensor: (keys.file_key)(&t.name),
-            found: t.dtype,
-        });
-    }
-
-    let result = module.load_from(&mut store).map_err(|e| read_error(&e))?;
-
-    let mut shape_errors = Vec::new();
-    for error in &result.errors {
-        match error {
-            ApplyError::ShapeMismatch {
-                path,
-                expected,
-                found,
-            } => shape_errors.push((path, expected.to_vec(), found.to_vec())),
-            ApplyError::DTypeMismatch { path, .. }
-            | ApplyError::AdapterError { path, .. }
-            | ApplyError::LoadError { path, .. } => {
-                return Err(LpipsLoadError::Tensor {
-                    file: file.to_path_buf(),
-                    tensor: (keys.file_key)(path),
-                    message: error.to_string(),
-                })
-            }
-        }
-    }
-    if let Some((tensor, expected, found)) = shape_errors.first() {
-        return Err(LpipsLoadError::ShapeMismatch {
-            file: path,
-            tensor: (keys.file_key)(tensor),
-            expected: expected.clone(),
-            found: found.clone(),
-            net: keys.net,
-            others: shape_errors.len() - 1,
-        });
-    }
-    let mut unexpected: Vec<String> = result
-        .unused
-        .iter()
-        .filter(|k| (keys.owned)(k))
-        .map(|k| (keys.file_key)(k))
-        .collect();
-    if !unexpected.is_empty() {
-        unexpected.sort();
-        return Err(LpipsLoadError::UnexpectedTensors {
-            file: path,
-            net: keys.net,
+    let file = file.to_path_buf();
+    let net = keys.net;
+    import(module, &file, &rules).map_err(|failure| match failure {
+        ImportFailure::Read(message) => LpipsLoadError::Read { file, message },
+        ImportFailure::UnsupportedDType { tensor, found } => LpipsLoadError::UnsupportedDType {
+            file,
+            tensor,
+            found,
+        },
+        ImportFailure::ShapeMismatch {
+            tensor,
+            expected,
+            found,
+            others,
+        } => LpipsLoadError::ShapeMismatch {
+            file,
+            tensor,
+            expected,
+            found,
+            net,
+            others,
+        },
+        ImportFailure::Tensor { tensor, message } => LpipsLoadError::Tensor {
+            file,
+            tensor,
+            message,
+        },
+        ImportFailure::Unexpected(unexpected) => LpipsLoadError::UnexpectedTensors {
+            file,
+            net,
             unexpected,
-        });
-    }
-    if !result.missing.is_empty() {
-        return Err(LpipsLoadError::MissingTensors {
-            file: path,
-            net: keys.net,
-            missing: result
-                .missing
-                .iter()
-                .map(|(p, _)| (keys.file_key)(p))
-                .collect(),
-        });
-    }
-    Ok(module)
+        },
+        ImportFailure::Missing(missing) => LpipsLoadError::MissingTensors { file, net, missing },
+    })
 }
 
 impl Trunk {

@@ -2,7 +2,10 @@
 //!
 //! - [`model_file`]: the `.nia` file, one self-describing file for inference;
 //! - [`checkpoint`]: training checkpoints (weights, optimiser state, configs, step), written
-//!   atomically.
+//!   atomically;
+//! - [`pytorch_import`]: weights from the user's PyTorch files (torchvision trunks, LPIPS
+//!   heads), checked tensor by tensor.
 
 pub mod checkpoint;
 pub mod model_file;
+pub mod pytorch_import;

@@ -1,4 +1,4 @@
-//! Volume rendering (NeRF quadrature), the last stage of the forward pass: R rays of S ordered
+//! Volume rendering (NeRF quadrature): R rays of S ordered
 //! samples composited over a black background.
 //!
 //! ```text

@@ -5,22 +5,27 @@
 //!
 //! Sampling: `proj_grid[n, m] = (u_norm, v_norm)` with `u_norm = 2 u / W - 1`,
 //! `v_norm = 2 v / H - 1` (u, v in pixels of the full-resolution source image, pixel centres at
-//! i + 0.5). The bilinear read ([`super::bilinear`]; `grid_sample_2d`'s with zero padding and
+//! i + 0.5). The bilinear read ([`crate::encoder::bilinear`]; `grid_sample_2d`'s with zero padding and
 //! `align_corners = false`) reads pixel (u - 0.5, v - 0.5) of a W x H map, and the same
 //! normalised coordinates address the half-resolution feature maps consistently (the feature
 //! map covers the same image extent). Points outside a view (or behind its camera, which the
 //! CPU precompute maps far outside [-1, 1]) read zeros.
+
+pub mod blender;
+pub mod c0_shuffle;
+pub mod surface;
+pub mod view_statistics;
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
 use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 
-use super::bilinear::ViewRows;
-use super::encoder::FeaturePyramid;
+use crate::encoder::bilinear::ViewRows;
+use crate::encoder::FeaturePyramid;
 use crate::shape::ShapeError;
 
-/// Bilinearly samples N maps at M points each ([`super::bilinear::sample`]: the read of
+/// Bilinearly samples N maps at M points each ([`crate::encoder::bilinear::sample`]: the read of
 /// `grid_sample_2d` with bilinear interpolation, zero padding and `align_corners = false`, as
 /// four row gathers).
 ///
@@ -29,7 +34,7 @@ use crate::shape::ShapeError;
 /// - `proj_grid`: `[N, M, 2]`, (x, y) in [-1, 1] (see the module docs)
 /// - output: `[N, M, C]`, zeros where the projection falls outside the map
 pub fn sample_views(maps: Tensor<4>, proj_grid: Tensor<3>) -> Result<Tensor<3>, ShapeError> {
-    super::bilinear::sample(maps, proj_grid)
+    crate::encoder::bilinear::sample(maps, proj_grid)
 }
 
 /// `Linear(sample(F))` from maps already through the linear map's weights (`W^T F`) and laid

@@ -10,14 +10,15 @@
 //! pixel's rays in the bundle, the box filter of its footprint. A camera integrates light over
 //! the pixel's area, and so do the synthetic images (rendered at twice the size and averaged):
 //! one ray through the centre gives the outline's pixels all or nothing where the photograph
-//! has a mix (README, "What accuracy costs").
+//! has a mix (docs/accuracy-time.md, "The savings").
 
 use burn::prelude::*;
 
 use crate::readback::host_values;
 use nia_data::geometry::rays::RayBundle;
 
-use crate::model::{ModelError, NiaModel};
+use crate::error::ModelError;
+use crate::model::NiaModel;
 use crate::renderer::RenderOutput;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::StageTimes;

@@ -7,6 +7,11 @@
 //! Field names follow torchvision's `resnet18` so its state dict loads by name
 //! ([`ImageEncoder::load_torchvision`]); `layer4` and `fc` are not part of the trunk.
 
+pub mod bilinear;
+pub mod host;
+pub mod import;
+pub mod pyramid_host;
+
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};

@@ -32,9 +32,9 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
-use super::ibr::{cosine_weights, simple_average_weights};
-use super::linear_rows::linear_rows;
 use super::view_statistics::{mean_and_variance, view_weights};
+use super::{cosine_weights, simple_average_weights};
+use crate::linear_rows::linear_rows;
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
 use crate::variant::Variant;
@@ -78,11 +78,6 @@ pub struct Blender {
 }
 
 impl BlenderConfig {
-    /// Input width of one full token: `d + 4 + 1 + 1 + d_h + 1`.
-    pub fn token_dim(&self) -> usize {
-        self.token_part_dim() + self.point_part_dim()
-    }
-
     /// Width of the per-token part: `[p, d_hat, o, flag]` (+ `c` with statistics).
     fn token_part_dim(&self) -> usize {
         self.d_pixel + TOKEN_EXTRA_DIM + if self.view_statistics { 3 } else { 0 }

@@ -14,16 +14,17 @@
 //! Cost: one network call per non-empty segment instead of one per ray chunk, and the density
 //! read back to the CPU between segments.
 //!
-//! The same walk culls colour evaluations ([`crate::colour_culling`]): the density half of the
+//! The same walk culls colour evaluations ([`crate::renderer::colour_culling`]): the density half of the
 //! network runs on a segment's samples, then the colour half on those whose weight matters.
 
 use burn::prelude::*;
 use glam::Vec3;
 
-use crate::colour_culling::cull;
+use crate::error::ModelError;
 use crate::field::PointOutput;
-use crate::model::{ModelError, NiaModel};
+use crate::model::NiaModel;
 use crate::readback::host_values;
+use crate::renderer::colour_culling::cull;
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::Stopwatch;
@@ -32,14 +33,11 @@ use crate::timing::Stopwatch;
 /// other.
 pub const TERMINATION_SEGMENTS: usize = 8;
 
-/// Default transmittance below which a ray stops (`[render] early_termination`).
-pub const DEFAULT_TERMINATION: f32 = 1e-3;
-
 impl NiaModel {
     /// The field at the kept samples of `samples`, front to back: with `termination`
     /// (transmittance epsilon) in [`TERMINATION_SEGMENTS`] depth segments, skipping the samples
     /// of rays whose transmittance fell below it (module docs); with `culling` (a per-ray weight
-    /// budget, [`crate::colour_culling`]) the colour half of the network runs only on the
+    /// budget, [`crate::renderer::colour_culling`]) the colour half of the network runs only on the
     /// samples whose weight matters. Returns the outputs of the evaluated points, their flat
     /// `[R * S]` sample indices in the same order, and how many got a colour evaluation
     /// (culled samples come with zero colour, c0, IBR colour and blend weights).

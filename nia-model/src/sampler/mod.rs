@@ -13,29 +13,19 @@
 //! instead of the few of S that land there otherwise. A ray that misses the band gets no
 //! evaluated samples (background).
 //!
-//! Adaptive work, what rendering may leave out because the scene does not need it. Always on
-//! (they cannot change a pixel):
-//! - rays that miss the body's ray box never reach the sampler (they render the background);
-//! - a novel view never runs the reposing transform; a reposed render runs it only for the
-//!   samples that reach the field;
-//! - per-scene work (encoder features, vertex visibility, the body volume) is done once and
-//!   reused by every target view and ray chunk, and animation rebuilds only the body volume.
-//!
-//! Switchable, on by default: empty-space skipping. Samples farther than
-//! [`AdaptiveConfig::empty_space_m`] from the posed body's surface (and not inside it) are not
-//! evaluated; they keep zero density. The occupancy grid is built from the posed mesh once per
-//! frame and pose ([`OccupancyGrid`]); [`RaySamples::new`] keeps the samples in occupied cells.
+//! Empty-space skipping (`RenderOptions::skip_empty_space`, on by default): samples farther
+//! than `empty_space_m` from the posed body's surface (and not inside it) are not evaluated;
+//! they keep zero density. The occupancy grid is built from the posed mesh once per frame and
+//! pose (`RenderOptions::occupancy`); [`RaySamples::new`] keeps the samples in occupied cells.
 
-use std::sync::Arc;
+mod ray_sampler;
 
-use crate::colour_culling::DEFAULT_COLOUR_CULLING;
-use crate::termination::DEFAULT_TERMINATION;
+pub use ray_sampler::{RaySampler, DEFAULT_BAND_MARGIN_M};
+
 use glam::Vec3;
-use nia_data::geometry::occupancy::{OccupancyError, OccupancyGrid};
-use nia_data::geometry::occupancy_memo::shared_grid;
+use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::geometry::rays::RayBundle;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
 /// Errors of the sampler, naming the argument.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -324,174 +314,5 @@ impl RaySamples {
     /// Samples the field evaluates, M.
     pub fn evaluated(&self) -> usize {
         self.points.len()
-    }
-}
-
-/// How the sampler places the S samples of a ray (module docs). Part of the network's config,
-/// so inference samples as training did.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum RaySampler {
-    /// S bins over the ray's whole `[near, far]` (NeRF, NHP, NIA).
-    Stratified,
-    /// S bins over the part of the ray within `margin_m` of the posed SMPL surface or inside
-    /// it, found on an occupancy grid of `cell_m` cells built per frame and pose.
-    Band {
-        /// Distance from the SMPL surface that the band reaches, metres.
-        #[serde(default = "default_band_margin_m")]
-        margin_m: f32,
-        /// Cell edge of the band's occupancy grid, metres.
-        #[serde(default = "default_band_cell_m")]
-        cell_m: f32,
-    },
-}
-
-fn default_band_margin_m() -> f32 {
-    DEFAULT_BAND_MARGIN_M
-}
-
-fn default_band_cell_m() -> f32 {
-    DEFAULT_OCCUPANCY_CELL_M
-}
-
-/// Default reach of the band sampler beyond the SMPL surface, metres: the synthetic clothing
-/// stands up to ~3 cm off the body; a cell diagonal more is kept by the grid.
-pub const DEFAULT_BAND_MARGIN_M: f32 = 0.05;
-
-impl RaySampler {
-    /// The band's occupancy grid of the posed mesh (`vertices` [V] world metres); `None` for
-    /// stratified sampling.
-    pub fn band(
-        &self,
-        vertices: &[Vec3],
-        faces: &[[u32; 3]],
-    ) -> Result<Option<Arc<OccupancyGrid>>, OccupancyError> {
-        match *self {
-            RaySampler::Stratified => Ok(None),
-            RaySampler::Band { margin_m, cell_m } => {
-                shared_grid(vertices, faces, margin_m, cell_m).map(Some)
-            }
-        }
-    }
-
-    /// Checks the band's distances.
-    pub fn check(&self) -> Result<(), String> {
-        if let RaySampler::Band { margin_m, cell_m } = *self {
-            for (name, value) in [("margin_m", margin_m), ("cell_m", cell_m)] {
-                if !(value.is_finite() && value > 0.0 && value <= 1.0) {
-                    return Err(format!(
-                        "`ray_sampler.{name}` = {value}, expected a value in (0, 1] metres"
-                    ));
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-/// Default distance from the SMPL surface within which samples are evaluated, metres. A kept
-/// cell reaches up to a cell diagonal (3.5 cm at the default cell) beyond it, so space up to
-/// 3 cm from the surface is always evaluated and up to 6.5 cm often is. Measured on the
-/// quickstart's unseen subject (README, "What accuracy costs"): 3.1x fewer network points and
-/// 2.5x less time per image than no skipping, with PSNR 0.19 dB *higher* (floaters in empty
-/// space are gone). Loose clothing that stands farther off the fitted SMPL surface needs a
-/// larger value; `nia-infer sweep` measures the trade.
-pub const DEFAULT_EMPTY_SPACE_M: f32 = 0.03;
-/// Default of [`AdaptiveConfig::hull_dilate_px`]: the masks as they are (see the constant's
-/// measurement in the README, "Quickstart").
-pub const DEFAULT_HULL_DILATE_PX: usize = 0;
-/// Largest [`AdaptiveConfig::hull_dilate_px`] accepted.
-pub const MAX_HULL_DILATE_PX: usize = 256;
-/// Default of [`AdaptiveConfig::supersample`]: one ray through each pixel's centre (NeRF's,
-/// NHP's and NIA's rendering).
-pub const DEFAULT_SUPERSAMPLE: usize = 1;
-/// Largest [`AdaptiveConfig::supersample`] accepted (64 rays per pixel).
-pub const MAX_SUPERSAMPLE: usize = 8;
-/// Default occupancy cell edge, metres.
-pub const DEFAULT_OCCUPANCY_CELL_M: f32 = 0.02;
-
-/// The switchable parts of adaptive work.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct AdaptiveConfig {
-    /// Skip samples in empty space (farther than `empty_space_m` from the body).
-    pub skip_empty_space: bool,
-    /// Distance from the SMPL surface within which samples are evaluated, metres.
-    pub empty_space_m: f32,
-    /// Occupancy grid cell edge, metres.
-    pub occupancy_cell_m: f32,
-    /// Early ray termination: a ray evaluates no more samples once its transmittance is below
-    /// this (`termination`); 0 evaluates every kept sample.
-    pub early_termination: f32,
-    /// Colour culling: per ray, samples whose weights sum to at most this get no colour
-    /// evaluation (`colour_culling`); 0 colours every evaluated sample.
-    pub colour_culling: f32,
-    /// Visual-hull carving (not in the paper; `nia_data::scene::visual_hull`): the density is
-    /// zero wherever a source view's person mask says empty space, and with skipping those
-    /// samples are not evaluated. Off gives the paper's density.
-    pub visual_hull: bool,
-    /// Pixels the masks are grown by before carving (noisy masks of real captures need a
-    /// margin; the synthetic masks are exact).
-    pub hull_dilate_px: usize,
-    /// Rays per pixel side s (not in the paper): every pixel is the mean of s x s rays spread
-    /// over its square (`RayBundle::through_pixel_footprints`), as a camera integrates over the
-    /// pixel's area; s x s times the rays of 1, the paper's one ray through the centre.
-    pub supersample: usize,
-}
-
-impl Default for AdaptiveConfig {
-    fn default() -> Self {
-        AdaptiveConfig {
-            skip_empty_space: true,
-            empty_space_m: DEFAULT_EMPTY_SPACE_M,
-            occupancy_cell_m: DEFAULT_OCCUPANCY_CELL_M,
-            early_termination: DEFAULT_TERMINATION,
-            colour_culling: DEFAULT_COLOUR_CULLING,
-            visual_hull: true,
-            hull_dilate_px: DEFAULT_HULL_DILATE_PX,
-            supersample: DEFAULT_SUPERSAMPLE,
-        }
-    }
-}
-
-impl AdaptiveConfig {
-    /// Every sample evaluated (the reference for accuracy).
-    pub fn exhaustive() -> Self {
-        AdaptiveConfig {
-            skip_empty_space: false,
-            early_termination: 0.0,
-            colour_culling: 0.0,
-            ..Self::default()
-        }
-    }
-
-    /// The transmittance at which rays stop (`SceneEncoding::with_termination`); `None` when
-    /// early termination is off.
-    pub fn termination(&self) -> Option<f32> {
-        (self.early_termination > 0.0).then_some(self.early_termination)
-    }
-
-    /// The per-ray weight budget of colour culling (`SceneEncoding::with_colour_culling`);
-    /// `None` when culling is off.
-    pub fn culling(&self) -> Option<f32> {
-        (self.colour_culling > 0.0).then_some(self.colour_culling)
-    }
-
-    /// The dilation of visual-hull carving (`SceneEncoding::with_visual_hull`); `None` when
-    /// carving is off.
-    pub fn hull(&self) -> Option<usize> {
-        self.visual_hull.then_some(self.hull_dilate_px)
-    }
-
-    /// The occupancy grid of the posed mesh (`vertices` [V] world metres) when skipping is on.
-    pub fn occupancy(
-        &self,
-        vertices: &[Vec3],
-        faces: &[[u32; 3]],
-    ) -> Result<Option<Arc<OccupancyGrid>>, OccupancyError> {
-        if !self.skip_empty_space {
-            return Ok(None);
-        }
-        shared_grid(vertices, faces, self.empty_space_m, self.occupancy_cell_m).map(Some)
     }
 }

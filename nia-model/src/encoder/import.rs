@@ -15,10 +15,10 @@
 
 use std::path::{Path, PathBuf};
 
-use burn::store::{ApplyError, ModuleSnapshot, ModuleStore, PytorchStore};
 use burn::tensor::DType;
 
-use super::encoder::ImageEncoder;
+use super::ImageEncoder;
+use crate::store::pytorch_import::{import, others_note, preview, ImportFailure, KeyRules};
 
 /// torchvision's `downsample` Sequential indices -> our [`super::encoder::Downsample`] fields.
 const DOWNSAMPLE_REMAPPING: [(&str, &str); 2] = [
@@ -48,7 +48,7 @@ pub enum EncoderLoadError {
         "{}: tensor `{tensor}` has shape {found:?} in the file but the encoder (base width \
          {base_width}) expects {expected:?}{}",
         file.display(),
-        others_note(*others, "more tensors have mismatched shapes")
+        others_note(*others)
     )]
     ShapeMismatch {
         file: PathBuf,
@@ -103,31 +103,6 @@ pub enum EncoderLoadError {
     },
 }
 
-/// Keys listed in a message before "...".
-const PREVIEW_KEYS: usize = 4;
-
-/// The first [`PREVIEW_KEYS`] keys, quoted and comma-separated.
-fn preview(keys: &[String]) -> String {
-    let mut text = keys
-        .iter()
-        .take(PREVIEW_KEYS)
-        .map(|k| format!("`{k}`"))
-        .collect::<Vec<_>>()
-        .join(", ");
-    if keys.len() > PREVIEW_KEYS {
-        text.push_str(", ...");
-    }
-    text
-}
-
-fn others_note(others: usize, what: &str) -> String {
-    if others == 0 {
-        String::new()
-    } else {
-        format!(" ({others} {what})")
-    }
-}
-
 /// Our parameter path (`layer2.0.downsample.bn.gamma`) in torchvision's naming
 /// (`layer2.0.downsample.1.weight`), for messages.
 fn torchvision_key(path: &str) -> String {
@@ -160,88 +135,50 @@ impl ImageEncoder {
     /// [`EncoderLoadError`], naming `path`: unreadable file, a trunk tensor missing from the
     /// file, a shape differing from the encoder's, an element type other than float32, or a
     /// trunk tensor the encoder has no place for. The encoder is consumed either way.
-    pub fn load_torchvision(mut self, path: &Path) -> Result<ImageEncoder, EncoderLoadError> {
+    pub fn load_torchvision(self, path: &Path) -> Result<ImageEncoder, EncoderLoadError> {
         let file = path.to_path_buf();
-        let mut store = PytorchStore::from_file(path);
-        for (from, to) in DOWNSAMPLE_REMAPPING {
-            store = store.with_key_remapping(from, to);
-        }
-        // torchvision's indices are already contiguous; renumbering would let a file lacking
-        // `layerK.0` load its `layerK.1` into block 0.
-        let mut store = store
-            .map_indices_contiguous(false)
-            .allow_partial(true)
-            .validate(false);
-
-        let read_error = |e: &dyn std::fmt::Display| EncoderLoadError::Read {
-            file: file.clone(),
-            message: e.to_string(),
+        let base_width = self.conv1.weight.dims()[0];
+        let remapping: Vec<(String, String)> = DOWNSAMPLE_REMAPPING
+            .iter()
+            .map(|(from, to)| (from.to_string(), to.to_string()))
+            .collect();
+        let rules = KeyRules {
+            remapping: &remapping,
+            owned: &is_trunk_parameter,
+            file_key: &torchvision_key,
         };
-
-        // A float64/float16 tensor would load as itself and mix element types in the forward.
-        let tensors = store.get_all_tensors().map_err(|e| read_error(&e))?;
-        if let Some(t) = tensors
-            .values()
-            .find(|t| is_trunk_parameter(&t.name) && t.dtype != DType::F32)
-        {
-            return Err(EncoderLoadError::UnsupportedDType {
-                file,
-                tensor: torchvision_key(&t.name),
-                found: t.dtype,
-            });
-        }
-
-        let result = self.load_from(&mut store).map_err(|e| read_error(&e))?;
-
-        let mut shape_errors = Vec::new();
-        for error in &result.errors {
-            match error {
-                ApplyError::ShapeMismatch {
-                    path,
-                    expected,
+        import(self, path, &rules).map_err(|failure| match failure {
+            ImportFailure::Read(message) => EncoderLoadError::Read { file, message },
+            ImportFailure::UnsupportedDType { tensor, found } => {
+                EncoderLoadError::UnsupportedDType {
+                    file,
+                    tensor,
                     found,
-                } => shape_errors.push((path, expected.to_vec(), found.to_vec())),
-                ApplyError::DTypeMismatch { path, .. }
-                | ApplyError::AdapterError { path, .. }
-                | ApplyError::LoadError { path, .. } => {
-                    return Err(EncoderLoadError::Tensor {
-                        file,
-                        tensor: torchvision_key(path),
-                        message: error.to_string(),
-                    })
                 }
             }
-        }
-        if let Some((path, expected, found)) = shape_errors.first() {
-            return Err(EncoderLoadError::ShapeMismatch {
+            ImportFailure::ShapeMismatch {
+                tensor,
+                expected,
+                found,
+                others,
+            } => EncoderLoadError::ShapeMismatch {
                 file,
-                tensor: torchvision_key(path),
-                expected: expected.clone(),
-                found: found.clone(),
-                base_width: self.conv1.weight.dims()[0],
-                others: shape_errors.len() - 1,
-            });
-        }
-        let unexpected: Vec<String> = result
-            .unused
-            .iter()
-            .filter(|k| is_trunk_parameter(k))
-            .map(|k| torchvision_key(k))
-            .collect();
-        if !unexpected.is_empty() {
-            return Err(EncoderLoadError::UnexpectedTensors { file, unexpected });
-        }
-        if !result.missing.is_empty() {
-            return Err(EncoderLoadError::MissingTensors {
+                tensor,
+                expected,
+                found,
+                base_width,
+                others,
+            },
+            ImportFailure::Tensor { tensor, message } => EncoderLoadError::Tensor {
                 file,
-                missing: result
-                    .missing
-                    .iter()
-                    .map(|(p, _)| torchvision_key(p))
-                    .collect(),
-            });
-        }
-        Ok(self)
+                tensor,
+                message,
+            },
+            ImportFailure::Unexpected(unexpected) => {
+                EncoderLoadError::UnexpectedTensors { file, unexpected }
+            }
+            ImportFailure::Missing(missing) => EncoderLoadError::MissingTensors { file, missing },
+        })
     }
 }
 

@@ -10,7 +10,7 @@
 //! Each sample x_i reads the source images at its own projection, so a ray whose weights w_i
 //! spread over a few centimetres mixes source pixels from along the epipolar segment of that
 //! spread: with source views tens of degrees away from the target, fine detail (prints,
-//! stripes) is smeared before any blend weight is learned. [`SourceColoursAt::Surface`] keeps
+//! stripes) is smeared before any blend weight is learned. `SourceColoursAt::Surface` keeps
 //! the NeRF part and the learned weights and fetches the views' colours at one point, the
 //! expected surface point x_s = o + d * (sum_i w_i t_i / sum_i w_i):
 //!
@@ -28,22 +28,10 @@ use burn::prelude::*;
 use glam::Vec3;
 use nia_data::geometry::rays::RayBundle;
 use nia_data::scene::projection_grid;
-use serde::{Deserialize, Serialize};
 
-use crate::field::ibr::fetch_source_colours_from;
-use crate::model::ModelError;
+use super::fetch_source_colours_from;
+use crate::error::ModelError;
 use crate::scene_encoding::SceneEncoding;
-
-/// Where the source colours are read (config: `"samples"` or `"surface"`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum SourceColoursAt {
-    /// At every sample's projection (the paper).
-    #[default]
-    Samples,
-    /// Once per ray, at the projection of the expected surface point.
-    Surface,
-}
 
 /// Opacity below which a ray has no surface point of its own (x_s = middle of the interval).
 pub const SURFACE_ACC_FLOOR: f32 = 1e-4;

@@ -12,9 +12,6 @@
 //! (faint density, tiny weight) and behind it (tiny transmittance) are what gets culled; the
 //! few samples at the surface carry the weight and get their colour.
 
-/// Default per-ray budget of culled weight (`[render] colour_culling`).
-pub const DEFAULT_COLOUR_CULLING: f32 = 1e-3;
-
 /// The front-to-back walk over one batch of samples: which get a colour evaluation.
 ///
 /// `rays[k]` is sample k's ray, `steps[k] = sigma_k delta_k`; samples of one ray come in

@@ -16,7 +16,7 @@
 //! read, the copy of the paper-width maps took most of a 512x512 render). The corner indices
 //! are computed on the device from the grid, so nothing is read back to the host, and the
 //! weights stay differentiable in the grid (the surface read's gradient in the expected depth,
-//! see `surface_ibr`). Every backend runs the same tensor operations.
+//! see `ibr::surface`). Every backend runs the same tensor operations.
 
 use std::sync::Arc;
 

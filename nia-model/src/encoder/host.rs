@@ -18,8 +18,8 @@ use burn::nn::{BatchNorm, PaddingConfig2d};
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use crate::field::encoder::{BasicBlock, ImageEncoder, IMAGENET_MEAN, IMAGENET_STD};
-use crate::field::pyramid_host::{HostMaps, HostPyramid};
+use crate::encoder::pyramid_host::{HostMaps, HostPyramid};
+use crate::encoder::{BasicBlock, ImageEncoder, IMAGENET_MEAN, IMAGENET_STD};
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
@@ -145,7 +145,7 @@ impl FoldedConv {
         residual: Option<&HostMaps>,
         relu: bool,
     ) -> Result<HostMaps, ShapeError> {
-        let [n, c, h, w] = x.dims;
+        let [n, c, h, w] = x.dims();
         if c != self.c_in {
             return Err(ShapeError::value(
                 "host encoder convolution input",
@@ -154,10 +154,10 @@ impl FoldedConv {
         }
         let [ho, wo] = self.out_size(h, w)?;
         let dims = [n, self.c_out, ho, wo];
-        if let Some(r) = residual.filter(|r| r.dims != dims) {
+        if let Some(r) = residual.filter(|r| r.dims() != dims) {
             return Err(ShapeError::value(
                 "host encoder residual",
-                format!("maps {dims:?}, got {:?}", r.dims),
+                format!("maps {dims:?}, got {:?}", r.dims()),
             ));
         }
         let [kh, kw] = self.kernel;
@@ -184,7 +184,7 @@ impl FoldedConv {
                         let p = first + done;
                         let (b, q) = (p / (ho * wo), p % (ho * wo));
                         let run = (ho * wo - q).min(pixels - done);
-                        let image = &x.data[b * h * w * c..(b + 1) * h * w * c];
+                        let image = &x.data()[b * h * w * c..(b + 1) * h * w * c];
                         let dst_run = &mut dst[done * co..(done + run) * co];
                         let (lhs, lhs_rs): (&[f32], usize) = if pointwise {
                             (&image[q * c..(q + run) * c], c)
@@ -247,7 +247,7 @@ impl FoldedConv {
                                 gemm::Parallelism::None,
                             );
                         }
-                        let res = residual.map(|r| &r.data[p * co..(p + run) * co]);
+                        let res = residual.map(|r| &r.data()[p * co..(p + run) * co]);
                         for (i, px) in dst_run.chunks_mut(co).enumerate() {
                             for (o, v) in px.iter_mut().enumerate() {
                                 let mut s = *v + self.bias[o];
@@ -261,7 +261,7 @@ impl FoldedConv {
                     }
                 }
             });
-        Ok(HostMaps { data: out, dims })
+        HostMaps::new(out, dims)
     }
 }
 
@@ -279,7 +279,7 @@ fn max_pool(pool: &MaxPool2d, x: &HostMaps) -> Result<HostMaps, ShapeError> {
     let [pt, pl, pb, pr] = explicit_padding("host encoder max pool", &pool.padding)?;
     let [kh, kw] = pool.kernel_size;
     let [sh, sw] = pool.stride;
-    let [n, c, h, w] = x.dims;
+    let [n, c, h, w] = x.dims();
     if h + pt + pb < kh || w + pl + pr < kw {
         return Err(ShapeError::value(
             "host encoder max pool input",
@@ -293,7 +293,7 @@ fn max_pool(pool: &MaxPool2d, x: &HostMaps) -> Result<HostMaps, ShapeError> {
         .enumerate()
         .for_each(|(row, dst)| {
             let (b, oy) = (row / ho, row % ho);
-            let image = &x.data[b * h * w * c..(b + 1) * h * w * c];
+            let image = &x.data()[b * h * w * c..(b + 1) * h * w * c];
             for (ox, px) in dst.chunks_mut(c).enumerate() {
                 for i in 0..kh {
                     let y = (oy * sh + i) as isize - pt as isize;
@@ -313,10 +313,7 @@ fn max_pool(pool: &MaxPool2d, x: &HostMaps) -> Result<HostMaps, ShapeError> {
                 }
             }
         });
-    Ok(HostMaps {
-        data: out,
-        dims: [n, c, ho, wo],
-    })
+    HostMaps::new(out, [n, c, ho, wo])
 }
 
 /// A BasicBlock with its three batch norms folded.
@@ -401,10 +398,7 @@ impl HostTrunk {
                 }
             }
         }
-        let x = HostMaps {
-            data,
-            dims: [n, 3, h, w],
-        };
+        let x = HostMaps::new(data, [n, 3, h, w])?;
         let f1 = self.stem.forward(&x, None, true)?;
         let mut x = max_pool(&self.maxpool, &f1)?;
         let mut levels = vec![f1];
@@ -417,15 +411,15 @@ impl HostTrunk {
         let levels: [HostMaps; 4] = levels
             .try_into()
             .map_err(|_| ShapeError::empty("host encoder levels"))?;
-        Ok(HostPyramid { levels })
+        HostPyramid::new(levels)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::field::encoder::ImageEncoderConfig;
-    use crate::field::pyramid_host::HostPyramid;
+    use crate::encoder::pyramid_host::HostPyramid;
+    use crate::encoder::ImageEncoderConfig;
     use burn::module::{Param, RunningState};
     use burn::tensor::Distribution;
 
@@ -471,10 +465,10 @@ mod tests {
                 Tensor::<4>::random([2, 3, h, w], Distribution::Uniform(0.0, 1.0), &device);
             let want = HostPyramid::from_tensors(&e.forward_pyramid(images.clone())).unwrap();
             let got = trunk.forward(images).unwrap();
-            for (l, (g, r)) in got.levels.iter().zip(&want.levels).enumerate() {
-                assert_eq!(g.dims, r.dims, "level {l}");
-                let scale = r.data.iter().fold(1.0f32, |m, v| m.max(v.abs()));
-                for (i, (a, b)) in g.data.iter().zip(&r.data).enumerate() {
+            for (l, (g, r)) in got.levels().iter().zip(want.levels()).enumerate() {
+                assert_eq!(g.dims(), r.dims(), "level {l}");
+                let scale = r.data().iter().fold(1.0f32, |m, v| m.max(v.abs()));
+                for (i, (a, b)) in g.data().iter().zip(r.data()).enumerate() {
                     assert!(a.is_finite(), "level {l} value {i}: {a}");
                     assert!(
                         (a - b).abs() <= 1e-4 * scale,

@@ -1,6 +1,6 @@
 //! The encoder pyramid's channel reduction on the host, straight into channels-last rows
 //! (inference on the CPU backends), from the channels-last pyramid of the host trunk
-//! ([`crate::field::encoder_host`]).
+//! ([`crate::encoder::host`]).
 //!
 //! [`FeaturePyramid::reduce`] is the reference: per level a matrix product `W_l^T f_l`, then a
 //! bilinear upsampling written as two dense matrix products (`A_h f A_w^T`) so that it has a
@@ -14,8 +14,8 @@
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use crate::field::bilinear::ViewRows;
-use crate::field::encoder::{bilinear_matrix, check_reduction_weight, FeaturePyramid};
+use crate::encoder::bilinear::ViewRows;
+use crate::encoder::{bilinear_matrix, check_reduction_weight, FeaturePyramid};
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
@@ -38,32 +38,78 @@ fn taps(input: usize, output: usize) -> Vec<(usize, usize, f32)> {
 }
 
 /// Maps `[N, C, H, W]` held channels-last on the host: `data[((n H + y) W + x) C + c]`.
+/// The fields are private: [`HostMaps::new`] checks that `data` holds exactly `N C H W`
+/// values, which the `gemm` calls that read it rely on.
 #[derive(Debug, Clone)]
 pub struct HostMaps {
-    pub data: Vec<f32>,
+    data: Vec<f32>,
     /// `[N, C, H, W]`.
-    pub dims: [usize; 4],
+    dims: [usize; 4],
+}
+
+impl HostMaps {
+    /// Maps of `dims` (`[N, C, H, W]`, none of them 0) from channels-last `data`; an error
+    /// unless `data` holds exactly `N C H W` values.
+    pub fn new(data: Vec<f32>, dims: [usize; 4]) -> Result<Self, ShapeError> {
+        let expected = dims.iter().product::<usize>();
+        if expected == 0 || data.len() != expected {
+            return Err(ShapeError::value(
+                "host maps",
+                format!(
+                    "{expected} values for maps {dims:?} (channels-last), got {}",
+                    data.len()
+                ),
+            ));
+        }
+        Ok(HostMaps { data, dims })
+    }
+
+    /// The values, channels-last.
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    /// `[N, C, H, W]`.
+    pub fn dims(&self) -> [usize; 4] {
+        self.dims
+    }
 }
 
 /// The encoder's four feature maps on the host, channels-last (finest first, at H/2): what
-/// [`crate::field::encoder_host::HostTrunk`] computes.
+/// [`crate::encoder::host::HostTrunk`] computes.
 #[derive(Debug, Clone)]
 pub struct HostPyramid {
-    pub levels: [HostMaps; 4],
+    levels: [HostMaps; 4],
 }
 
 impl HostPyramid {
+    /// The pyramid of four levels (finest first); an error unless every level holds the same
+    /// number of maps N.
+    pub fn new(levels: [HostMaps; 4]) -> Result<Self, ShapeError> {
+        let n = levels[0].dims[0];
+        if let Some((l, level)) = levels.iter().enumerate().find(|(_, f)| f.dims[0] != n) {
+            return Err(ShapeError::value(
+                "feature pyramid levels",
+                format!("{n} maps on every level (level {l} has {})", level.dims[0]),
+            ));
+        }
+        Ok(HostPyramid { levels })
+    }
+
+    /// The four levels, finest first.
+    pub fn levels(&self) -> &[HostMaps; 4] {
+        &self.levels
+    }
+
     /// The tensor pyramid read back channels-last.
     pub fn from_tensors(pyramid: &FeaturePyramid) -> Result<Self, ShapeError> {
         let level = |f: &Tensor<4>| -> Result<HostMaps, ShapeError> {
             let dims = f.dims();
             let data = host_values_of("feature pyramid level", f.clone().permute([0, 2, 3, 1]))?;
-            Ok(HostMaps { data, dims })
+            HostMaps::new(data, dims)
         };
         let [a, b, c, d] = &pyramid.levels;
-        Ok(Self {
-            levels: [level(a)?, level(b)?, level(c)?, level(d)?],
-        })
+        Self::new([level(a)?, level(b)?, level(c)?, level(d)?])
     }
 
     /// Channels of the concatenated map, `sum_l C_l`.
@@ -89,13 +135,9 @@ pub fn reduce_to_rows(pyramid: &HostPyramid, weight: Tensor<2>) -> Result<ViewRo
     let mut coarse = Vec::new();
     let mut offset = 0;
     for (l, level) in pyramid.levels.iter().enumerate() {
-        let [ln, c, h, w] = level.dims;
-        if ln != n {
-            return Err(ShapeError::value(
-                "feature pyramid levels",
-                format!("{n} maps on every level (level {l} has {ln})"),
-            ));
-        }
+        // Every level holds N maps (`HostPyramid::new`) of exactly `c h w` values each
+        // (`HostMaps::new`).
+        let [_, c, h, w] = level.dims;
         let f = &level.data;
         let w_l = &weight[offset * d..(offset + c) * d];
         offset += c;
@@ -109,8 +151,17 @@ pub fn reduce_to_rows(pyramid: &HostPyramid, weight: Tensor<2>) -> Result<ViewRo
         };
         let read_dst = full && l > 0;
         for (map, dst) in f.chunks(c * h * w).zip(reduced.chunks_mut(h * w * d)) {
+            // The extents the product reads and writes; a mismatch is a bug here, never a read
+            // past a slice.
+            assert!(
+                map.len() == h * w * c && dst.len() == h * w * d && w_l.len() == c * d,
+                "pyramid reduction: slices of {}, {} and {} values for [{h}x{w}, {c}] x [{c}, {d}]",
+                map.len(),
+                dst.len(),
+                w_l.len()
+            );
             // SAFETY: dst is [h w, d] row-major, lhs [h w, c] row-major, rhs [c, d]
-            // row-major; the slices hold exactly those extents.
+            // row-major; the assert above checked that the slices hold exactly those extents.
             unsafe {
                 gemm::gemm(
                     h * w,
@@ -169,7 +220,7 @@ pub fn reduce_to_rows(pyramid: &HostPyramid, weight: Tensor<2>) -> Result<ViewRo
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::field::encoder::ImageEncoderConfig;
+    use crate::encoder::ImageEncoderConfig;
     use crate::readback::host_values;
     use burn::tensor::Distribution;
 
@@ -230,5 +281,22 @@ mod tests {
         let pyramid = HostPyramid::from_tensors(&pyramid).unwrap();
         let err = reduce_to_rows(&pyramid, Tensor::zeros([63, 4], &device)).unwrap_err();
         assert!(err.to_string().contains("[C_img, d]"), "{err}");
+    }
+
+    /// Maps whose data does not hold `N C H W` values (short, long, or of an empty shape) are
+    /// an error naming the shape, so the reduction's `gemm` can never read past them; and so is
+    /// a pyramid whose levels disagree on N.
+    #[test]
+    fn host_maps_of_the_wrong_size_are_an_error_not_a_read() {
+        let short = HostMaps::new(vec![0.0; 23], [1, 2, 3, 4]).unwrap_err();
+        assert!(short.to_string().contains("24 values") && short.to_string().contains("got 23"));
+        assert!(HostMaps::new(vec![0.0; 25], [1, 2, 3, 4]).is_err());
+        assert!(HostMaps::new(Vec::new(), [1, 0, 3, 4]).is_err());
+        let maps = HostMaps::new(vec![1.0; 24], [1, 2, 3, 4]).unwrap();
+        assert_eq!((maps.dims(), maps.data().len()), ([1, 2, 3, 4], 24));
+        let two = HostMaps::new(vec![1.0; 48], [2, 2, 3, 4]).unwrap();
+        let mixed = [maps.clone(), two, maps.clone(), maps];
+        let err = HostPyramid::new(mixed).unwrap_err();
+        assert!(err.to_string().contains("level 1 has 2"), "{err}");
     }
 }

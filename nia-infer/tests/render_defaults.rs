@@ -1,0 +1,60 @@
+//! Render settings a user can predict: visual-hull carving is off unless a config, a model file
+//! or a flag turns it on, and a model file keeps the setting it was trained and evaluated with.
+
+use std::path::Path;
+
+use nia_infer::run_settings::RunSettings;
+use nia_model::render_options::RenderOptions;
+use nia_model::store::model_file::ModelFile;
+
+fn fixture_run() -> serde_json::Value {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/quickstart_tiny.nia");
+    ModelFile::read(&path).unwrap().header.run
+}
+
+#[test]
+fn carving_is_off_unless_asked_for() {
+    assert!(!RenderOptions::default().visual_hull);
+    assert!(!RenderOptions::exhaustive().visual_hull);
+    assert_eq!(RenderOptions::default().hull(), None);
+    // A `[render]` section without the key does not carve.
+    let options: RenderOptions = toml::from_str("skip_empty_space = true").unwrap();
+    assert!(!options.visual_hull);
+    let options: RenderOptions = toml::from_str("visual_hull = true\nhull_dilate_px = 5").unwrap();
+    assert_eq!(options.hull(), Some(5));
+}
+
+/// The committed fixture was trained and evaluated before carving existed: its header's
+/// `[render]` has no `visual_hull`, and it loads without carving, as it was evaluated.
+#[test]
+fn a_model_file_from_before_carving_loads_without_it() {
+    let run = fixture_run();
+    assert!(
+        run["render"].get("visual_hull").is_none(),
+        "the fixture predates the key"
+    );
+    let settings = RunSettings::from_json(&run).unwrap();
+    assert!(!settings.render.visual_hull);
+    assert_eq!(settings.render.hull(), None);
+}
+
+/// A model file written while carving defaulted to on carries the whole `[render]` section
+/// (the trainer writes every key), so it keeps carving with its dilation after this change;
+/// one that said off stays off.
+#[test]
+fn a_model_file_that_carved_keeps_carving() {
+    for (on, px) in [(true, 5), (true, 0), (false, 5)] {
+        let mut run = fixture_run();
+        let mut written = serde_json::to_value(RenderOptions {
+            visual_hull: on,
+            hull_dilate_px: px,
+            ..RenderOptions::default()
+        })
+        .unwrap();
+        assert!(written.get("visual_hull").is_some(), "every key is written");
+        written["empty_space_m"] = run["render"]["empty_space_m"].clone();
+        run["render"] = written;
+        let settings = RunSettings::from_json(&run).unwrap();
+        assert_eq!(settings.render.hull(), on.then_some(px), "{on} {px}");
+    }
+}

@@ -1,0 +1,299 @@
+//! [`NiaModel::field`] and [`NiaModel::query`]: the network at M points, in two halves (density,
+//! then colour) so that the renderer can colour only the points whose weight matters.
+
+use burn::prelude::*;
+use glam::Vec3;
+use nia_data::scene::PointInputs;
+
+use super::heads::view_mean;
+use super::{PointOutput, PointTensors};
+use crate::error::ModelError;
+use crate::ibr::blender::BlendInputs;
+use crate::ibr::fetch_source_colours_from;
+use crate::linear_rows::linear_rows;
+use crate::model::NiaModel;
+use crate::scene_encoding::SceneEncoding;
+use crate::timing::{Stage, StageTimes, Stopwatch};
+
+impl NiaModel {
+    /// The fields at `points` / `dirs` ([M] world, unit directions, in the pose `scene`
+    /// renders): the CPU point inputs (reposed into the scene's pose first when the scene was
+    /// encoded for another pose) and the network. `times` charges sampling, MLPs and blending.
+    pub fn field(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        times: Option<&mut StageTimes>,
+    ) -> Result<PointOutput, ModelError> {
+        let device = scene.images.device();
+        let mut watch = Stopwatch::new(times, &device);
+        self.field_with(scene, points, dirs, &mut watch)
+    }
+
+    pub(crate) fn field_with(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let inputs = self.point_tensors(scene, points, dirs)?;
+        self.query_with(scene, &inputs, watch)
+    }
+
+    /// The point inputs of world points (in the rendered pose) on the scene's device, reposed
+    /// into the scene's pose first when the scene was encoded for another pose.
+    fn point_tensors(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+    ) -> Result<PointTensors, ModelError> {
+        let geometry = &scene.geometry;
+        let scales = scene.volume.as_ref().map(|(vg, _)| &vg.levels[1..]);
+        // The visual hull is read where the source views are: at x, or x' when reposed.
+        let carve = |inputs: PointInputs, image_points: &[Vec3]| match &scene.visual_hull {
+            Some(hull) => inputs.carved(hull, &geometry.cameras, image_points),
+            None => inputs,
+        };
+        let inputs = match &scene.reposer {
+            None => {
+                let volume_points: Option<Vec<[f32; 3]>> =
+                    scales.map(|_| points.iter().map(|&p| geometry.to_smpl(p)).collect());
+                let volume = scales.zip(volume_points.as_deref());
+                carve(PointInputs::compute(geometry, points, dirs, volume), points)
+            }
+            Some(reposer) => {
+                // The body volume lives in the target pose (SMPL frame of the target); pixel
+                // features, colours and visibility are read at x' in the reference views.
+                let volume_points: Option<Vec<[f32; 3]>> = scales.map(|_| {
+                    points
+                        .iter()
+                        .map(|&p| reposer.target_to_smpl(p).to_array())
+                        .collect()
+                });
+                let mapped = reposer
+                    .map_points(points, dirs)
+                    .map_err(|e| ModelError::Input(format!("reposing: {e}")))?;
+                let volume = scales.zip(volume_points.as_deref());
+                let inputs = PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume);
+                carve(inputs, &mapped.points)
+            }
+        };
+        let device = scene.images.device();
+        match (&scene.host_volume, inputs.corners.is_empty()) {
+            (Some(host), false) => PointTensors::upload_read(inputs, host, &device),
+            _ => Ok(PointTensors::upload(&inputs, &device)),
+        }
+    }
+
+    /// [`Self::field_with`]'s density half: the point inputs and [`Self::query_density`].
+    pub(crate) fn field_density(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<DensityPass, ModelError> {
+        let inputs = self.point_tensors(scene, points, dirs)?;
+        self.query_density(scene, &inputs, watch)
+    }
+
+    /// The network at M points whose inputs are already on the device: pixel features and
+    /// colours, body features, attention, F_sigma, F_c0 and the blend.
+    pub fn query(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+        times: Option<&mut StageTimes>,
+    ) -> Result<PointOutput, ModelError> {
+        let device = scene.images.device();
+        self.query_with(scene, points, &mut Stopwatch::new(times, &device))
+    }
+
+    fn query_with(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let density = self.query_density(scene, points, watch)?;
+        self.query_colour(scene, density, watch)
+    }
+
+    /// The density half of the network at M points: pixel features l_n, body features s_n,
+    /// attention and F_sigma. What the colour half reads is kept with sigma, so a caller can
+    /// run [`Self::query_colour`] on all points or on a subset ([`DensityPass::select`]).
+    pub(crate) fn query_density(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<DensityPass, ModelError> {
+        let l = self
+            .pixel_feature
+            .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?; // [N, M, d]
+                                                                           // The body volume read (on the host: a layout whose wide scales are already reduced,
+                                                                           // with the host copy that reads it), then s_n = W_b^T read + b, [N, M, d].
+        let read = match (&scene.volume, self.variant.uses_body(), &points.body) {
+            (Some(_), true, Some(read)) => match scene.host_volume.as_deref() {
+                Some(host) => Some((read.clone(), Some(host))),
+                None => {
+                    return Err(ModelError::Input(
+                        "points carry a host body-volume read but the scene has no host copy"
+                            .into(),
+                    ))
+                }
+            },
+            (Some((_, volume)), true, None) => Some((volume.sample(&points.corners)?, None)),
+            _ => None,
+        };
+        watch.mark(Stage::Sampling);
+        let on_host = matches!(read, Some((_, Some(_))));
+        let s = match read {
+            Some((read, Some(host))) => Some(host.reduce(read, &self.body_reduce)),
+            Some((read, None)) => Some(linear_rows(&self.body_reduce, read)),
+            None => None,
+        };
+        let mean_z = match (s, self.variant.uses_body()) {
+            // Inference with host reads: the attention's view mean fused on the host.
+            (Some(s), true) if on_host && !s.is_autodiff() => {
+                self.attention.view_mean_on_host(s, l.clone())? // [M, d]
+            }
+            (Some(s), true) => view_mean(
+                self.attention
+                    .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))?, // [M, N, d]
+            ),
+            (None, true) => {
+                return Err(ModelError::Input(
+                    "the scene was encoded without a body volume".into(),
+                ))
+            }
+            (_, false) => view_mean(l.clone().swap_dims(0, 1)),
+        }; // [M, d]
+        let sigma = self.density.forward(mean_z.clone())?;
+        // Visual-hull carving (a switch): no density where a source mask says empty space.
+        let sigma = match &points.hull {
+            Some(hull) => sigma * hull.clone(),
+            None => sigma,
+        };
+        watch.mark(Stage::Mlps);
+        Ok(DensityPass {
+            sigma,
+            mean_z,
+            l,
+            proj_grid: points.proj_grid.clone(),
+            view_dir_features: points.view_dir_features.clone(),
+            visibility: points.visibility.clone(),
+            dirs: points.dirs.clone(),
+        })
+    }
+
+    /// The colour half of the network at the points of `density`: source colours c_n, F_c0 and
+    /// the blend.
+    pub(crate) fn query_colour(
+        &self,
+        scene: &SceneEncoding,
+        density: DensityPass,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let DensityPass {
+            sigma,
+            mean_z,
+            l,
+            proj_grid,
+            view_dir_features,
+            visibility,
+            dirs,
+        } = density;
+        let source_colours = fetch_source_colours_from(&scene.image_rows, proj_grid)?; // [N, M, 3]
+        watch.mark(Stage::Sampling);
+        let gamma = self.direction_encoding.forward(dirs)?;
+        let heads = self.colour.forward(mean_z, gamma)?;
+        let c0 = heads.c0.clone();
+        // Shuffling is F_B's augmentation: the fixed rules of (b)-(d) would only average noise.
+        let blend_c0 = scene
+            .c0_shuffle
+            .filter(|_| self.variant.uses_blender())
+            .map(|s| s.apply(heads.c0.clone(), visibility.clone()));
+        watch.mark(Stage::Mlps);
+        let blended = self.blender.colour(
+            self.variant,
+            BlendInputs {
+                c0: blend_c0.clone().unwrap_or(heads.c0),
+                confidence: heads.confidence,
+                h: heads.h,
+                source_colours: source_colours.clone(),
+                pixel_feature: l,
+                view_dir_features,
+                visibility,
+            },
+        )?;
+        let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
+        watch.mark(Stage::Blending);
+        Ok(PointOutput {
+            sigma,
+            colour: blended.colour,
+            c0,
+            blend_c0,
+            blend_weights: blended.blend_weights,
+            ibr_colour,
+        })
+    }
+}
+
+/// The density half of the network at M points ([`NiaModel::query_density`]) and the inputs
+/// of the colour half.
+#[derive(Debug, Clone)]
+pub(crate) struct DensityPass {
+    /// [M] density sigma, per metre.
+    pub sigma: Tensor<1>,
+    /// [M, d] the view mean of the attention's output, read by F_c0.
+    mean_z: Tensor<2>,
+    /// [N, M, d] pixel features l_n (F_B's p_n).
+    l: Tensor<3>,
+    /// [N, M, 2]
+    proj_grid: Tensor<3>,
+    /// [N, M, 4]
+    view_dir_features: Tensor<3>,
+    /// [N, M]
+    visibility: Tensor<2>,
+    /// [M, 3]
+    dirs: Tensor<2>,
+}
+
+impl DensityPass {
+    /// The points at `index` ([K] Int, into M), in that order.
+    pub fn select(&self, index: Tensor<1, Int>) -> Self {
+        DensityPass {
+            sigma: self.sigma.clone().select(0, index.clone()),
+            mean_z: self.mean_z.clone().select(0, index.clone()),
+            l: self.l.clone().select(1, index.clone()),
+            proj_grid: self.proj_grid.clone().select(1, index.clone()),
+            view_dir_features: self.view_dir_features.clone().select(1, index.clone()),
+            visibility: self.visibility.clone().select(1, index.clone()),
+            dirs: self.dirs.clone().select(0, index),
+        }
+    }
+}
+
+/// Weight a view keeps in [`ibr_only_colour`] whatever its blend weight, so a point that puts all
+/// weight on c0 gets the plain mean of the source colours instead of 0/0.
+const IBR_ONLY_FLOOR: f32 = 1e-6;
+
+/// The source colours under the blend weights of the views, renormalised over the views.
+///
+/// # Shapes
+/// - `blend_weights`: `[M, N + 1]` (index 0 = c0); `source_colours`: `[N, M, 3]`
+/// - output: `[M, 3]`
+fn ibr_only_colour(blend_weights: Tensor<2>, source_colours: Tensor<3>) -> Tensor<2> {
+    let [n, m, _] = source_colours.dims();
+    let views = blend_weights
+        .slice(s![.., 1..n + 1])
+        .add_scalar(IBR_ONLY_FLOOR)
+        .transpose()
+        .reshape([n, m, 1]);
+    let total = views.clone().sum_dim(0);
+    ((source_colours * views).sum_dim(0) / total).reshape([m, 3])
+}

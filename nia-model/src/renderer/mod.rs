@@ -1,0 +1,22 @@
+//! The renderer, last stage of the forward pass, and the render entry points:
+//!
+//! - [`quadrature`]: NeRF volume rendering of R rays of S ordered samples;
+//! - [`forward`]: [`crate::NiaModel::render`], one batch of rays through sampler -> field ->
+//!   quadrature;
+//! - [`termination`] and [`colour_culling`]: what an inference render may leave out behind an
+//!   opaque front or under a negligible weight;
+//! - [`image`]: whole target images in chunks of rays;
+//! - [`view`]: [`view::render_view`], the one entry point every command renders through (scene
+//!   encoding with the `[render]` options, rays through the pixels, the image).
+
+pub mod colour_culling;
+mod forward;
+pub mod image;
+pub mod quadrature;
+pub mod termination;
+pub mod view;
+
+pub use quadrature::{
+    render_rays, render_rays_delta, sample_weights, sample_weights_delta, RenderOutput,
+    OPTICAL_DEPTH_MAX,
+};

@@ -1,0 +1,145 @@
+//! The per-scene pass, done once and reused by every target view and ray chunk: the scene's
+//! CPU geometry, the ResNet-18 feature maps of the N source views (reduced to the widths their
+//! consumers read), the per-vertex pixel-aligned features (zero where the vertex is invisible)
+//! and the sparse-convolution body volume. For pose animation the body volume is built on the
+//! target pose's vertices and the encoding carries the [`Reposer`] that maps query points back
+//! to the scene's pose.
+
+use std::sync::Arc;
+
+use burn::prelude::*;
+use nia_data::body::reposing::Reposer;
+use nia_data::geometry::occupancy::OccupancyGrid;
+use nia_data::scene::{SceneError, SceneGeometry, SceneInput, VisualHull};
+
+mod encode;
+
+use crate::body_volume::{BodyVolume, BodyVolumeGeometry, HostVolume};
+use crate::encoder::bilinear::ViewRows;
+use crate::error::ModelError;
+use crate::ibr::c0_shuffle::C0Shuffle;
+use crate::model::NiaModel;
+
+/// Per-scene tensors and geometry.
+#[derive(Debug, Clone)]
+pub struct SceneEncoding {
+    /// The scene's CPU geometry (cameras, SMPL frame, ray box, surface index, visibility).
+    pub geometry: Arc<SceneGeometry>,
+    /// [N, 3, H, W] source images in [0, 1].
+    pub images: Tensor<4>,
+    /// The source images laid out as rows once, for the colour reads c_n of every ray chunk.
+    pub image_rows: ViewRows,
+    /// [N, C_v, H/2, W/2] the encoder's feature maps through the vertex reduction's weights
+    /// (`W_v^T F`, without the bias), laid out as rows: what the body volume's vertex features
+    /// sample, kept for rebuilding the volume in other poses.
+    pub vertex_rows: ViewRows,
+    /// [N, d, H/2, W/2] the feature maps through the pixel-feature reduction's weights
+    /// (`PixelFeature::reduce_maps`), laid out as rows once and sampled per point.
+    pub pixel_rows: ViewRows,
+    /// The body volume and its geometry (`None` for variant (a), which has no body).
+    pub volume: Option<(BodyVolumeGeometry, BodyVolume)>,
+    /// A host copy of the body volume's site features for the fused CPU read
+    /// ([`HostVolume`], inference on the CPU backends); `None` reads with tensor operations.
+    pub host_volume: Option<Arc<HostVolume>>,
+    /// Pose animation: maps query points of the rendered (target) pose to the scene's pose.
+    /// `None` renders the scene's own pose, with no reposing work at all.
+    pub reposer: Option<Arc<Reposer>>,
+    /// Empty-space skipping: the occupancy grid of the rendered pose's mesh (world frame).
+    /// `None` (the default) evaluates every sample.
+    pub occupancy: Option<Arc<OccupancyGrid>>,
+    /// Early ray termination (`renderer::termination`): the transmittance below which a ray evaluates no
+    /// more samples, at inference. `None` (the default) evaluates every kept sample.
+    pub termination: Option<f32>,
+    /// Colour culling (`renderer::colour_culling`): the per-ray budget of weight whose samples get no
+    /// colour evaluation, at inference. `None` (the default) colours every evaluated sample.
+    pub colour_culling: Option<f32>,
+    /// Training augmentation: F_B blends some points' c0 from other points (`ibr::c0_shuffle`).
+    /// `None` (the default, and always at inference) blends every point's own c0.
+    pub c0_shuffle: Option<C0Shuffle>,
+    /// Band sampling (`ModelConfig::ray_sampler`): the band's occupancy grid of the rendered
+    /// pose's mesh; `None` for stratified sampling.
+    pub band: Option<Arc<OccupancyGrid>>,
+    /// Visual-hull carving (`[render] visual_hull`, not in the paper): the density is
+    /// multiplied by how far inside every source view's dilated person mask a point projects
+    /// ([`VisualHull`]), and with empty-space skipping what it carves is not evaluated. `None`
+    /// (the default, and in training) is the paper's density.
+    pub visual_hull: Option<Arc<VisualHull>>,
+}
+
+impl SceneEncoding {
+    /// This encoding with empty-space skipping by `grid` (built on the mesh of the pose that
+    /// will be rendered: the scene's own for a novel view, the target pose's when reposing).
+    pub fn with_occupancy(mut self, grid: Option<Arc<OccupancyGrid>>) -> Self {
+        self.occupancy = grid;
+        self
+    }
+
+    /// This encoding with visual-hull carving from the person masks of `input` (the scene this
+    /// encoding was made from), each grown by `dilate_px` pixels (`None`: off).
+    pub fn with_visual_hull(
+        mut self,
+        input: &SceneInput,
+        dilate_px: Option<usize>,
+    ) -> Result<Self, ModelError> {
+        self.visual_hull = match dilate_px {
+            None => None,
+            Some(px) => {
+                let [h, w] = self.geometry.image_hw;
+                if input.views.len() != self.num_views() {
+                    return Err(ModelError::Input(format!(
+                        "visual hull: {} source views, the encoding has {}",
+                        input.views.len(),
+                        self.num_views()
+                    )));
+                }
+                let masks: Vec<&[f32]> = input.views.iter().map(|v| v.mask.as_slice()).collect();
+                let hull = VisualHull::new(&masks, w, h, px).map_err(SceneError::from)?;
+                Some(Arc::new(hull))
+            }
+        };
+        Ok(self)
+    }
+
+    /// This encoding with early ray termination below transmittance `epsilon` (`None`: off).
+    pub fn with_termination(mut self, epsilon: Option<f32>) -> Self {
+        self.termination = epsilon;
+        self
+    }
+
+    /// This encoding with colour culling within a per-ray weight budget `epsilon` (`None`: off).
+    pub fn with_colour_culling(mut self, epsilon: Option<f32>) -> Self {
+        self.colour_culling = epsilon;
+        self
+    }
+
+    /// This encoding with the body volume, the source images and the pixel-feature maps read
+    /// on the host (`on`, for the CPU backends at inference: [`HostVolume`],
+    /// [`ViewRows::with_host_copy`]) or with tensor operations (every backend, with gradients).
+    /// [`NiaModel::encode`] turns it on for a CPU device without autodiff; off is the
+    /// reference path the host read is tested against.
+    pub fn with_host_reads(mut self, model: &NiaModel, on: bool) -> Result<Self, ModelError> {
+        self.host_volume = match (&self.volume, on) {
+            (Some((_, volume)), true) => Some(Arc::new(model.host_volume(volume)?)),
+            _ => None,
+        };
+        let host_copy = |rows: ViewRows| match (on, rows.has_host_copy()) {
+            (true, false) => rows.with_host_copy(),
+            (true, true) => Ok(rows),
+            (false, _) => Ok(rows.without_host_copy()),
+        };
+        self.image_rows = host_copy(self.image_rows)?;
+        self.pixel_rows = host_copy(self.pixel_rows)?;
+        Ok(self)
+    }
+
+    /// This encoding with c0 shuffling in the blend (training only; `None`: off).
+    pub fn with_c0_shuffle(mut self, shuffle: Option<C0Shuffle>) -> Self {
+        self.c0_shuffle = shuffle;
+        self
+    }
+
+    /// Number of source views N.
+    pub fn num_views(&self) -> usize {
+        self.images.dims()[0]
+    }
+}

@@ -1,0 +1,240 @@
+//! One training step: each device's scene through the forward pass and the loss, its
+//! gradients, and their sum, clipped by the global norm (the parent module's docs).
+
+use burn::module::Module;
+use burn::optim::{GradientsParams, MultiGradientsParams};
+use burn::prelude::*;
+use nia_data::dataset::loader::{Scene, SceneTarget};
+use nia_data::rng::Rng;
+use nia_data::scene::SceneInput;
+use nia_model::ibr::c0_shuffle::C0Shuffle;
+use nia_model::loss::{distortion_loss, ibr_loss, mask_loss, render_loss};
+use nia_model::{ModelError, NiaModel};
+
+use super::gradients::{global_norm, scale_gradients, Merge};
+use super::TrainError;
+use crate::config::TrainConfig;
+
+/// Label of the jitter stream forked from a step's RNG (the loader uses the request seed).
+const JITTER_STREAM: u64 = 1;
+/// Label of the c0-shuffling stream forked from a step's RNG (`train.c0_shuffle`).
+const C0_SHUFFLE_STREAM: u64 = 2;
+
+pub(super) enum StepOutcome {
+    Taken {
+        grads: GradientsParams,
+        loss: f64,
+        mse: f64,
+        mse0: f64,
+        rays: usize,
+    },
+    Skipped(String),
+}
+
+pub(super) fn train_step(
+    model: &NiaModel,
+    scenes: &[Scene],
+    faces: &[[u32; 3]],
+    config: &TrainConfig,
+    step: u64,
+    devices: &[Device],
+) -> Result<StepOutcome, TrainError> {
+    if scenes.len() != devices.len() {
+        return Err(TrainError::NoRays(step));
+    }
+    let k = devices.len() as u64;
+    // The devices take their scenes one after the other, each on its replica of the model
+    // (forked to it; the first is the model itself). Running the replicas' backward passes
+    // on threads at once gave other gradients than one at a time with burn 0.22's autodiff
+    // (weights 0.76 apart after 2 steps, nia-train/tests/multi_device.rs), so this build
+    // does not overlap devices.
+    let mut outcomes = Vec::with_capacity(scenes.len());
+    for (i, (scene, device)) in scenes.iter().zip(devices).enumerate() {
+        let replica = if i == 0 {
+            model.clone()
+        } else {
+            model.clone().fork(device)
+        };
+        let index = step * k + i as u64;
+        outcomes.push(scene_gradients(
+            &replica, scene, faces, config, step, index, device,
+        ));
+    }
+    combine(model, outcomes, devices, config)
+}
+
+/// The step of the devices' `outcomes`: skipped if any scene was, else the summed, clipped
+/// gradient and the scenes' mean losses.
+fn combine(
+    model: &NiaModel,
+    outcomes: Vec<Result<SceneOutcome, TrainError>>,
+    devices: &[Device],
+    config: &TrainConfig,
+) -> Result<StepOutcome, TrainError> {
+    let main = &devices[0];
+    let mut parts = Vec::with_capacity(outcomes.len());
+    for (outcome, device) in outcomes.into_iter().zip(devices) {
+        match outcome? {
+            SceneOutcome::Skipped(reason) => return Ok(StepOutcome::Skipped(reason)),
+            SceneOutcome::Taken(part) => parts.push((part, device.clone())),
+        }
+    }
+    let n = parts.len() as f64;
+    let loss = parts.iter().map(|(p, _)| p.loss).sum::<f64>() / n;
+    let mse = parts.iter().map(|(p, _)| p.mse).sum::<f64>() / n;
+    let mse0 = parts.iter().map(|(p, _)| p.mse0).sum::<f64>() / n;
+    let rays = parts.iter().map(|(p, _)| p.rays).sum();
+    // The gradient of the summed loss: burn's MultiGradientsParams adds each parameter's
+    // gradients from every device; the sum is moved to the model's device.
+    let mut grads = if parts.len() == 1 {
+        parts.pop().expect("one part").0.grads
+    } else {
+        let mut multi = MultiGradientsParams {
+            grads: parts.into_iter().map(|(p, d)| (p.grads, d)).collect(),
+        };
+        let mut merge = Merge {
+            multi: &mut multi,
+            out: GradientsParams::new(),
+            device: main,
+        };
+        model.visit(&mut merge);
+        merge.out
+    };
+    let norm = global_norm(model, &grads);
+    if !norm.is_finite() {
+        return Ok(StepOutcome::Skipped(format!("gradient norm is {norm}")));
+    }
+    let max_norm = config.optim.grad_clip_norm as f64;
+    if max_norm > 0.0 && norm > max_norm {
+        scale_gradients(model, &mut grads, (max_norm / norm) as f32);
+    }
+    Ok(StepOutcome::Taken {
+        grads,
+        loss,
+        mse,
+        mse0,
+        rays,
+    })
+}
+
+/// One scene's share of a step.
+struct ScenePart {
+    grads: GradientsParams,
+    loss: f64,
+    mse: f64,
+    mse0: f64,
+    rays: usize,
+}
+
+enum SceneOutcome {
+    Taken(ScenePart),
+    Skipped(String),
+}
+
+/// The loss of one scene on `device` (the model's replica there) and its raw gradients.
+/// `index` (the scene's number in the run) seeds the sample jitter.
+fn scene_gradients(
+    model: &NiaModel,
+    scene: &Scene,
+    faces: &[[u32; 3]],
+    config: &TrainConfig,
+    step: u64,
+    index: u64,
+    device: &Device,
+) -> Result<SceneOutcome, TrainError> {
+    let SceneTarget::Rays(rays) = &scene.target else {
+        return Err(TrainError::NoRays(step));
+    };
+    let model_err = |source| TrainError::Model {
+        step,
+        subject: scene.subject.clone(),
+        frame: scene.frame,
+        source,
+    };
+    let input = SceneInput::from_loaded(scene, faces);
+    let c0_shuffle = (config.train.c0_shuffle > 0.0).then(|| C0Shuffle {
+        fraction: config.train.c0_shuffle,
+        seed: Rng::new(config.train.seed)
+            .fork(index)
+            .fork(C0_SHUFFLE_STREAM)
+            .next_u64(),
+        seen_only: config.train.c0_shuffle_seen_only,
+    });
+    let encoded = model
+        .encode(&input, None, device, None)
+        .map_err(model_err)?
+        .with_c0_shuffle(c0_shuffle);
+    let samples = config.train.samples;
+    let mut jitter_rng = Rng::new(config.train.seed).fork(index).fork(JITTER_STREAM);
+    let jitter: Vec<f32> = (0..rays.len() * samples)
+        .map(|_| jitter_rng.uniform())
+        .collect();
+    let out = model
+        .render(&encoded, &rays.rays, samples, Some(&jitter), None)
+        .map_err(model_err)?;
+    let gt: Vec<f32> = rays.rgb.iter().flatten().copied().collect();
+    let gt = Tensor::<2>::from_data(TensorData::new(gt, [rays.len(), 3]), device);
+    let acc = out.acc.clone();
+    let distortion = if config.train.distortion_loss_weight > 0.0 {
+        Some(
+            distortion_loss(out.weights.clone(), out.t.clone(), out.delta.clone())
+                .map_err(|e| model_err(ModelError::Shape(e)))?,
+        )
+    } else {
+        None
+    };
+    let ibr = if config.train.ibr_loss_weight > 0.0 {
+        // NiaModel::render always fills the IBR-only composite; its absence is an error, not a
+        // loss term silently left out.
+        let rgb_ibr = out.rgb_ibr.clone().ok_or_else(|| {
+            model_err(ModelError::Input(
+                "train.ibr_loss_weight > 0 but the render has no IBR-only composite".into(),
+            ))
+        })?;
+        Some(ibr_loss(rgb_ibr, gt.clone()).map_err(|e| model_err(ModelError::Shape(e)))?)
+    } else {
+        None
+    };
+    let mut loss =
+        render_loss(out.rgb, out.rgb0, gt).map_err(|e| model_err(ModelError::Shape(e)))?;
+    if let Some(ibr) = ibr {
+        loss.total = loss.total + ibr.mul_scalar(config.train.ibr_loss_weight);
+    }
+    if config.train.mask_loss_weight > 0.0 {
+        let on_body: Vec<f32> = rays.on_body.iter().map(|&b| b as u8 as f32).collect();
+        let on_body = Tensor::<1>::from_data(TensorData::new(on_body, [rays.len()]), device);
+        let mask = mask_loss(acc, on_body).map_err(|e| model_err(ModelError::Shape(e)))?;
+        loss.total = loss.total + mask.mul_scalar(config.train.mask_loss_weight);
+    }
+    if let Some(distortion) = distortion {
+        loss.total = loss.total + distortion.mul_scalar(config.train.distortion_loss_weight);
+    }
+    let values = Tensor::cat(
+        vec![
+            loss.total.clone().detach(),
+            loss.mse.detach(),
+            loss.mse0.detach(),
+        ],
+        0,
+    )
+    .into_data()
+    .convert::<f32>()
+    .try_to_vec::<f32>()
+    .unwrap_or_default();
+    let [total, mse, mse0] = match values.as_slice() {
+        [a, b, c] => [*a as f64, *b as f64, *c as f64],
+        _ => return Ok(SceneOutcome::Skipped("the loss could not be read".into())),
+    };
+    if !total.is_finite() {
+        return Ok(SceneOutcome::Skipped(format!("loss is {total}")));
+    }
+    let grads = loss.total.backward();
+    let grads = GradientsParams::from_grads(grads, model);
+    Ok(SceneOutcome::Taken(ScenePart {
+        grads,
+        loss: total,
+        mse,
+        mse0,
+        rays: rays.len(),
+    }))
+}
