@@ -3,8 +3,10 @@
 //! ([`nia_model::renderer::view`]) called with them. Each command keeps only its own concern
 //! (which cameras, which poses, what it writes).
 
+use std::path::PathBuf;
 use std::sync::Arc;
 
+use clap::Args;
 use nia_data::body::reposing::Reposer;
 use nia_data::dataset::loader::Scene;
 use nia_data::geometry::camera::Camera;
@@ -17,12 +19,39 @@ use nia_model::scene_encoding::SceneEncoding;
 use nia_model::timing::StageTimes;
 
 use crate::model_load::{LoadedModel, ModelArgs};
-use crate::subject_scene::{OpenedSubject, SubjectArgs, ViewList};
+use serde::Serialize;
+
+use crate::subject_scene::{parse_views, OpenedSubject, SubjectArgs, ViewList};
+
+/// The model, the subject and its source views: the arguments of every command that renders
+/// a subject.
+#[derive(Args, Debug)]
+pub struct SessionArgs {
+    #[command(flatten)]
+    pub model: ModelArgs,
+    #[command(flatten)]
+    pub subject: SubjectArgs,
+    /// Source cameras, e.g. 0,7,15 (default: the input views of the split protocol of the
+    /// subject's dataset, as `eval` uses).
+    #[arg(long, value_parser = parse_views)]
+    pub views: Option<ViewList>,
+}
+
+/// What every rendering command's report starts with.
+#[derive(Serialize)]
+pub struct SessionReport {
+    pub model: PathBuf,
+    pub subject: PathBuf,
+    pub views: Vec<usize>,
+    pub samples: usize,
+}
 
 /// A model and a subject, ready to render.
 pub struct RenderSession {
     pub loaded: LoadedModel,
     pub opened: OpenedSubject,
+    /// The source views.
+    pub views: Vec<usize>,
     /// The model's `[render]` settings with the command line's overrides.
     pub options: RenderOptions,
     /// Samples per ray.
@@ -32,26 +61,38 @@ pub struct RenderSession {
 }
 
 impl RenderSession {
-    /// Opens the model file and the subject, and checks the render flags.
-    pub fn open(model: &ModelArgs, subject: &SubjectArgs) -> anyhow::Result<Self> {
-        let loaded = LoadedModel::open(model)?;
-        let options = loaded.render_options(model)?;
-        let opened = OpenedSubject::open(subject, &loaded.run)?;
+    /// Opens the model file and the subject, checks the render flags and the source views.
+    pub fn open(args: &SessionArgs) -> anyhow::Result<Self> {
+        let loaded = LoadedModel::open(&args.model)?;
+        let options = loaded.render_options(&args.model)?;
+        let opened = OpenedSubject::open(&args.subject, &loaded.run)?;
+        let views = opened.views_or_protocol(args.views.as_ref(), &loaded.run)?;
         Ok(RenderSession {
-            samples: loaded.samples(model),
-            chunk: model.chunk,
+            samples: loaded.samples(&args.model),
+            chunk: args.model.chunk,
             loaded,
             opened,
+            views,
             options,
         })
     }
 
-    /// The source views: `given`, else the input views of the subject's dataset protocol.
-    pub fn views(&self, given: Option<&ViewList>) -> anyhow::Result<Vec<usize>> {
-        self.opened.views_or_protocol(given, &self.loaded.run)
+    /// The scene of `frame` from the session's source views.
+    pub fn scene(&self, frame: usize) -> anyhow::Result<Scene> {
+        self.opened.scene(frame, &self.views)
     }
 
-    /// The scene of `frame` from `views`, encoded for rendering its own pose.
+    /// The part of a command's report that names the model, the subject and the views.
+    pub fn report(&self) -> SessionReport {
+        SessionReport {
+            model: self.loaded.path.clone(),
+            subject: self.opened.dir.clone(),
+            views: self.views.clone(),
+            samples: self.samples,
+        }
+    }
+
+    /// `scene` encoded for rendering its own pose.
     pub fn prepare(
         &self,
         scene: &Scene,

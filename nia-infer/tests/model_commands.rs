@@ -2,10 +2,15 @@
 //! (2 steps of the tiny network on a tiny synthetic dataset), run as a user would, plus the
 //! errors of broken model files and data folders.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use std::sync::OnceLock;
 
+use common::{
+    copy_dir, fails_with, fresh_dir, gif_frames, json_file, nia_infer, ok, s, train_tiny,
+};
 use nia_data::dataset::protocol::EvalSplit;
 use nia_data::dataset::OpenedDataset;
 use nia_infer::eval::{eval_items, evaluate_images, EvalOptions, EvalTask};
@@ -13,7 +18,6 @@ use nia_model::store::checkpoint;
 use nia_model::store::model_file::{ModelFile, MAGIC};
 use nia_train::config::TrainConfig;
 use nia_train::events::TrainEvent;
-use nia_train::train_loop::{train, RunOptions};
 
 /// Eval in nia-infer and at the end of training render the same rays with the same weights
 /// (including BatchNorm's running statistics); only the chunking differs (1024 rays vs the
@@ -35,78 +39,19 @@ struct Trained {
 fn trained() -> &'static Trained {
     static TRAINED: OnceLock<Trained> = OnceLock::new();
     TRAINED.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("nia-infer-models-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        let config = dir.join("tiny.toml");
-        std::fs::write(
-            &config,
-            format!(
-                r#"
-[data]
-root = "{}"
-ratio = 1.0
-border_px = 1
-loader_threads = 1
-
-[synth]
-subjects = 2
-frames = 3
-cameras = 4
-size = 40
-supersample = 1
-test_fraction = 0.5
-
-[model]
-preset = "tiny"
-
-[train]
-steps = 2
-rays_per_step = 32
-samples = 8
-source_views = 3
-seed = 11
-checkpoint_every = 2
-validate_every = 0
-evaluate_at_end = true
-backend = "ndarray"
-"#,
-                dir.join("data").display().to_string().replace('\\', "/")
-            ),
-        )
-        .unwrap();
-        let run = dir.join("run");
-        // Trained in-process through nia-train's library (the same loop as its binary).
-        let config = TrainConfig::load(&config).unwrap();
+        let dir = fresh_dir("models");
         let mut evaluation = None;
-        train(
-            &config,
-            &RunOptions {
-                out: run.clone(),
-                resume: false,
-            },
-            &mut |event| {
-                if let TrainEvent::Evaluation {
-                    images, psnr, ssim, ..
-                } = event
-                {
-                    evaluation = Some(serde_json::json!({
-                        "images": images, "psnr": psnr, "ssim": ssim
-                    }));
-                }
-            },
-        )
-        .unwrap();
+        let (run, model) = train_tiny(&dir, 40, 11, true, &mut |event| {
+            if let TrainEvent::Evaluation {
+                images, psnr, ssim, ..
+            } = event
+            {
+                evaluation = Some(serde_json::json!({
+                    "images": images, "psnr": psnr, "ssim": ssim
+                }));
+            }
+        });
         let evaluation = evaluation.expect("nia-train evaluated the unseen subject");
-        let model = dir.join("tiny.nia");
-        let out = nia_infer(&[
-            "export",
-            "--checkpoint",
-            run.to_str().unwrap(),
-            "--out",
-            model.to_str().unwrap(),
-        ]);
-        ok(&out);
         Trained {
             dir,
             run,
@@ -116,29 +61,14 @@ backend = "ndarray"
     })
 }
 
-fn nia_infer(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nia-infer"))
-        .args(args)
-        .output()
-        .expect("run nia-infer")
-}
-
-fn ok(out: &Output) {
-    assert!(
-        out.status.success(),
-        "nia-infer failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-/// Exit non-zero with every `expected` text in stderr, and no panic.
-fn fails_with(out: &Output, expected: &[&str]) {
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "expected a failure, got success");
-    assert!(!err.contains("panicked"), "panicked: {err}");
-    for e in expected {
-        assert!(err.contains(e), "stderr lacks `{e}`: {err}");
-    }
+/// `nia-infer COMMAND --model <the trained model> FLAGS.. EXTRA.. --out OUT`, where `flags` are
+/// words separated by spaces and `extra` the arguments with paths or spaces.
+fn on_model(command: &str, flags: &str, extra: &[&str], out: &Path) -> Output {
+    let mut args = vec![command, "--model", s(&trained().model)];
+    args.extend(flags.split_whitespace());
+    args.extend_from_slice(extra);
+    args.extend(["--out", s(out)]);
+    nia_infer(&args)
 }
 
 fn scratch(name: &str) -> PathBuf {
@@ -146,10 +76,6 @@ fn scratch(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 #[test]
@@ -167,19 +93,8 @@ fn export_writes_a_self_describing_file() {
 fn eval_reproduces_the_numbers_training_printed() {
     let t = trained();
     let out_dir = scratch("eval");
-    let out = nia_infer(&[
-        "eval",
-        "--model",
-        s(&t.model),
-        "--backend",
-        "ndarray",
-        "--out",
-        s(&out_dir),
-    ]);
-    ok(&out);
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("metrics.json")).unwrap())
-            .unwrap();
+    ok(&on_model("eval", "--backend ndarray", &[], &out_dir));
+    let metrics = json_file(&out_dir.join("metrics.json"));
     let overall = &metrics["overall"];
     assert_eq!(overall["images"], t.evaluation["images"]);
     let (psnr, train_psnr) = (
@@ -211,24 +126,21 @@ fn eval_reproduces_the_numbers_training_printed() {
             image["frame"].as_u64().unwrap(),
             image["target_view"].as_u64().unwrap()
         );
-        let grid = image::open(out_dir.join("pictures").join(format!("{stem}_grid.png")))
-            .unwrap()
-            .to_rgb8();
-        // 3 sources + prediction + ground truth + error map, 40 px each, 2 px gaps.
-        assert_eq!((grid.width(), grid.height()), (6 * 40 + 5 * 2, 40));
-        let parts = image::open(out_dir.join("pictures").join(format!("{stem}_parts.png")))
-            .unwrap()
-            .to_rgb8();
-        // C0 + IBR-only + prediction + ground truth + opacity.
-        assert_eq!((parts.width(), parts.height()), (5 * 40 + 4 * 2, 40));
-        let blend = image::open(out_dir.join("pictures").join(format!("{stem}_blend.png")))
-            .unwrap()
-            .to_rgb8();
-        assert_eq!(
-            blend.width(),
-            4 * 40 + 3 * 2,
-            "NeRF + 3 source-view channels"
-        );
+        // Panels of 40 px with 2 px gaps: the grid's 3 sources + prediction + ground truth +
+        // error map; the parts' C0 + IBR-only + prediction + ground truth + opacity; the
+        // blend's NeRF + 3 source-view channels.
+        for (picture, panels) in [("grid", 6), ("parts", 5), ("blend", 4)] {
+            let png = image::open(
+                out_dir
+                    .join("pictures")
+                    .join(format!("{stem}_{picture}.png")),
+            )
+            .unwrap();
+            assert_eq!(png.width(), panels * 40 + (panels - 1) * 2, "{picture}");
+            if picture != "blend" {
+                assert_eq!(png.height(), 40, "{picture}");
+            }
+        }
     }
     assert_eq!(metrics["subjects"].as_object().unwrap().len(), 1);
     let csv = std::fs::read_to_string(out_dir.join("metrics.csv")).unwrap();
@@ -241,7 +153,6 @@ fn eval_reproduces_the_numbers_training_printed() {
 /// evaluated with its own split, from its `synth.json`; a broken description is named.
 #[test]
 fn eval_on_another_synthetic_set_uses_that_sets_split() {
-    let t = trained();
     let dir = scratch("eval-other-set");
     let other = dir.join("data");
     let spec = nia_data::synth::SynthSpec {
@@ -257,25 +168,11 @@ fn eval_on_another_synthetic_set_uses_that_sets_split() {
     nia_data::synth::generate(&spec, &other, &mut |_| {}).unwrap();
     let out_dir = dir.join("out");
     let eval = |data: &Path| {
-        nia_infer(&[
-            "eval",
-            "--model",
-            s(&t.model),
-            "--backend",
-            "ndarray",
-            "--data",
-            s(data),
-            "--split",
-            "test",
-            "--no-pictures",
-            "--out",
-            s(&out_dir),
-        ])
+        let flags = "--backend ndarray --split test --no-pictures";
+        on_model("eval", flags, &["--data", s(data)], &out_dir)
     };
     ok(&eval(&other));
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("metrics.json")).unwrap())
-            .unwrap();
+    let metrics = json_file(&out_dir.join("metrics.json"));
     // The model's own set has 2 people (1 unseen); this one 3, of which CoreView_3 is unseen.
     let subjects: Vec<&String> = metrics["subjects"].as_object().unwrap().keys().collect();
     assert_eq!(subjects, vec!["CoreView_3"]);
@@ -283,35 +180,15 @@ fn eval_on_another_synthetic_set_uses_that_sets_split() {
     // A description without its `spec` is an error naming the file.
     let description = other.join("synth.json");
     std::fs::write(&description, "{\"generator\": \"nia-data synth\"}").unwrap();
-    let out = eval(&other);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("synth.json") && err.contains("`spec`"),
-        "{err}"
-    );
+    fails_with(&eval(&other), &["synth.json", "`spec`"]);
 }
 
 #[test]
 fn novel_pose_eval_reposes_from_the_reference_frame() {
-    let t = trained();
     let out_dir = scratch("eval-pose");
-    let out = nia_infer(&[
-        "eval",
-        "--model",
-        s(&t.model),
-        "--backend",
-        "ndarray",
-        "--task",
-        "novel_pose",
-        "--no-pictures",
-        "--out",
-        s(&out_dir),
-    ]);
-    ok(&out);
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("metrics.json")).unwrap())
-            .unwrap();
+    let flags = "--backend ndarray --task novel_pose --no-pictures";
+    ok(&on_model("eval", flags, &[], &out_dir));
+    let metrics = json_file(&out_dir.join("metrics.json"));
     assert_eq!(metrics["task"], "novel_pose");
     let images = metrics["images"].as_array().unwrap();
     assert!(!images.is_empty());
@@ -384,25 +261,10 @@ fn exported_file_renders_what_the_checkpoint_renders() {
 /// as many frames (an MP4 where ffmpeg is installed), the person in every view.
 #[test]
 fn orbit_turns_around_the_subject() {
-    let t = trained();
     let out_dir = scratch("orbit");
-    let out = nia_infer(&[
-        "orbit",
-        "--model",
-        s(&t.model),
-        "--subject",
-        "CoreView_2",
-        "--frame",
-        "1",
-        "--steps",
-        "4",
-        "--out",
-        s(&out_dir),
-    ]);
-    ok(&out);
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("orbit.json")).unwrap())
-            .unwrap();
+    let flags = "--subject CoreView_2 --frame 1 --steps 4";
+    ok(&on_model("orbit", flags, &[], &out_dir));
+    let report = json_file(&out_dir.join("orbit.json"));
     assert_eq!(report["views"], serde_json::json!([0, 1, 3]));
     let radius = report["radius_m"].as_f64().unwrap();
     assert!(radius > 0.5 && radius < 10.0, "radius {radius}");
@@ -419,14 +281,7 @@ fn orbit_turns_around_the_subject() {
             "view {k}: the person is in view ({lit} lit pixels)"
         );
     }
-    let gif = std::fs::File::open(out_dir.join("orbit.gif")).unwrap();
-    use image::AnimationDecoder;
-    let frames = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif))
-        .unwrap()
-        .into_frames()
-        .collect_frames()
-        .unwrap();
-    assert_eq!(frames.len(), 4);
+    assert_eq!(gif_frames(&out_dir.join("orbit.gif")), 4);
     let ffmpeg = std::process::Command::new("ffmpeg")
         .arg("-version")
         .output()
@@ -442,25 +297,10 @@ fn render_and_animate_write_pictures() {
     let out_dir = scratch("render");
     // `--data` is the dataset root in every command; `--subject` a name under it. Without
     // `--views`, the sources are the synthetic protocol's input views (4 cameras: 0, 1, 3).
-    let out = nia_infer(&[
-        "render",
-        "--model",
-        s(&t.model),
-        "--data",
-        s(&t.dir.join("data")),
-        "--subject",
-        "CoreView_2",
-        "--frame",
-        "1",
-        "--targets",
-        "3,1",
-        "--out",
-        s(&out_dir),
-    ]);
-    ok(&out);
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("render.json")).unwrap())
-            .unwrap();
+    let root = t.dir.join("data");
+    let flags = "--subject CoreView_2 --frame 1 --targets 3,1";
+    ok(&on_model("render", flags, &["--data", s(&root)], &out_dir));
+    let report = json_file(&out_dir.join("render.json"));
     assert_eq!(report["views"], serde_json::json!([0, 1, 3]));
     for (i, view) in [3, 1].iter().enumerate() {
         let img = &report["images"][i];
@@ -477,60 +317,23 @@ fn render_and_animate_write_pictures() {
         assert_eq!((png.width(), png.height()), (40, 40));
     }
 
-    let anim = scratch("animate");
-    let out = nia_infer(&[
-        "animate",
-        "--model",
-        s(&t.model),
-        "--subject",
-        s(&subject),
-        "--ref-frame",
-        "0",
-        "--views",
-        "0,1,2",
-        "--target",
-        "3",
-        "--poses",
-        "0..=2",
-        "--out",
-        s(&anim),
-    ]);
-    ok(&out);
+    // Poses from a range of frames, then from a folder of params files (here the subject's
+    // own, in name order).
+    let params = subject.join("params");
+    let animate = |poses: [&str; 2], name: &str| {
+        let out = scratch(name);
+        let extra = [&["--subject", s(&subject)][..], &poses].concat();
+        let flags = "--ref-frame 0 --views 0,1,2 --target 3";
+        ok(&on_model("animate", flags, &extra, &out));
+        out
+    };
+    let anim = animate(["--poses", "0..=2"], "animate");
     for i in 0..3 {
         assert!(anim.join(format!("pose_{i:04}.png")).is_file());
     }
-    let gif = std::fs::File::open(anim.join("animation.gif")).unwrap();
-    use image::AnimationDecoder;
-    let frames = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif))
-        .unwrap()
-        .into_frames()
-        .collect_frames()
-        .unwrap();
-    assert_eq!(frames.len(), 3);
-
-    // Poses from a folder of params files (here the subject's own, in name order).
-    let from_params = scratch("animate-params");
-    let out = nia_infer(&[
-        "animate",
-        "--model",
-        s(&t.model),
-        "--subject",
-        s(&subject),
-        "--ref-frame",
-        "0",
-        "--views",
-        "0,1,2",
-        "--target",
-        "3",
-        "--params",
-        s(&subject.join("params")),
-        "--out",
-        s(&from_params),
-    ]);
-    ok(&out);
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(from_params.join("animate.json")).unwrap())
-            .unwrap();
+    assert_eq!(gif_frames(&anim.join("animation.gif")), 3);
+    let from_params = animate(["--params", s(&params)], "animate-params");
+    let report = json_file(&from_params.join("animate.json"));
     let poses = report["poses"].as_array().unwrap();
     assert_eq!(poses.len(), 3, "one pose per params file");
     assert!(poses[2]["pose"].as_str().unwrap().ends_with("2.npy"));
@@ -538,26 +341,9 @@ fn render_and_animate_write_pictures() {
 
 #[test]
 fn sweep_writes_the_table_and_the_plot() {
-    let t = trained();
     let out_dir = scratch("sweep");
-    let out = nia_infer(&[
-        "sweep",
-        "--model",
-        s(&t.model),
-        "--sample-counts",
-        "8",
-        "--view-counts",
-        "1,3",
-        "--ratios",
-        "1.0",
-        "--supersamples",
-        "1,2",
-        "--limit",
-        "1",
-        "--out",
-        s(&out_dir),
-    ]);
-    ok(&out);
+    let axes = "--sample-counts 8 --view-counts 1,3 --ratios 1.0 --supersamples 1,2";
+    ok(&on_model("sweep", axes, &["--limit", "1"], &out_dir));
     let csv = std::fs::read_to_string(out_dir.join("sweep.csv")).unwrap();
     // 1 sample count x 2 view counts x 1 ratio x 2 supersamplings x skipping on/off, plus the
     // header.
@@ -647,84 +433,36 @@ fn broken_model_files_and_data_give_clear_errors() {
     let data = dir.join("data");
     copy_dir(&t.dir.join("data/CoreView_2"), &data);
     std::fs::remove_dir_all(data.join("Camera_B2")).unwrap();
-    let render = |subject: &Path, views: &str| {
-        nia_infer(&[
-            "render",
-            "--model",
-            s(&t.model),
-            "--subject",
-            s(subject),
-            "--smpl",
-            s(&t.dir.join("data/body_model.npz")),
-            "--frame",
-            "0",
-            "--views",
-            views,
-            "--targets",
-            "3",
-            "--out",
-            s(&dir.join("render")),
-        ])
-    };
-    fails_with(
-        &render(&data, "0,1,2"),
-        &["Camera_B2", "camera folder missing"],
+    let (own, smpl) = (
+        t.dir.join("data/CoreView_2"),
+        t.dir.join("data/body_model.npz"),
     );
-    // A camera index the subject does not have.
-    fails_with(
-        &render(&t.dir.join("data/CoreView_2"), "0,1,9"),
-        &["--views 9", "4 cameras"],
-    );
-    // `--data` given a subject folder says what it expects instead.
-    fails_with(
-        &nia_infer(&[
-            "render",
-            "--model",
-            s(&t.model),
-            "--data",
-            s(&t.dir.join("data/CoreView_2")),
-            "--subject",
-            "CoreView_2",
-            "--frame",
-            "0",
-            "--targets",
-            "3",
-            "--out",
-            s(&dir.join("render")),
-        ]),
-        &[
-            "a subject folder, not a dataset root",
-            "--subject CoreView_2",
-        ],
-    );
-    // A subject that is not there names where it looked.
-    fails_with(
-        &nia_infer(&[
-            "render",
-            "--model",
-            s(&t.model),
-            "--subject",
-            "CoreView_99",
-            "--frame",
-            "0",
-            "--targets",
-            "3",
-            "--out",
-            s(&dir.join("render")),
-        ]),
-        &["--subject CoreView_99", "annots.npy"],
-    );
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), &target).unwrap();
-        }
+    let with_views =
+        |subject, views| vec!["--subject", subject, "--smpl", s(&smpl), "--views", views];
+    let cases: [(Vec<&str>, &[&str]); 4] = [
+        (
+            with_views(s(&data), "0,1,2"),
+            &["Camera_B2", "camera folder missing"],
+        ),
+        // A camera index the subject does not have.
+        (with_views(s(&own), "0,1,9"), &["--views 9", "4 cameras"]),
+        // `--data` given a subject folder says what it expects instead.
+        (
+            vec!["--data", s(&own), "--subject", "CoreView_2"],
+            &[
+                "a subject folder, not a dataset root",
+                "--subject CoreView_2",
+            ],
+        ),
+        // A subject that is not there names where it looked.
+        (
+            vec!["--subject", "CoreView_99"],
+            &["--subject CoreView_99", "annots.npy"],
+        ),
+    ];
+    let render_out = dir.join("render");
+    for (flags, expected) in cases {
+        let out = on_model("render", "--frame 0 --targets 3", &flags, &render_out);
+        fails_with(&out, expected);
     }
 }

@@ -20,24 +20,17 @@ use nia_infer::pictures::{rgb8, save_gif, save_png};
 use nia_model::timing::StageTimes;
 use serde::Serialize;
 
-use crate::model_load::ModelArgs;
 use crate::output::{progress_bar, write_json};
-use crate::session::RenderSession;
-use crate::subject_scene::{parse_views, OpenedSubject, SubjectArgs, ViewList};
+use crate::session::{RenderSession, SessionArgs, SessionReport};
+use crate::subject_scene::OpenedSubject;
 
 #[derive(Args, Debug)]
 pub struct AnimateArgs {
     #[command(flatten)]
-    pub model: ModelArgs,
-    #[command(flatten)]
-    pub subject: SubjectArgs,
+    pub session: SessionArgs,
     /// The frame whose source images show the subject.
     #[arg(long)]
     pub ref_frame: usize,
-    /// Source cameras of the reference frame, e.g. 0,7,15 (default: the input views of the
-    /// model's split protocol, as `eval` uses).
-    #[arg(long, value_parser = parse_views)]
-    pub views: Option<ViewList>,
     /// The camera to render from.
     #[arg(long, default_value_t = 0)]
     pub target: usize,
@@ -102,12 +95,10 @@ struct PoseReport {
 
 #[derive(Serialize)]
 struct Report {
-    model: PathBuf,
-    subject: PathBuf,
+    #[serde(flatten)]
+    session: SessionReport,
     ref_frame: usize,
-    views: Vec<usize>,
     target: usize,
-    samples: usize,
     gif: String,
     poses: Vec<PoseReport>,
 }
@@ -143,13 +134,12 @@ fn poses(args: &AnimateArgs, opened: &OpenedSubject) -> anyhow::Result<Vec<(Stri
 }
 
 pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
-    let session = RenderSession::open(&args.model, &args.subject)?;
+    let session = RenderSession::open(&args.session)?;
     let opened = &session.opened;
     opened.check_views("--target", &[args.target])?;
     opened.check_frame("--ref-frame", args.ref_frame)?;
     let poses = poses(args, opened)?;
-    let views = session.views(args.views.as_ref())?;
-    let scene = opened.scene(args.ref_frame, &views)?;
+    let scene = session.scene(args.ref_frame)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 
@@ -195,12 +185,9 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
     let gif = "animation.gif";
     save_gif(&args.out.join(gif), &frames, 1000 / args.fps.max(1))?;
     let report = Report {
-        model: session.loaded.path.clone(),
-        subject: opened.dir.clone(),
+        session: session.report(),
         ref_frame: args.ref_frame,
-        views,
         target: args.target,
-        samples: session.samples,
         gif: gif.into(),
         poses: reports,
     };

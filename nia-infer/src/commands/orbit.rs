@@ -12,23 +12,16 @@ use nia_data::geometry::orbit::Ring;
 use nia_infer::pictures::{rgb8, save_gif, save_png};
 use serde::Serialize;
 
-use crate::model_load::ModelArgs;
 use crate::output::{progress_bar, write_json};
-use crate::session::RenderSession;
-use crate::subject_scene::{parse_views, SubjectArgs, ViewList};
+use crate::session::{RenderSession, SessionArgs, SessionReport};
 
 #[derive(Args, Debug)]
 pub struct OrbitArgs {
     #[command(flatten)]
-    pub model: ModelArgs,
-    #[command(flatten)]
-    pub subject: SubjectArgs,
+    pub session: SessionArgs,
     /// Frame index (position in `annots['ims']`).
     #[arg(long, default_value_t = 0)]
     pub frame: usize,
-    /// Source cameras, e.g. 0,7,15 (default: the input views of the model's split protocol).
-    #[arg(long, value_parser = parse_views)]
-    pub views: Option<ViewList>,
     /// Views around the full turn.
     #[arg(long, default_value_t = 36)]
     pub steps: usize,
@@ -42,11 +35,9 @@ pub struct OrbitArgs {
 
 #[derive(Serialize)]
 struct Report {
-    model: PathBuf,
-    subject: PathBuf,
+    #[serde(flatten)]
+    session: SessionReport,
     frame: usize,
-    views: Vec<usize>,
-    samples: usize,
     steps: usize,
     fps: u32,
     /// Ring radius and camera height above the body centre, metres.
@@ -67,10 +58,9 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
     if args.fps == 0 {
         anyhow::bail!("--fps must be at least 1");
     }
-    let session = RenderSession::open(&args.model, &args.subject)?;
+    let session = RenderSession::open(&args.session)?;
     let opened = &session.opened;
-    let views = session.views(args.views.as_ref())?;
-    let scene = opened.scene(args.frame, &views)?;
+    let scene = session.scene(args.frame)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 
@@ -106,11 +96,8 @@ pub fn run(args: &OrbitArgs) -> anyhow::Result<()> {
         eprintln!("ffmpeg not found: orbit.mp4 not written (the GIF and the PNG frames are)");
     }
     let report = Report {
-        model: session.loaded.path.clone(),
-        subject: opened.dir.clone(),
+        session: session.report(),
         frame: args.frame,
-        views,
-        samples: session.samples,
         steps: args.steps,
         fps: args.fps,
         radius_m: ring.radius,

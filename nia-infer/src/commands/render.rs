@@ -12,24 +12,17 @@ use nia_model::render_options::RenderOptions;
 use nia_model::timing::StageTimes;
 use serde::Serialize;
 
-use crate::model_load::ModelArgs;
 use crate::output::{progress_bar, write_json};
-use crate::session::RenderSession;
-use crate::subject_scene::{parse_views, SubjectArgs, ViewList};
+use crate::session::{RenderSession, SessionArgs, SessionReport};
+use crate::subject_scene::{parse_views, ViewList};
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     #[command(flatten)]
-    pub model: ModelArgs,
-    #[command(flatten)]
-    pub subject: SubjectArgs,
+    pub session: SessionArgs,
     /// Frame index (position in `annots['ims']`).
     #[arg(long)]
     pub frame: usize,
-    /// Source cameras, e.g. 0,7,15 (default: the input views of the model's split protocol,
-    /// as `eval` uses).
-    #[arg(long, value_parser = parse_views)]
-    pub views: Option<ViewList>,
     /// Target cameras to render, e.g. 3,5.
     #[arg(long, value_parser = parse_views)]
     pub targets: ViewList,
@@ -57,11 +50,9 @@ pub struct ImageReport {
 
 #[derive(Serialize)]
 struct Report {
-    model: PathBuf,
-    subject: PathBuf,
+    #[serde(flatten)]
+    session: SessionReport,
     frame: usize,
-    views: Vec<usize>,
-    samples: usize,
     chunk: usize,
     adaptive: RenderOptions,
     /// Per-scene work (encoder, body volume), done once for all targets.
@@ -72,11 +63,10 @@ struct Report {
 
 pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let targets: Vec<usize> = args.targets.0.clone();
-    let session = RenderSession::open(&args.model, &args.subject)?;
+    let session = RenderSession::open(&args.session)?;
     let opened = &session.opened;
-    let views = session.views(args.views.as_ref())?;
     opened.check_views("--targets", &targets)?;
-    let scene = opened.scene(args.frame, &views)?;
+    let scene = session.scene(args.frame)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 
@@ -135,11 +125,8 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         });
     }
     let report = Report {
-        model: session.loaded.path.clone(),
-        subject: opened.dir.clone(),
+        session: session.report(),
         frame: args.frame,
-        views,
-        samples: session.samples,
         chunk: session.chunk,
         adaptive: session.options,
         encode_seconds,

@@ -6,24 +6,17 @@ use std::sync::Arc;
 use anyhow::Context;
 use clap::Args;
 
-use crate::model_load::ModelArgs;
-use crate::session::RenderSession;
-use crate::subject_scene::{parse_views, SubjectArgs, ViewList};
+use crate::session::{RenderSession, SessionArgs};
 use crate::viewer::server::{serve, Viewer};
 use crate::viewer::ViewerScene;
 
 #[derive(Args, Debug)]
 pub struct ViewArgs {
     #[command(flatten)]
-    pub model: ModelArgs,
-    #[command(flatten)]
-    pub subject: SubjectArgs,
+    pub session: SessionArgs,
     /// The reference frame: its images are the sources for every pose.
     #[arg(long, default_value_t = 0)]
     pub frame: usize,
-    /// Source cameras (default: the input views of the model's split protocol).
-    #[arg(long, value_parser = parse_views)]
-    pub views: Option<ViewList>,
     /// Port (0: any free port; the URL says which).
     #[arg(long, default_value_t = 8080)]
     pub port: u16,
@@ -33,10 +26,9 @@ pub struct ViewArgs {
 }
 
 pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
-    let session = RenderSession::open(&args.model, &args.subject)?;
+    let session = RenderSession::open(&args.session)?;
     session.opened.check_frame("--frame", args.frame)?;
-    let views = session.views(args.views.as_ref())?;
-    let scene = ViewerScene::new(session, args.frame, views)?;
+    let scene = ViewerScene::new(session, args.frame)?;
     let encode = scene.encode_seconds;
     let address = format!("{}:{}", args.host, args.port);
     let server = tiny_http::Server::http(&address)

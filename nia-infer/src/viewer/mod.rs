@@ -128,7 +128,6 @@ pub struct ViewerScene {
     /// The model, the subject and the `[render]` options.
     pub session: RenderSession,
     pub reference_frame: usize,
-    pub views: Vec<usize>,
     scene: Scene,
     base: SceneEncoding,
     pub ring: Ring,
@@ -140,13 +139,9 @@ pub struct ViewerScene {
 
 impl ViewerScene {
     /// Opens and encodes the reference frame's scene from `views`.
-    pub fn new(
-        session: RenderSession,
-        reference_frame: usize,
-        views: Vec<usize>,
-    ) -> anyhow::Result<Self> {
+    pub fn new(session: RenderSession, reference_frame: usize) -> anyhow::Result<Self> {
         let opened = &session.opened;
-        let scene = opened.scene(reference_frame, &views)?;
+        let scene = session.scene(reference_frame)?;
         let cameras = &opened.subject().cameras;
         let ring = Ring::of(cameras, scene.body_box.centre())
             .with_context(|| format!("the camera ring of {}", opened.dir.display()))?;
@@ -157,7 +152,6 @@ impl ViewerScene {
             encode_seconds: started.elapsed().as_secs_f64(),
             session,
             reference_frame,
-            views,
             scene,
             base,
             ring,
@@ -171,7 +165,7 @@ impl ViewerScene {
         self.session.opened.subject().num_frames()
     }
 
-    /// The source images as thumbnails (`index` into [`Self::views`]).
+    /// The source images as thumbnails (`index` into the session's views).
     pub fn source_png(&self, index: usize) -> Option<Vec<u8>> {
         let view = &self.scene.sources.get(index)?.image;
         let img = rgb8(&view.image, view.width() as usize, view.height() as usize);

@@ -43,7 +43,7 @@ impl Viewer {
             "subject": scene.session.opened.subject().name,
             "frames": scene.num_frames(),
             "reference_frame": scene.reference_frame,
-            "views": scene.views,
+            "views": scene.session.views,
             "width": cam.width,
             "height": cam.height,
             "modes": Mode::ALL.iter().map(|m| m.name()).collect::<Vec<_>>(),
@@ -55,7 +55,7 @@ impl Viewer {
             "model": scene.session.loaded.path,
             "step": scene.session.loaded.step,
         });
-        let sources = (0..scene.views.len())
+        let sources = (0..scene.session.views.len())
             .filter_map(|k| scene.source_png(k))
             .collect();
         Viewer {
