@@ -206,13 +206,16 @@ pub struct OpenedDataset {
 
 impl OpenedDataset {
     /// Opens `subjects` (folder names under `data.root`) with `protocol`; a missing folder is
-    /// skipped unless `required`. `rays_per_image`: training rays per scene.
+    /// skipped unless `required`. `rays_per_image`: training rays per scene. The protocol is
+    /// checked first ([`Protocol::validate`]), then against each opened subject
+    /// ([`Protocol::check_subject`]: its views exist and no target view is an input view).
     pub fn open(
         data: &DataConfig,
         protocol: Protocol,
         subjects: &[(String, bool)],
         rays_per_image: usize,
     ) -> Result<Self, OpenError> {
+        protocol.validate()?;
         let smpl = data.smpl_path();
         let model = BodyModel::load(&smpl).map_err(|source| OpenError::Body {
             path: smpl.clone(),

@@ -45,6 +45,18 @@ pub enum ProtocolError {
         view: usize,
         num_cameras: usize,
     },
+    /// An evaluation target that is also one of the input views: the render would see the
+    /// image it is scored against.
+    #[error(
+        "protocol `{protocol}`: subject `{subject}`: target view {view} (camera index) is also \
+         one of the input views {inputs:?}; a target view must be held out from the inputs"
+    )]
+    TargetIsInput {
+        protocol: String,
+        subject: String,
+        view: usize,
+        inputs: Vec<usize>,
+    },
     #[error(
         "protocol `{protocol}`: subject `{subject}`: frame range starts at {begin} but the \
          subject has only {num_frames} frames"
@@ -404,7 +416,8 @@ impl Protocol {
             .collect()
     }
 
-    /// Checks the definition itself (no data needed).
+    /// Checks the definition itself (no data needed), including that no explicit target view
+    /// of an evaluated subject is an explicit input view ([`ProtocolError::TargetIsInput`]).
     pub fn validate(&self) -> Result<(), ProtocolError> {
         let bad = |field: &str, msg: &str| ProtocolError::Invalid {
             protocol: self.name.clone(),
@@ -453,6 +466,7 @@ impl Protocol {
                 _ => {}
             }
         }
+        self.check_targets_held_out()?;
         for s in &self.train {
             if self.unseen_subjects.iter().any(|u| u.subject == s.subject) {
                 return Err(bad(
@@ -462,6 +476,50 @@ impl Protocol {
             }
         }
         Ok(())
+    }
+
+    /// The data-free part of the held-out check: where the input views and a subject's target
+    /// views are both explicit lists, no target may be an input. Checked for every subject of
+    /// an evaluation split and every subject with its own target views; sets that depend on
+    /// the number of cameras are checked per subject by [`Self::check_subject`] and
+    /// [`Self::eval_items`].
+    fn check_targets_held_out(&self) -> Result<(), ProtocolError> {
+        let ViewSet::Explicit { views: inputs } = &self.input_views else {
+            return Ok(());
+        };
+        let subjects = EvalSplit::ALL
+            .iter()
+            .flat_map(|&split| self.split(split))
+            .map(|s| s.subject.as_str())
+            .chain(self.target_views_by_subject.keys().map(String::as_str));
+        for subject in subjects {
+            let targets = self
+                .target_views_by_subject
+                .get(subject)
+                .unwrap_or(&self.target_views);
+            if let ViewSet::Explicit { views } = targets {
+                self.check_held_out(subject, inputs, views)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// `targets` of `subject` hold none of `inputs`.
+    fn check_held_out(
+        &self,
+        subject: &str,
+        inputs: &[usize],
+        targets: &[usize],
+    ) -> Result<(), ProtocolError> {
+        match targets.iter().find(|v| inputs.contains(v)) {
+            Some(&view) => Err(ProtocolError::TargetIsInput {
+                protocol: self.name.clone(),
+                subject: subject.into(),
+                view,
+                inputs: inputs.to_vec(),
+            }),
+            None => Ok(()),
+        }
     }
 
     fn check_views(&self, subject: &str, num_cameras: usize) -> Result<(), ProtocolError> {
@@ -478,7 +536,7 @@ impl Protocol {
                 });
             }
         }
-        Ok(())
+        self.check_held_out(subject, &inputs, &targets)
     }
 
     fn check_range(&self, entry: &SubjectFrames, num_frames: usize) -> Result<(), ProtocolError> {
@@ -493,8 +551,9 @@ impl Protocol {
         Ok(())
     }
 
-    /// Checks that `subject`'s views exist, that it has enough cameras to train on, and that
-    /// every frame range naming it starts inside the data.
+    /// Checks that `subject`'s views exist, that none of its target views is an input view,
+    /// that it has enough cameras to train on, and that every frame range naming it starts
+    /// inside the data.
     pub fn check_subject(
         &self,
         subject: &str,
@@ -528,7 +587,8 @@ impl Protocol {
 
     /// The evaluation images of `split`: for each subject, every `test_frame_stride`-th frame
     /// of its range and each target view, rendered from the input views. `num_frames` and
-    /// `num_cameras` give each subject's size (from its annotations).
+    /// `num_cameras` give each subject's size (from its annotations). A view out of range or a
+    /// target view among the input views ([`ProtocolError::TargetIsInput`]) is an error.
     pub fn eval_items(
         &self,
         split: EvalSplit,

@@ -23,7 +23,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use glam::{Mat3, Vec2, Vec3};
-use image::{GrayImage, RgbImage};
+use image::RgbImage;
 use rayon::prelude::*;
 
 /// Where the centre of a pixel lies relative to its integer index, in pixels: the centre of
@@ -407,11 +407,6 @@ impl Camera {
         self.undistort_map()?.remap_rgb(image)
     }
 
-    /// `cv2.undistort(mask, K, dist)` for a grey image (e.g. a mask) of the camera's size.
-    pub fn undistort_gray(&self, image: &GrayImage) -> Result<GrayImage, CameraError> {
-        self.undistort_map()?.remap_gray(image)
-    }
-
     /// `cv2.undistort` for an interleaved float image `[H, W, channels]` of the camera's size.
     pub fn undistort_channels(
         &self,
@@ -490,15 +485,6 @@ impl UndistortMap {
         RgbImage::from_raw(w, h, out).ok_or_else(|| invalid("image", "a consistent buffer", (w, h)))
     }
 
-    /// Undistorts a grey image (bilinear, black outside, rounded to the nearest level).
-    pub fn remap_gray(&self, image: &GrayImage) -> Result<GrayImage, CameraError> {
-        let (w, h) = image.dimensions();
-        self.check("undistort grey image", w, h, image.as_raw().len(), 1)?;
-        let out = self.remap_u8(image.as_raw(), 1);
-        GrayImage::from_raw(w, h, out)
-            .ok_or_else(|| invalid("image", "a consistent buffer", (w, h)))
-    }
-
     /// Undistorts an interleaved float image `[H, W, channels]` (bilinear, 0 outside).
     pub fn remap_f32(&self, data: &[f32], channels: usize) -> Result<Vec<f32>, CameraError> {
         self.check(
@@ -531,7 +517,7 @@ impl UndistortMap {
         }
         let w = self.width as usize;
         let mut out = vec![0u8; data.len()];
-        // Callers pass 1 (grey) or 3 (RGB) channels.
+        // The caller passes 3 (RGB) channels; `acc` holds up to 4.
         out.par_chunks_mut(w * channels)
             .zip(self.source.par_chunks(w))
             .for_each(|(row, src)| {

@@ -228,11 +228,6 @@ impl OccupancyGrid {
         self.occupied[self.index(x, y, z)]
     }
 
-    /// The share of cells marked, in [0, 1].
-    pub fn occupied_fraction(&self) -> f64 {
-        self.occupied.iter().filter(|&&o| o).count() as f64 / self.occupied.len().max(1) as f64
-    }
-
     /// Cells along x, y, z.
     pub fn dims(&self) -> [usize; 3] {
         self.dims

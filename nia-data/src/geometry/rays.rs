@@ -64,16 +64,6 @@ fn ray_with(camera: &Camera, rt: glam::Mat3, origin: Vec3, pixel: Vec2) -> Ray {
     Ray { origin, dir }
 }
 
-/// [N] rays through a list of pixel positions (see [`pixel_ray`]).
-pub fn pixel_rays(camera: &Camera, pixels: &[Vec2]) -> Vec<Ray> {
-    let rt = camera.r.transpose();
-    let origin = camera.centre();
-    pixels
-        .iter()
-        .map(|p| ray_with(camera, rt, origin, *p))
-        .collect()
-}
-
 /// [H * W] rays through every pixel centre ([`pixel_centre`]), row-major (`y * width + x`).
 pub fn image_rays(camera: &Camera) -> Vec<Ray> {
     let rt = camera.r.transpose();

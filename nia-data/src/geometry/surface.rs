@@ -552,8 +552,7 @@ pub fn interpolate_weights(
     out: &mut [f32],
 ) -> Result<(), MeshError> {
     const WHAT: &str = "interpolate_weights";
-    #[allow(clippy::manual_is_multiple_of)] // `is_multiple_of` needs Rust 1.87; MSRV is 1.85.
-    if k == 0 || weights.len() % k != 0 {
+    if k == 0 || !weights.len().is_multiple_of(k) {
         return Err(MeshError::Invalid {
             what: WHAT,
             field: "weights",

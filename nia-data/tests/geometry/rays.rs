@@ -2,8 +2,11 @@
 
 use super::*;
 
+/// The ray through a projected point's pixel position passes through the point; the rays of
+/// whole images (`image_rays`, `RayBundle::through_pixels`) are those pixel rays at the pixel
+/// centres.
 #[test]
-fn pixel_rays_pass_through_projected_points() {
+fn pixel_ray_passes_through_projected_points() {
     let c = Camera::look_at(
         Vec3::new(1.0, 2.0, 3.0),
         Vec3::new(0.0, 0.8, 0.0),
@@ -33,6 +36,15 @@ fn pixel_rays_pass_through_projected_points() {
     let r = pixel_ray(&c, Vec2::new(17.0, 33.0));
     assert!((all[33 * 200 + 17].dir - r.dir).length() < 1e-6);
     assert_eq!(all[33 * 200 + 17], r);
+    // A box around the camera and the scene keeps every pixel, in order, one centre ray each.
+    let around = Aabb::new(Vec3::splat(-10.0), Vec3::splat(10.0));
+    let bundle = RayBundle::through_pixels(&c, &around, None);
+    assert_eq!(bundle.len(), all.len());
+    for (i, ray) in all.iter().enumerate() {
+        assert_eq!(bundle.pixels[i], i as u32);
+        assert_eq!((bundle.origins[i], bundle.dirs[i]), (ray.origin, ray.dir));
+        assert!(bundle.far[i] > bundle.near[i]);
+    }
 }
 
 #[test]
