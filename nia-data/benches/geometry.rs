@@ -15,89 +15,44 @@ use nia_data::geometry::visibility::{vertex_visibility, visibility, DEFAULT_DEPT
 use nia_data::rng::Rng;
 use std::time::Instant;
 
+#[path = "../tests/geometry/sphere.rs"]
+mod sphere;
+use sphere::{uv_sphere, Mesh};
+
 const WARMUP: usize = 3;
 const REPS: usize = 15;
 
-/// A closed UV ellipsoid appended to the mesh.
-fn ellipsoid(
-    v: &mut Vec<Vec3>,
-    f: &mut Vec<[u32; 3]>,
-    centre: Vec3,
-    radii: Vec3,
-    n_lat: u32,
-    n_lon: u32,
-) {
-    let base = v.len() as u32;
-    v.push(centre + Vec3::new(0.0, radii.y, 0.0));
-    for i in 1..n_lat {
-        let theta = std::f32::consts::PI * i as f32 / n_lat as f32;
-        for j in 0..n_lon {
-            let phi = std::f32::consts::TAU * j as f32 / n_lon as f32;
-            let d = Vec3::new(
-                theta.sin() * phi.cos(),
-                theta.cos(),
-                theta.sin() * phi.sin(),
-            );
-            v.push(centre + d * radii);
-        }
-    }
-    v.push(centre - Vec3::new(0.0, radii.y, 0.0));
-    let south = v.len() as u32 - 1;
-    let ring = |i: u32, j: u32| base + 1 + (i - 1) * n_lon + (j % n_lon);
-    for j in 0..n_lon {
-        f.push([base, ring(1, j + 1), ring(1, j)]);
-        f.push([south, ring(n_lat - 1, j), ring(n_lat - 1, j + 1)]);
-    }
-    for i in 1..n_lat - 1 {
-        for j in 0..n_lon {
-            let (a, b, c, d) = (
-                ring(i, j),
-                ring(i, j + 1),
-                ring(i + 1, j),
-                ring(i + 1, j + 1),
-            );
-            f.push([a, d, c]);
-            f.push([a, b, d]);
-        }
-    }
-}
+/// The body's ellipsoids: centre and radii (metres), latitude rings, longitude segments.
+const TRUNK: [([f32; 3], [f32; 3], u32, u32); 2] = [
+    ([0.0, 1.2, 0.0], [0.19, 0.32, 0.12], 30, 60), // torso
+    ([0.0, 1.63, 0.0], [0.09, 0.12, 0.1], 24, 48), // head
+];
 
-/// Torso, head, arms and legs (metres, y up, person ~1.75 m tall facing +z).
-fn body_like_mesh() -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    let (mut v, mut f) = (Vec::new(), Vec::new());
-    ellipsoid(
-        &mut v,
-        &mut f,
-        Vec3::new(0.0, 1.2, 0.0),
-        Vec3::new(0.19, 0.32, 0.12),
-        30,
-        60,
-    );
-    ellipsoid(
-        &mut v,
-        &mut f,
-        Vec3::new(0.0, 1.63, 0.0),
-        Vec3::new(0.09, 0.12, 0.1),
-        24,
-        48,
-    );
+/// The limbs on the person's left (+x), mirrored to the right: arm, leg.
+const LIMBS: [([f32; 3], [f32; 3], u32, u32); 2] = [
+    ([0.26, 1.15, 0.05], [0.05, 0.33, 0.05], 26, 40),
+    ([0.1, 0.45, 0.0], [0.075, 0.45, 0.08], 26, 40),
+];
+
+/// Torso, head, arms and legs (metres, y up, person ~1.75 m tall facing +z): each a unit
+/// [`uv_sphere`] (z up) turned y up by swapping y and z, which mirrors it, so its triangles are
+/// reversed to keep them outward, then scaled by the radii and moved to the centre.
+fn body_like_mesh() -> Mesh {
+    let mut parts = TRUNK.to_vec();
     for s in [-1.0f32, 1.0] {
-        ellipsoid(
-            &mut v,
-            &mut f,
-            Vec3::new(0.26 * s, 1.15, 0.05),
-            Vec3::new(0.05, 0.33, 0.05),
-            26,
-            40,
+        parts.extend(
+            LIMBS.map(|([x, y, z], radii, n_lat, n_lon)| ([x * s, y, z], radii, n_lat, n_lon)),
         );
-        ellipsoid(
-            &mut v,
-            &mut f,
-            Vec3::new(0.1 * s, 0.45, 0.0),
-            Vec3::new(0.075, 0.45, 0.08),
-            26,
-            40,
+    }
+    let (mut v, mut f) = (Vec::new(), Vec::new());
+    for (centre, radii, n_lat, n_lon) in parts {
+        let (sv, sf) = uv_sphere(Vec3::ZERO, n_lat, n_lon, |_, _| 1.0);
+        let base = v.len() as u32;
+        v.extend(
+            sv.iter()
+                .map(|p| Vec3::from(centre) + Vec3::new(p.x, p.z, p.y) * Vec3::from(radii)),
         );
+        f.extend(sf.iter().map(|&[a, b, c]| [a + base, c + base, b + base]));
     }
     (v, f)
 }

@@ -93,6 +93,16 @@ impl fmt::Debug for ImageView<'_> {
 }
 
 impl<'a> ImageView<'a> {
+    /// [H * W] channel `ch` as f64.
+    fn plane(&self, ch: usize) -> Vec<f64> {
+        self.data
+            .iter()
+            .skip(ch)
+            .step_by(self.channels)
+            .map(|v| *v as f64)
+            .collect()
+    }
+
     /// A view, checked for size and finiteness (`what` names it in errors).
     pub fn new(
         what: &'static str,
@@ -259,20 +269,7 @@ pub fn ssim(a: &ImageView, b: &ImageView, options: SsimOptions) -> Result<f64, M
     }
     let mut total = 0.0f64;
     for ch in 0..c {
-        let x: Vec<f64> = a
-            .data
-            .iter()
-            .skip(ch)
-            .step_by(c)
-            .map(|v| *v as f64)
-            .collect();
-        let y: Vec<f64> = b
-            .data
-            .iter()
-            .skip(ch)
-            .step_by(c)
-            .map(|v| *v as f64)
-            .collect();
+        let (x, y) = (a.plane(ch), b.plane(ch));
         total += ssim_plane(&x, &y, w, h, options.data_range);
     }
     Ok(total / c as f64)

@@ -12,7 +12,7 @@ use nia_data::dataset::loader::{
 };
 use nia_data::dataset::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
 use nia_data::dataset::sampling::{border_band, sample_rays, BoxPadding, RaySamplingConfig};
-use nia_data::dataset::vis_cache::{self, VisibilityCache};
+use nia_data::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use nia_data::dataset::{DatasetConfig, Subject};
 use nia_data::geometry::rays::mask_at_box;
 use nia_data::geometry::visibility::DEFAULT_DEPTH_TOL_M;
@@ -54,15 +54,18 @@ fn training_rays_follow_nhp_rules_and_are_deterministic() {
         body_fraction: 0.5,
         border_px: 3,
     };
-    let rays = sample_rays(
-        &view.camera,
-        &view.image,
-        &view.mask,
-        &body_box,
-        &config,
-        &mut Rng::new(5),
-    )
-    .unwrap();
+    let sample = |seed| {
+        sample_rays(
+            &view.camera,
+            &view.image,
+            &view.mask,
+            &body_box,
+            &config,
+            &mut Rng::new(seed),
+        )
+        .unwrap()
+    };
+    let rays = sample(5);
     assert_eq!(rays.len(), 256);
     let (w, h) = (view.width() as usize, view.height() as usize);
     let in_box = mask_at_box(&view.camera, &body_box);
@@ -97,25 +100,9 @@ fn training_rays_follow_nhp_rules_and_are_deterministic() {
     }
     // The second half also reaches the background inside the box.
     assert!(rays.on_body[128..].iter().any(|b| !b));
-    let again = sample_rays(
-        &view.camera,
-        &view.image,
-        &view.mask,
-        &body_box,
-        &config,
-        &mut Rng::new(5),
-    )
-    .unwrap();
+    let again = sample(5);
     assert_eq!(rays, again);
-    let other = sample_rays(
-        &view.camera,
-        &view.image,
-        &view.mask,
-        &body_box,
-        &config,
-        &mut Rng::new(6),
-    )
-    .unwrap();
+    let other = sample(6);
     assert_ne!(rays.rays.pixels, other.rays.pixels);
 }
 
@@ -127,43 +114,49 @@ fn visibility_cache_hits_and_invalidates() {
     let model = fixture_model();
     let vertices = s.load_vertices(0).unwrap();
     let camera = s.cameras[1];
-    let direct = vis_cache::compute(
-        &s.name,
-        0,
-        1,
-        &camera,
-        &vertices,
-        &model.faces,
-        DEFAULT_DEPTH_TOL_M,
-    )
-    .unwrap();
+    let base = VisibilityQuery {
+        subject: &s.name,
+        frame: 0,
+        view: 1,
+        camera: &camera,
+        vertices: &vertices,
+        faces: &model.faces,
+        depth_tol_m: DEFAULT_DEPTH_TOL_M,
+    };
+    let direct = vis_cache::compute(&base).unwrap();
     assert_eq!(direct.len(), 30);
     let visible = direct.iter().filter(|v| **v == 1).count();
     assert!(
         visible > 5 && visible < 30,
         "a closed body is partly hidden: {visible}"
     );
-    let get = |v: &[glam::Vec3], tol: f32| {
-        cache
-            .get_or_compute(&s.name, 0, 1, &camera, v, &model.faces, tol)
-            .unwrap()
-    };
-    assert_eq!(get(&vertices, DEFAULT_DEPTH_TOL_M), direct);
+    let get = |query: VisibilityQuery| cache.get_or_compute(&query).unwrap();
+    assert_eq!(get(base), direct);
     assert_eq!(cache.stats(), (0, 1));
-    assert_eq!(get(&vertices, DEFAULT_DEPTH_TOL_M), direct);
+    assert_eq!(get(base), direct);
     assert_eq!(cache.stats(), (1, 1), "second lookup is a hit");
     assert!(cache.entry_path(&s.name, 0, 1).is_file());
     // Changed inputs miss: a moved vertex, another tolerance, another camera size.
     let mut moved = vertices.clone();
     moved[3].x += 1e-4;
-    get(&moved, DEFAULT_DEPTH_TOL_M);
+    let moved = VisibilityQuery {
+        vertices: &moved,
+        ..base
+    };
+    get(moved);
     assert_eq!(cache.stats(), (1, 2));
-    get(&moved, 0.05);
+    get(VisibilityQuery {
+        depth_tol_m: 0.05,
+        ..moved
+    });
     assert_eq!(cache.stats(), (1, 3));
     let bigger = s.raw_cameras[1];
-    cache
-        .get_or_compute(&s.name, 0, 1, &bigger, &moved, &model.faces, 0.05)
-        .unwrap();
+    let bigger = VisibilityQuery {
+        camera: &bigger,
+        depth_tol_m: 0.05,
+        ..moved
+    };
+    get(bigger);
     assert_eq!(cache.stats(), (1, 4));
     // A corrupt file is recomputed, not trusted.
     let path = cache.entry_path(&s.name, 0, 1);
@@ -171,12 +164,9 @@ fn visibility_cache_hits_and_invalidates() {
     let n = bytes.len();
     bytes[n - 12] ^= 1;
     std::fs::write(&path, bytes).unwrap();
-    let fresh = cache
-        .get_or_compute(&s.name, 0, 1, &bigger, &moved, &model.faces, 0.05)
-        .unwrap();
+    let fresh = get(bigger);
     assert_eq!(cache.stats(), (1, 5));
-    let recomputed =
-        vis_cache::compute(&s.name, 0, 1, &bigger, &moved, &model.faces, 0.05).unwrap();
+    let recomputed = vis_cache::compute(&bigger).unwrap();
     assert_eq!(fresh, recomputed);
     let _ = std::fs::remove_dir_all(&dir);
 }

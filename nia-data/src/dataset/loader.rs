@@ -25,7 +25,7 @@ use crate::dataset::protocol::{EvalItem, Protocol};
 use crate::dataset::sampling::{
     sample_rays, BoxPadding, RaySamplingConfig, SamplingError, TrainRays,
 };
-use crate::dataset::vis_cache::{self, VisibilityCache};
+use crate::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use crate::dataset::{DatasetError, Subject, ViewImage};
 use crate::geometry::rays::{mask_at_box, Aabb};
 use crate::geometry::visibility::DEFAULT_DEPTH_TOL_M;
@@ -214,26 +214,18 @@ pub fn load_scene(
     let mut sources = Vec::with_capacity(request.input_views.len());
     for &view in &request.input_views {
         let image = subject.load_view(frame, view)?;
-        let tol = config.visibility_depth_tol_m;
+        let query = VisibilityQuery {
+            subject: &subject.name,
+            frame,
+            view,
+            camera: &image.camera,
+            vertices: &vertices,
+            faces: &source.faces,
+            depth_tol_m: config.visibility_depth_tol_m,
+        };
         let visibility = match &source.cache {
-            Some(cache) => cache.get_or_compute(
-                &subject.name,
-                frame,
-                view,
-                &image.camera,
-                &vertices,
-                &source.faces,
-                tol,
-            )?,
-            None => vis_cache::compute(
-                &subject.name,
-                frame,
-                view,
-                &image.camera,
-                &vertices,
-                &source.faces,
-                tol,
-            )?,
+            Some(cache) => cache.get_or_compute(&query)?,
+            None => vis_cache::compute(&query)?,
         };
         sources.push(LoadedView {
             view,

@@ -30,7 +30,7 @@ pub use inspect::{inspect, InspectReport};
 pub use monocap::MonoCapLbs;
 pub use opened::{DataConfig, OpenError, OpenedDataset, ProtocolName};
 pub use subject::{FrameFiles, Subject, ViewImage};
-pub use vis_cache::{VisibilityCache, VisibilityKey};
+pub use vis_cache::{VisibilityCache, VisibilityKey, VisibilityQuery};
 
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;

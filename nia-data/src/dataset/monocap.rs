@@ -60,26 +60,40 @@ fn array(path: &Path) -> Result<Option<Numeric>, DatasetError> {
     Ok(Some((a.shape.clone(), values)))
 }
 
-fn points(path: &Path, rows: Option<usize>) -> Result<Option<Vec<Vec3>>, DatasetError> {
+/// The array at `path` if present, checked by `ok` (on its shape and values); `expected`
+/// describes the array in the error when the check fails.
+fn checked(
+    path: &Path,
+    expected: &str,
+    ok: impl Fn(&[usize], &[f64]) -> bool,
+) -> Result<Option<Numeric>, DatasetError> {
     let Some((shape, v)) = array(path)? else {
         return Ok(None);
     };
-    if shape.len() != 2 || shape[1] != 3 || rows.is_some_and(|r| shape[0] != r) {
+    if !ok(&shape, &v) {
         return Err(DatasetError::field(
             path,
             "<array>",
-            match rows {
-                Some(_) => "shape [24, 3]",
-                None => "shape [V, 3]",
-            },
+            expected,
             format!("shape {shape:?}"),
         ));
     }
-    Ok(Some(
+    Ok(Some((shape, v)))
+}
+
+fn points(path: &Path, rows: Option<usize>) -> Result<Option<Vec<Vec3>>, DatasetError> {
+    let expected = match rows {
+        Some(_) => "shape [24, 3]",
+        None => "shape [V, 3]",
+    };
+    let array = checked(path, expected, |shape, _| {
+        shape.len() == 2 && shape[1] == 3 && rows.is_none_or(|r| shape[0] == r)
+    })?;
+    Ok(array.map(|(_, v)| {
         v.chunks_exact(3)
             .map(|c| Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32))
-            .collect(),
-    ))
+            .collect()
+    }))
 }
 
 impl MonoCapLbs {
@@ -92,58 +106,28 @@ impl MonoCapLbs {
             });
         }
         let joints = points(&dir.join("joints.npy"), Some(LBS_JOINTS))?;
-        let parents_path = dir.join("parents.npy");
-        let parents = match array(&parents_path)? {
-            None => None,
-            Some((shape, v)) => {
-                if v.len() != LBS_JOINTS || v.iter().any(|p| p.fract() != 0.0) {
-                    return Err(DatasetError::field(
-                        &parents_path,
-                        "<array>",
-                        "24 integer parent indices",
-                        format!("shape {shape:?}"),
-                    ));
-                }
-                Some(v.iter().map(|p| *p as i64).collect())
-            }
-        };
-        let weights_path = dir.join("weights.npy");
-        let weights = match array(&weights_path)? {
-            None => None,
-            Some((shape, v)) => {
-                if shape.len() != 2 || shape[1] != LBS_JOINTS {
-                    return Err(DatasetError::field(
-                        &weights_path,
-                        "<array>",
-                        "shape [V, 24]",
-                        format!("shape {shape:?}"),
-                    ));
-                }
-                Some(v.iter().map(|w| *w as f32).collect())
-            }
-        };
-        let faces_path = dir.join("faces.npy");
-        let faces = match array(&faces_path)? {
-            None => None,
-            Some((shape, v)) => {
-                if shape.len() != 2
-                    || shape[1] != 3
-                    || v.iter().any(|i| *i < 0.0 || i.fract() != 0.0)
-                {
-                    return Err(DatasetError::field(
-                        &faces_path,
-                        "<array>",
-                        "shape [F, 3] of vertex indices",
-                        format!("shape {shape:?}"),
-                    ));
-                }
-                Some(
-                    v.chunks_exact(3)
-                        .map(|c| [c[0] as u32, c[1] as u32, c[2] as u32])
-                        .collect(),
-                )
-            }
-        };
+        let parents = checked(
+            &dir.join("parents.npy"),
+            "24 integer parent indices",
+            |_, v| v.len() == LBS_JOINTS && v.iter().all(|p| p.fract() == 0.0),
+        )?
+        .map(|(_, v)| v.iter().map(|p| *p as i64).collect());
+        let weights = checked(&dir.join("weights.npy"), "shape [V, 24]", |shape, _| {
+            shape.len() == 2 && shape[1] == LBS_JOINTS
+        })?
+        .map(|(_, v)| v.iter().map(|w| *w as f32).collect());
+        let faces = checked(
+            &dir.join("faces.npy"),
+            "shape [F, 3] of vertex indices",
+            |shape, v| {
+                shape.len() == 2 && shape[1] == 3 && v.iter().all(|i| *i >= 0.0 && i.fract() == 0.0)
+            },
+        )?
+        .map(|(_, v)| {
+            v.chunks_exact(3)
+                .map(|c| [c[0] as u32, c[1] as u32, c[2] as u32])
+                .collect()
+        });
         Ok(MonoCapLbs {
             dir: dir.to_path_buf(),
             joints,

@@ -140,41 +140,44 @@ pub fn border_band(mask: &[bool], width: usize, height: usize, border_px: usize)
     let lo = (border_px / 2) as isize;
     let hi = (border_px - 1 - border_px / 2) as isize;
     // Separable: per row, any/all over the horizontal window; then over the vertical window.
+    let (row_any, row_all) = window_any_all(mask, mask, width, height, [lo, hi], 0);
+    let (any, all) = window_any_all(&row_any, &row_all, width, height, [lo, hi], 1);
+    any.iter()
+        .zip(&all)
+        .map(|(&any, &all)| any && !all)
+        .collect()
+}
+
+/// One pass of [`border_band`]: per pixel of a `width x height` image, whether any of `any_in`
+/// and whether all of `all_in` hold over the pixels at offsets `-lo..=hi` (`[lo, hi]`) along
+/// `axis` (0: x, 1: y) that lie inside the image.
+fn window_any_all(
+    any_in: &[bool],
+    all_in: &[bool],
+    width: usize,
+    height: usize,
+    [lo, hi]: [isize; 2],
+    axis: usize,
+) -> (Vec<bool>, Vec<bool>) {
     let (w, h) = (width as isize, height as isize);
-    let mut row_any = vec![false; mask.len()];
-    let mut row_all = vec![false; mask.len()];
+    let mut any_out = vec![false; any_in.len()];
+    let mut all_out = vec![false; any_in.len()];
     for y in 0..h {
         for x in 0..w {
             let (mut any, mut all) = (false, true);
-            for dx in -lo..=hi {
-                let xx = x + dx;
-                if xx < 0 || xx >= w {
+            for d in -lo..=hi {
+                let (xx, yy) = if axis == 0 { (x + d, y) } else { (x, y + d) };
+                if xx < 0 || xx >= w || yy < 0 || yy >= h {
                     continue;
                 }
-                let m = mask[(y * w + xx) as usize];
-                any |= m;
-                all &= m;
+                any |= any_in[(yy * w + xx) as usize];
+                all &= all_in[(yy * w + xx) as usize];
             }
-            row_any[(y * w + x) as usize] = any;
-            row_all[(y * w + x) as usize] = all;
+            any_out[(y * w + x) as usize] = any;
+            all_out[(y * w + x) as usize] = all;
         }
     }
-    let mut band = vec![false; mask.len()];
-    for y in 0..h {
-        for x in 0..w {
-            let (mut any, mut all) = (false, true);
-            for dy in -lo..=hi {
-                let yy = y + dy;
-                if yy < 0 || yy >= h {
-                    continue;
-                }
-                any |= row_any[(yy * w + x) as usize];
-                all &= row_all[(yy * w + x) as usize];
-            }
-            band[(y * w + x) as usize] = any && !all;
-        }
-    }
-    band
+    (any_out, all_out)
 }
 
 /// Draws training rays from one image (module docs). `image`: [H * W * 3] in [0, 1]; `mask`:

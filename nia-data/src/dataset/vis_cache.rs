@@ -174,43 +174,53 @@ impl VisibilityCache {
         Ok(())
     }
 
-    /// The [V] 0/1 visibility of `vertices` in `camera` for `subject`'s `frame` and `view`:
-    /// from the cache when its key matches, else computed with
-    /// [`crate::geometry::visibility::visibility`] and stored.
-    #[allow(clippy::too_many_arguments)]
-    pub fn get_or_compute(
-        &self,
-        subject: &str,
-        frame: usize,
-        view: usize,
-        camera: &Camera,
-        vertices: &[Vec3],
-        faces: &[[u32; 3]],
-        depth_tol_m: f32,
-    ) -> Result<Vec<u8>, DatasetError> {
-        let key = VisibilityKey::new(camera, vertices, faces, depth_tol_m);
-        let path = self.entry_path(subject, frame, view);
+    /// The [V] 0/1 visibility the query asks for: from the cache when its key matches, else
+    /// computed with [`crate::geometry::visibility::visibility`] and stored.
+    pub fn get_or_compute(&self, query: &VisibilityQuery<'_>) -> Result<Vec<u8>, DatasetError> {
+        let key = query.key();
+        let path = self.entry_path(query.subject, query.frame, query.view);
         if let Some(v) = self.read(&path, &key) {
             self.hits.fetch_add(1, Ordering::Relaxed);
             return Ok(v);
         }
         self.misses.fetch_add(1, Ordering::Relaxed);
-        let values = compute(subject, frame, view, camera, vertices, faces, depth_tol_m)?;
+        let values = compute(query)?;
         self.write(&path, &key, &values)?;
         Ok(values)
     }
 }
 
+/// One vertex visibility to look up or compute: `vertices` (with their `faces`) seen by
+/// `camera`, for `subject`'s `frame` and `view` (which name the cache entry and errors).
+#[derive(Debug, Clone, Copy)]
+pub struct VisibilityQuery<'a> {
+    pub subject: &'a str,
+    pub frame: usize,
+    pub view: usize,
+    pub camera: &'a Camera,
+    pub vertices: &'a [Vec3],
+    pub faces: &'a [[u32; 3]],
+    pub depth_tol_m: f32,
+}
+
+impl VisibilityQuery<'_> {
+    /// The cache key of the query's inputs.
+    pub fn key(&self) -> VisibilityKey {
+        VisibilityKey::new(self.camera, self.vertices, self.faces, self.depth_tol_m)
+    }
+}
+
 /// Visibility without a cache, errors attributed to the subject/frame/view.
-pub fn compute(
-    subject: &str,
-    frame: usize,
-    view: usize,
-    camera: &Camera,
-    vertices: &[Vec3],
-    faces: &[[u32; 3]],
-    depth_tol_m: f32,
-) -> Result<Vec<u8>, DatasetError> {
+pub fn compute(query: &VisibilityQuery<'_>) -> Result<Vec<u8>, DatasetError> {
+    let VisibilityQuery {
+        subject,
+        frame,
+        view,
+        camera,
+        vertices,
+        faces,
+        depth_tol_m,
+    } = *query;
     visibility(camera, vertices, faces, depth_tol_m).map_err(|source| DatasetError::Visibility {
         subject: subject.to_string(),
         frame,

@@ -226,23 +226,40 @@ fn sequence(value: &PyValue) -> Option<Vec<&PyValue>> {
     }
 }
 
-/// Reads and checks `annots.npy`.
-pub fn read_annots(path: &Path) -> Result<Annots, DatasetError> {
+/// The decoded file at `path`; [`DatasetError::Missing`] (saying the file holds `what`) when
+/// there is none.
+fn load_required(path: &Path, what: &str) -> Result<PyValue, DatasetError> {
     if !path.is_file() {
         return Err(DatasetError::Missing {
             path: path.to_path_buf(),
-            what: "annots.npy, the cameras and image list of the subject".into(),
+            what: what.into(),
         });
     }
-    let root = formats::load_any(path)?;
-    if !matches!(root, PyValue::Dict(_)) {
+    Ok(formats::load_any(path)?)
+}
+
+/// [`load_required`] for a file holding a dict; `expected` describes it in the error when it
+/// holds something else.
+fn load_dict(path: &Path, what: &str, expected: &str) -> Result<PyValue, DatasetError> {
+    let value = load_required(path, what)?;
+    if !matches!(value, PyValue::Dict(_)) {
         return Err(DatasetError::field(
             path,
             "<file>",
-            "a dict with keys 'cams' and 'ims'",
-            root.type_name(),
+            expected,
+            value.type_name(),
         ));
     }
+    Ok(value)
+}
+
+/// Reads and checks `annots.npy`.
+pub fn read_annots(path: &Path) -> Result<Annots, DatasetError> {
+    let root = load_dict(
+        path,
+        "annots.npy, the cameras and image list of the subject",
+        "a dict with keys 'cams' and 'ims'",
+    )?;
     let cams = root
         .get("cams")
         .ok_or_else(|| DatasetError::field(path, "cams", "a dict of K, D, R, T", "no such key"))?;
@@ -389,21 +406,11 @@ pub fn mask_candidates(root: &Path, mask_dirs: &[String], rel: &Path) -> Vec<Pat
 /// Reads a `params/<n>.npy` file: `poses` (72), `Rh` (3), `Th` (3, metres), `shapes` (any
 /// length), every value finite.
 pub fn read_params(path: &Path) -> Result<SmplParams, DatasetError> {
-    if !path.is_file() {
-        return Err(DatasetError::Missing {
-            path: path.to_path_buf(),
-            what: "SMPL parameters of this frame".into(),
-        });
-    }
-    let value = formats::load_any(path)?;
-    if !matches!(value, PyValue::Dict(_)) {
-        return Err(DatasetError::field(
-            path,
-            "<file>",
-            "a dict with keys poses, Rh, Th, shapes",
-            value.type_name(),
-        ));
-    }
+    let value = load_dict(
+        path,
+        "SMPL parameters of this frame",
+        "a dict with keys poses, Rh, Th, shapes",
+    )?;
     let get = |key: &str, len: Option<usize>, expected: &str| {
         let v = value.get(key).ok_or_else(|| {
             DatasetError::field(
@@ -444,13 +451,7 @@ pub fn read_params(path: &Path) -> Result<SmplParams, DatasetError> {
 
 /// Reads a `vertices/<n>.npy` file: [V, 3] world vertices in metres, every value finite.
 pub fn read_vertices(path: &Path) -> Result<Vec<Vec3>, DatasetError> {
-    if !path.is_file() {
-        return Err(DatasetError::Missing {
-            path: path.to_path_buf(),
-            what: "SMPL vertices of this frame".into(),
-        });
-    }
-    let value = formats::load_any(path)?;
+    let value = load_required(path, "SMPL vertices of this frame")?;
     let (shape, values) = numeric(&value).ok_or_else(|| {
         DatasetError::field(path, "<array>", "a [V, 3] float array", value.type_name())
     })?;

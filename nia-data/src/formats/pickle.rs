@@ -258,6 +258,14 @@ impl<'a> Machine<'a> {
         std::str::from_utf8(l).map_err(|_| self.invalid(format!("{what} is not valid text")))
     }
 
+    /// A memo index written as a decimal text line (`PUT`, `GET`).
+    fn memo_index_line(&mut self, what: &'static str) -> Result<u64> {
+        let t = self.line_str(what)?;
+        t.trim()
+            .parse::<u64>()
+            .map_err(|_| self.invalid("bad memo index"))
+    }
+
     fn utf8(&self, b: &[u8]) -> Result<String> {
         String::from_utf8(b.to_vec()).map_err(|e| self.invalid(format!("invalid UTF-8: {e}")))
     }
@@ -269,6 +277,14 @@ impl<'a> Machine<'a> {
         self.nodes.push(node);
         self.stack.push(id);
         id
+    }
+
+    /// Pops an argument sequence and, below it, what it is applied to (`REDUCE`, `NEWOBJ`);
+    /// `what` names the arguments in errors.
+    fn pop_call(&mut self, what: &str) -> Result<(Id, Vec<Id>)> {
+        let args = self.pop()?;
+        let callee = self.pop()?;
+        Ok((callee, self.seq_of(args, what)?))
     }
 
     fn pop(&mut self) -> Result<Id> {
@@ -606,11 +622,7 @@ impl<'a> Machine<'a> {
                     self.put(i)?;
                 }
                 b'p' => {
-                    let t = self.line_str("PUT index")?;
-                    let i = t
-                        .trim()
-                        .parse::<u64>()
-                        .map_err(|_| self.invalid("bad memo index"))?;
+                    let i = self.memo_index_line("PUT index")?;
                     self.put(i)?;
                 }
                 b'h' => {
@@ -622,11 +634,7 @@ impl<'a> Machine<'a> {
                     self.get(i as u64)?;
                 }
                 b'g' => {
-                    let t = self.line_str("GET index")?;
-                    let i = t
-                        .trim()
-                        .parse::<u64>()
-                        .map_err(|_| self.invalid("bad memo index"))?;
+                    let i = self.memo_index_line("GET index")?;
                     self.get(i)?;
                 }
                 // Globals and objects.
@@ -643,24 +651,18 @@ impl<'a> Machine<'a> {
                     self.push_node(Node::Global { module, name });
                 }
                 b'R' => {
-                    let args = self.pop()?;
-                    let func = self.pop()?;
-                    let args = self.seq_of(args, "REDUCE arguments")?;
+                    let (func, args) = self.pop_call("REDUCE arguments")?;
                     let node = self.reduce(func, args)?;
                     self.push_node(node);
                 }
                 0x81 => {
-                    let args = self.pop()?;
-                    let cls = self.pop()?;
-                    let args = self.seq_of(args, "NEWOBJ arguments")?;
+                    let (cls, args) = self.pop_call("NEWOBJ arguments")?;
                     let node = self.instantiate(cls, args)?;
                     self.push_node(node);
                 }
                 0x92 => {
                     let _kwargs = self.pop()?;
-                    let args = self.pop()?;
-                    let cls = self.pop()?;
-                    let args = self.seq_of(args, "NEWOBJ_EX arguments")?;
+                    let (cls, args) = self.pop_call("NEWOBJ_EX arguments")?;
                     let node = self.instantiate(cls, args)?;
                     self.push_node(node);
                 }

@@ -136,14 +136,23 @@ impl Writer {
         }
     }
 
+    /// `opcode` followed by `len` as protocol 3's 4-byte little-endian length; `what` names the
+    /// object in the error when it is too long for that.
+    fn put_len32(
+        &mut self,
+        opcode: u8,
+        what: &'static str,
+        len: usize,
+    ) -> Result<(), PickleWriteError> {
+        let n = u32::try_from(len).map_err(|_| PickleWriteError::TooLarge { what, len })?;
+        self.out.push(opcode);
+        self.out.extend_from_slice(&n.to_le_bytes());
+        Ok(())
+    }
+
     fn save_str_fresh(&mut self, s: &str) -> Result<u32, PickleWriteError> {
         let b = s.as_bytes();
-        let n = u32::try_from(b.len()).map_err(|_| PickleWriteError::TooLarge {
-            what: "str",
-            len: b.len(),
-        })?;
-        self.out.push(b'X');
-        self.out.extend_from_slice(&n.to_le_bytes());
+        self.put_len32(b'X', "str", b.len())?;
         self.out.extend_from_slice(b);
         Ok(self.memoize())
     }
@@ -172,12 +181,7 @@ impl Writer {
         if b.len() <= 0xff {
             self.out.extend_from_slice(&[b'C', b.len() as u8]);
         } else {
-            let n = u32::try_from(b.len()).map_err(|_| PickleWriteError::TooLarge {
-                what: "bytes",
-                len: b.len(),
-            })?;
-            self.out.push(b'B');
-            self.out.extend_from_slice(&n.to_le_bytes());
+            self.put_len32(b'B', "bytes", b.len())?;
         }
         self.out.extend_from_slice(b);
         let idx = self.memoize();

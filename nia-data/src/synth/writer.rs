@@ -193,25 +193,33 @@ fn write_file(path: &Path, bytes: &[u8]) -> Result<(), SynthError> {
 
 /// Encode `rgb` ([H * W * 3] row-major, u8) as a JPEG at [`JPEG_QUALITY`] and write it.
 pub fn write_jpeg(path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<(), SynthError> {
-    let mut bytes = Vec::new();
-    JpegEncoder::new_with_quality(&mut bytes, JPEG_QUALITY)
-        .encode(rgb, width, height, ExtendedColorType::Rgb8)
-        .map_err(|source| SynthError::Image {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    write_file(path, &bytes)
+    write_encoded(path, |bytes| {
+        JpegEncoder::new_with_quality(bytes, JPEG_QUALITY).encode(
+            rgb,
+            width,
+            height,
+            ExtendedColorType::Rgb8,
+        )
+    })
 }
 
 /// Encode `mask` ([H * W] row-major, 0 or 255) as an 8-bit gray PNG and write it.
 pub fn write_mask(path: &Path, mask: &[u8], width: u32, height: u32) -> Result<(), SynthError> {
+    write_encoded(path, |bytes| {
+        PngEncoder::new(bytes).write_image(mask, width, height, ExtendedColorType::L8)
+    })
+}
+
+/// An image encoded by `encode` in memory, then written to `path` (errors name the file).
+fn write_encoded(
+    path: &Path,
+    encode: impl FnOnce(&mut Vec<u8>) -> image::ImageResult<()>,
+) -> Result<(), SynthError> {
     let mut bytes = Vec::new();
-    PngEncoder::new(&mut bytes)
-        .write_image(mask, width, height, ExtendedColorType::L8)
-        .map_err(|source| SynthError::Image {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    encode(&mut bytes).map_err(|source| SynthError::Image {
+        path: path.to_path_buf(),
+        source,
+    })?;
     write_file(path, &bytes)
 }
 

@@ -30,14 +30,8 @@ impl Primitive {
     pub fn distance(&self, p: Vec3) -> f32 {
         match *self {
             Primitive::RoundCone { a, b, ra, rb } => {
-                let ab = b - a;
-                let len2 = ab.length_squared();
-                let t = if len2 > 0.0 {
-                    ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                (p - (a + ab * t)).length() - (ra + (rb - ra) * t)
+                let t = segment_param(p, a, b);
+                (p - (a + (b - a) * t)).length() - (ra + (rb - ra) * t)
             }
             Primitive::Ellipsoid { centre, radii } => {
                 // Inigo Quilez's bound: k0 (k0 - 1) / k1 with k0 = |q / r|, k1 = |q / r^2|.
@@ -62,6 +56,18 @@ impl Primitive {
             }
             Primitive::Ellipsoid { centre, radii } => (centre - radii, centre + radii),
         }
+    }
+}
+
+/// Where the point of the segment `a -> b` nearest to `p` lies: `t` in `[0, 1]` with the point at
+/// `a + (b - a) t` (0 for a degenerate segment).
+pub(super) fn segment_param(p: Vec3, a: Vec3, b: Vec3) -> f32 {
+    let ab = b - a;
+    let len2 = ab.length_squared();
+    if len2 > 0.0 {
+        ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
     }
 }
 

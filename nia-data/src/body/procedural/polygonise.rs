@@ -251,6 +251,19 @@ fn emit_tetrahedron(
     }
 }
 
+/// A sphere of radius 0.5 m polygonised on a 25^3 grid of 5 cm: the closed test mesh of this
+/// module's tests and of [`super::simplify`]'s.
+#[cfg(test)]
+pub(crate) fn test_sphere() -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let grid = Grid {
+        origin: Vec3::splat(-0.6),
+        step: 0.05,
+        dims: [25, 25, 25],
+    };
+    let values = grid.sample(|p| p.length() - 0.5);
+    marching_tetrahedra(&grid, &values)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -278,13 +291,7 @@ mod tests {
 
     #[test]
     fn sphere_is_closed_oriented_and_has_the_right_volume() {
-        let grid = Grid {
-            origin: Vec3::splat(-0.6),
-            step: 0.05,
-            dims: [25, 25, 25],
-        };
-        let values = grid.sample(|p| p.length() - 0.5);
-        let (v, f) = marching_tetrahedra(&grid, &values);
+        let (v, f) = test_sphere();
         let t = MeshTopology::analyse(&f, v.len());
         assert!(
             t.is_closed_manifold() && t.is_consistently_oriented(),

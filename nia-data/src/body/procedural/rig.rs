@@ -3,6 +3,7 @@
 
 use glam::{DVec3, Mat3, Vec3};
 
+use super::implicit::segment_param;
 use crate::body::smpl::{NUM_JOINTS, SMPL_PARENTS};
 
 /// Relative softness of the skinning weights: a bone `(1 + f) x` farther away than the nearest
@@ -72,14 +73,7 @@ fn bone_axis(joints: &[Vec3; NUM_JOINTS], k: usize) -> Vec3 {
 }
 
 fn distance_to_segment(p: Vec3, (a, b): (Vec3, Vec3)) -> f32 {
-    let ab = b - a;
-    let len2 = ab.length_squared();
-    let t = if len2 > 0.0 {
-        ((p - a).dot(ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    p.distance(a + ab * t)
+    p.distance(a + (b - a) * segment_param(p, a, b))
 }
 
 /// `[V, 24]` skinning weights: a softmax over joints of the relative excess distance to each

@@ -241,18 +241,12 @@ pub fn vertex_normals(positions: &[Vec3], faces: &[[u32; 3]]) -> Vec<Vec3> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::body::procedural::polygonise::{marching_tetrahedra, Grid};
+    use crate::body::procedural::polygonise::test_sphere;
     use crate::body::topology::MeshTopology;
 
     #[test]
     fn collapsing_a_sphere_keeps_it_a_sphere() {
-        let grid = Grid {
-            origin: Vec3::splat(-0.6),
-            step: 0.05,
-            dims: [25, 25, 25],
-        };
-        let values = grid.sample(|p| p.length() - 0.5);
-        let (v, f) = marching_tetrahedra(&grid, &values);
+        let (v, f) = test_sphere();
         let before = v.len();
         let (mut v, f) = collapse_short_edges(v, f, 400);
         assert!(before > 1000 && v.len() == 400, "{before} -> {}", v.len());

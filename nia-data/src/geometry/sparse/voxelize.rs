@@ -57,6 +57,19 @@ pub struct VoxelBox {
     pub dims: [usize; 3],
 }
 
+/// A voxel edge length must be finite and positive; `field` names it in the error.
+fn check_voxel_size(field: &'static str, voxel_size_m: f32) -> Result<(), SparseGridError> {
+    if voxel_size_m.is_finite() && voxel_size_m > 0.0 {
+        Ok(())
+    } else {
+        Err(SparseGridError::invalid(
+            field,
+            "a finite size > 0 (metres)",
+            voxel_size_m,
+        ))
+    }
+}
+
 impl VoxelBox {
     /// A grid with the given corner, voxel size and size, validated.
     pub fn new(
@@ -71,13 +84,7 @@ impl VoxelBox {
                 min_m,
             ));
         }
-        if !(voxel_size_m.is_finite() && voxel_size_m > 0.0) {
-            return Err(SparseGridError::invalid(
-                "VoxelBox.voxel_size_m",
-                "a finite size > 0 (metres)",
-                voxel_size_m,
-            ));
-        }
+        check_voxel_size("VoxelBox.voxel_size_m", voxel_size_m)?;
         if dims.iter().any(|&d| d == 0 || d > MAX_GRID_DIM) {
             return Err(SparseGridError::invalid(
                 "VoxelBox.dims",
@@ -111,13 +118,7 @@ impl VoxelBox {
                 enlarge,
             ));
         }
-        if !(voxel_size_m.is_finite() && voxel_size_m > 0.0) {
-            return Err(SparseGridError::invalid(
-                "VoxelBox::enclosing voxel_size_m",
-                "a finite size > 0 (metres)",
-                voxel_size_m,
-            ));
-        }
+        check_voxel_size("VoxelBox::enclosing voxel_size_m", voxel_size_m)?;
         let mut min_m = [0.0f32; 3];
         let mut dims = [0usize; 3];
         for a in 0..3 {
