@@ -8,8 +8,9 @@ use std::sync::Arc;
 use anyhow::Context;
 use burn::prelude::Device;
 use clap::Args;
-use nia_data::dataset::protocol::EvalSplit;
+use nia_data::dataset::protocol::{EvalItem, EvalSplit};
 use nia_data::dataset::{DataConfig, OpenedDataset};
+use nia_infer::eval::{evaluate_images, EvalError, EvalOptions, EvaluatedImage, ImageResult};
 use nia_infer::perceptual::LpipsFiles;
 use nia_infer::run_settings::RunSettings;
 use nia_model::device::{Backend, DeviceSpec};
@@ -194,6 +195,27 @@ impl LoadedModel {
     /// The model's `[render]` setting with the command line's overrides, checked.
     pub fn render_options(&self, args: &ModelArgs) -> anyhow::Result<RenderOptions> {
         args.render_options(self.run.render, &self.path)
+    }
+
+    /// Renders and scores `items` of `split` of `data` with this model on its device
+    /// ([`evaluate_images`]), calling `on_image` for each.
+    pub fn evaluate(
+        &self,
+        data: &OpenedDataset,
+        split: EvalSplit,
+        items: &[EvalItem],
+        options: EvalOptions,
+        on_image: &mut dyn FnMut(EvaluatedImage<'_>) -> Result<(), EvalError>,
+    ) -> Result<Vec<ImageResult>, EvalError> {
+        evaluate_images(
+            &self.model,
+            data,
+            split,
+            items,
+            options,
+            &self.device,
+            on_image,
+        )
     }
 
     /// Samples per ray: the command line's, else the training setting.

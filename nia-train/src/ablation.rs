@@ -259,8 +259,9 @@ pub fn run(
         if variant != Variant::Full {
             continue;
         }
-        // (e) with fewer source views, then in novel poses.
-        for fewer in (1..views).rev() {
+        // (e) with fewer source views, then in novel poses (no row where no frame has another
+        // to repose from).
+        let fewer_views = (1..views).rev().map(|fewer| {
             let label = format!(
                 "(e) full, {fewer} view{}",
                 if fewer == 1 { "" } else { "s" }
@@ -272,48 +273,32 @@ pub fn run(
                     ..item.clone()
                 })
                 .collect();
-            let mut picture = None;
-            let (r, seconds) = evaluate(
-                on_event,
-                &label,
-                &subset,
-                EvalTask::NovelView,
-                true,
-                &mut picture,
-            )?;
-            if let Some((tile, _)) = picture {
-                tiles.push(tile);
-            }
-            let row = summarise(
-                label,
-                variant,
-                fewer,
-                "novel_view",
-                &r,
-                None,
-                train_seconds,
-                seconds,
-            );
-            on_event(AblationEvent::Row(&row));
-            rows.push(row);
-        }
-        let label = "(e) full, novel pose".to_string();
-        let (r, seconds) = evaluate(
-            on_event,
-            &label,
-            &items,
+            (label, subset, EvalTask::NovelView, fewer)
+        });
+        let novel_pose = (
+            "(e) full, novel pose".to_string(),
+            items.clone(),
             EvalTask::NovelPose {
                 reference_frame: None,
             },
-            true,
-            &mut None,
-        )?;
-        if !r.is_empty() {
+            views,
+        );
+        for (label, subset, task, used_views) in fewer_views.chain([novel_pose]) {
+            let pose = matches!(task, EvalTask::NovelPose { .. });
+            let mut picture = None;
+            let (r, seconds) = evaluate(on_event, &label, &subset, task, true, &mut picture)?;
+            if let Some((tile, _)) = picture.filter(|_| !pose) {
+                tiles.push(tile);
+            }
+            if pose && r.is_empty() {
+                continue;
+            }
+            let task_name = if pose { "novel_pose" } else { "novel_view" };
             let row = summarise(
                 label,
                 variant,
-                views,
-                "novel_pose",
+                used_views,
+                task_name,
                 &r,
                 None,
                 train_seconds,

@@ -11,9 +11,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nia_data::dataset::protocol::EvalSplit;
-use nia_infer::eval::{
-    eval_items, evaluate_images, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult,
-};
+use nia_infer::eval::{eval_items, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult};
 use nia_infer::perceptual::LpipsFiles;
 use nia_infer::pictures::{save_evaluated, ERROR_MAP_MAX};
 use nia_model::render_options::RenderOptions;
@@ -169,8 +167,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         .lpips
         .load(loaded.run.train.lpips.as_ref(), &loaded.device)?;
     let bar = progress_bar(items.len() as u64, "eval");
-    let results = evaluate_images(
-        &loaded.model,
+    let results = loaded.evaluate(
         &data,
         split,
         &items,
@@ -182,7 +179,6 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             render: adaptive,
             lpips: lpips.as_ref().map(|(_, net)| net.clone()),
         },
-        &loaded.device,
         &mut |e| {
             bar.inc(1);
             bar.set_message(format!("{:.2} dB", e.result.psnr));

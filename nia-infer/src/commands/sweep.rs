@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use nia_data::dataset::protocol::{EvalItem, EvalSplit};
-use nia_infer::eval::{eval_items, evaluate_images, EvalOptions, EvalSummary, EvalTask};
+use nia_infer::eval::{eval_items, EvalOptions, EvalSummary, EvalTask};
 use nia_model::render_options::RenderOptions;
 use serde::Serialize;
 
@@ -125,8 +125,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                     "ratio {ratio}, {views} views, {samples} samples, \
                      {supersample}x{supersample} rays per pixel, skipping {skipping}"
                 ));
-                let results = evaluate_images(
-                    &loaded.model,
+                let results = loaded.evaluate(
                     &data,
                     split,
                     &items,
@@ -142,7 +141,6 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                         },
                         lpips: None,
                     },
-                    &loaded.device,
                     &mut |_| Ok(()),
                 )?;
                 let summary = EvalSummary::of(&results).context("no image evaluated")?;
