@@ -3,6 +3,8 @@
 //! the network, which renders a whole target view: every pixel of `mask_at_box` gets a finite
 //! colour in [0, 1] and the metrics of the protocol are computable on it.
 
+mod common;
+
 use burn::prelude::*;
 use nia_data::body::BodyModel;
 use nia_data::dataset::{DatasetConfig, Subject};
@@ -10,7 +12,6 @@ use nia_data::geometry::rays::{image_rays, mask_at_box, near_far, RayBundle};
 use nia_data::geometry::visibility::visibility;
 use nia_data::metrics::{psnr_masked, ImageView};
 use nia_data::scene::{SceneBody, SceneInput, SourceView};
-use nia_data::synth::{self, SynthSpec};
 use nia_model::ModelConfig;
 
 /// Depth tolerance of vertex visibility, metres.
@@ -31,28 +32,22 @@ fn hwc_to_chw(hwc: &[f32], w: usize, h: usize) -> Vec<f32> {
 
 #[test]
 fn a_synthetic_subject_renders_through_reader_and_network() {
-    let out = std::env::temp_dir().join(format!("nia-synth-to-model-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&out);
-    let spec = SynthSpec {
-        subjects: 1,
-        frames: 1,
-        cameras: 4,
-        size: 64,
-        supersample: 1,
-        seed: 11,
-        ..SynthSpec::default()
-    };
-    let summary = synth::generate(&spec, &out, &mut |_| {}).unwrap();
+    let summary = common::one_subject("synth-to-model", 64, 11);
     let body = BodyModel::load(&summary.body_model).unwrap();
     let subject = Subject::open(&summary.subjects[0].dir, &DatasetConfig::zju()).unwrap();
 
     let params = subject.load_params(0).unwrap();
-    let vertices = subject.load_vertices(0).unwrap();
+    let scene_body = SceneBody {
+        vertices: subject.load_vertices(0).unwrap(),
+        faces: body.faces.clone(),
+        rh: params.rh,
+        th: params.th,
+    };
     let mut views = Vec::new();
     for view in 0..3 {
         let v = subject.load_view(0, view).unwrap();
         let (w, h) = (v.camera.width as usize, v.camera.height as usize);
-        let vis = visibility(&v.camera, &vertices, &body.faces, VIS_TOL_M).unwrap();
+        let vis = visibility(&v.camera, &scene_body.vertices, &body.faces, VIS_TOL_M).unwrap();
         assert!(
             vis.iter().any(|&b| b == 1),
             "view {view}: some vertices are visible"
@@ -66,12 +61,7 @@ fn a_synthetic_subject_renders_through_reader_and_network() {
     }
     let input = SceneInput {
         views,
-        body: SceneBody {
-            vertices,
-            faces: body.faces.clone(),
-            rh: params.rh,
-            th: params.th,
-        },
+        body: scene_body,
     };
 
     #[allow(deprecated)] // ndarray: the reference CPU backend the user asked for
@@ -114,5 +104,5 @@ fn a_synthetic_subject_renders_through_reader_and_network() {
         psnr.is_finite() && psnr > 0.0,
         "PSNR of an untrained model is finite: {psnr}"
     );
-    let _ = std::fs::remove_dir_all(&out);
+    let _ = std::fs::remove_dir_all(&summary.out_dir);
 }

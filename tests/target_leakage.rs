@@ -5,6 +5,8 @@
 //! loaded and rendered again: the prediction is bit-identical. Overwriting a source image
 //! instead changes it, so the comparison can fail.
 
+mod common;
+
 use std::path::Path;
 
 use burn::prelude::*;
@@ -15,7 +17,6 @@ use nia_data::dataset::loader::{
 use nia_data::dataset::sampling::BoxPadding;
 use nia_data::dataset::{DatasetConfig, Subject};
 use nia_data::scene::SceneInput;
-use nia_data::synth::{self, SynthSpec};
 use nia_model::render_options::RenderOptions;
 use nia_model::renderer::image::ImageRenderOptions;
 use nia_model::renderer::view::{prepare_scene, render_view, TargetView};
@@ -102,18 +103,7 @@ fn open(dir: &Path, faces: &[[u32; 3]]) -> SceneSource {
 
 #[test]
 fn the_target_image_and_mask_never_reach_the_prediction() {
-    let out = std::env::temp_dir().join(format!("nia-target-leakage-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&out);
-    let spec = SynthSpec {
-        subjects: 1,
-        frames: 1,
-        cameras: 4,
-        size: 48,
-        supersample: 1,
-        seed: 23,
-        ..SynthSpec::default()
-    };
-    let summary = synth::generate(&spec, &out, &mut |_| {}).unwrap();
+    let summary = common::one_subject("target-leakage", 48, 23);
     let body = BodyModel::load(&summary.body_model).unwrap();
     let dir = &summary.subjects[0].dir;
 
@@ -136,5 +126,5 @@ fn the_target_image_and_mask_never_reach_the_prediction() {
     let source = open(dir, &body.faces);
     let (changed, _) = render(&model, &source, &device);
     assert_ne!(before, changed, "a source view does change the prediction");
-    let _ = std::fs::remove_dir_all(&out);
+    let _ = std::fs::remove_dir_all(&summary.out_dir);
 }

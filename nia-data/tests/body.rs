@@ -625,14 +625,19 @@ fn procedural_betas_change_proportions() {
     assert!(extent(&big_head).y > rest.y + 0.02);
 }
 
-#[test]
-fn procedural_generation_is_deterministic_and_checks_its_spec() {
-    let spec = ProceduralSpec {
+/// A coarse body, quick to generate.
+fn coarse_spec() -> ProceduralSpec {
+    ProceduralSpec {
         grid_step_m: 0.02,
         target_vertices: 2500,
         relax_iterations: 1,
         ..ProceduralSpec::default()
-    };
+    }
+}
+
+#[test]
+fn procedural_generation_is_deterministic_and_checks_its_spec() {
+    let spec = coarse_spec();
     let a = ProceduralBody::generate(&spec).unwrap();
     let b = ProceduralBody::generate(&spec).unwrap();
     assert_eq!(a, b);
@@ -643,42 +648,18 @@ fn procedural_generation_is_deterministic_and_checks_its_spec() {
     );
     assert_eq!(t.euler_characteristic, 2);
 
+    // The spec with one value out of range, and the field the error names.
+    let with = |edit: fn(&mut ProceduralSpec)| {
+        let mut bad = spec.clone();
+        edit(&mut bad);
+        bad
+    };
     for (bad, field) in [
-        (
-            ProceduralSpec {
-                height_m: -1.0,
-                ..spec.clone()
-            },
-            "height_m",
-        ),
-        (
-            ProceduralSpec {
-                girth: f32::NAN,
-                ..spec.clone()
-            },
-            "girth",
-        ),
-        (
-            ProceduralSpec {
-                grid_step_m: 0.0,
-                ..spec.clone()
-            },
-            "grid_step_m",
-        ),
-        (
-            ProceduralSpec {
-                grid_step_m: 0.1,
-                ..spec.clone()
-            },
-            "grid_step_m",
-        ),
-        (
-            ProceduralSpec {
-                target_vertices: 3,
-                ..spec.clone()
-            },
-            "target_vertices",
-        ),
+        (with(|s| s.height_m = -1.0), "height_m"),
+        (with(|s| s.girth = f32::NAN), "girth"),
+        (with(|s| s.grid_step_m = 0.0), "grid_step_m"),
+        (with(|s| s.grid_step_m = 0.1), "grid_step_m"),
+        (with(|s| s.target_vertices = 3), "target_vertices"),
     ] {
         let msg = ProceduralBody::generate(&bad).unwrap_err().to_string();
         assert!(msg.contains(field), "{msg}");

@@ -133,10 +133,28 @@ fn golden_model() -> BodyModel {
             }
         }
     }
-    let j_regressor = (0..NUM_JOINTS)
+    BodyModel::new(
+        v_template,
+        shapedirs,
+        posedirs,
+        golden_regressor(),
+        golden_weights(),
+        SMPL_PARENTS.to_vec(),
+        vec![[0, 1, 2]],
+    )
+    .expect("golden model is valid")
+}
+
+/// The script's joint regressor: two vertices per joint.
+fn golden_regressor() -> Vec<Vec<(u32, f32)>> {
+    (0..NUM_JOINTS)
         .map(|k| vec![((k % V) as u32, 0.6), (((5 * k + 3) % V) as u32, 0.4)])
-        .collect();
-    let weights = (0..V)
+        .collect()
+}
+
+/// The script's skinning weights: every joint, falling off with a scrambled index distance.
+fn golden_weights() -> Vec<[f32; NUM_JOINTS]> {
+    (0..V)
         .map(|i| {
             let raw: Vec<f64> = (0..NUM_JOINTS)
                 .map(|k| 1.0 / (1.0 + ((k * 7 + i * 5) % 24) as f64).powi(2))
@@ -148,17 +166,7 @@ fn golden_model() -> BodyModel {
             }
             w
         })
-        .collect();
-    BodyModel::new(
-        v_template,
-        shapedirs,
-        posedirs,
-        j_regressor,
-        weights,
-        SMPL_PARENTS.to_vec(),
-        vec![[0, 1, 2]],
-    )
-    .expect("golden model is valid")
+        .collect()
 }
 
 #[test]

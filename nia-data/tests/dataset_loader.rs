@@ -293,18 +293,24 @@ fn loader_reports_errors_in_place_and_stops_cleanly() {
     drop(loader);
 }
 
-#[test]
-fn synthetic_set_reads_through_the_same_reader() {
-    let out = scratch("synth");
-    let spec = SynthSpec {
+/// Two synthetic people (one held out) in `frames` frames seen by `cameras` cameras of `size`
+/// px, without supersampling.
+fn two_people(frames: usize, cameras: usize, size: u32) -> SynthSpec {
+    SynthSpec {
+        frames,
+        cameras,
+        size,
         subjects: 2,
-        frames: 3,
-        cameras: 4,
-        size: 48,
         supersample: 1,
         test_fraction: 0.5,
         ..SynthSpec::default()
-    };
+    }
+}
+
+#[test]
+fn synthetic_set_reads_through_the_same_reader() {
+    let out = scratch("synth");
+    let spec = two_people(3, 4, 48);
     let summary = generate(&spec, &out, &mut |_| {}).unwrap();
     let model = BodyModel::load(&summary.body_model).unwrap();
     let protocol = Protocol::synthetic(&spec, 1);
@@ -365,15 +371,7 @@ fn synthetic_set_reads_through_the_same_reader() {
 #[ignore]
 fn bench_loader_scenes_per_second() {
     let out = scratch("bench");
-    let spec = SynthSpec {
-        subjects: 2,
-        frames: 4,
-        cameras: 8,
-        size: 1024,
-        supersample: 1,
-        test_fraction: 0.5,
-        ..SynthSpec::default()
-    };
+    let spec = two_people(4, 8, 1024);
     let t = Instant::now();
     let summary = generate(&spec, &out, &mut |_| {}).unwrap();
     eprintln!("synth: {:.1} s", t.elapsed().as_secs_f64());

@@ -25,15 +25,15 @@ fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/zju")
 }
 
+/// Copies the tree under `from` to `to`.
 fn copy_dir(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
+    for entry in std::fs::read_dir(from).unwrap().map(Result::unwrap) {
+        let (path, target) = (entry.path(), to.join(entry.file_name()));
+        if path.is_dir() {
+            copy_dir(&path, &target);
         } else {
-            std::fs::copy(entry.path(), &target).unwrap();
+            std::fs::copy(&path, &target).unwrap();
         }
     }
 }
@@ -279,28 +279,49 @@ fn open_err(root: &Path) -> DatasetError {
     Subject::open(root, &DatasetConfig::zju()).unwrap_err()
 }
 
+/// A scratch copy of `CoreView_377` without its file or folder `rel`.
+fn without(tag: &str, rel: &str) -> PathBuf {
+    let root = scratch_copy("CoreView_377", tag);
+    let path = root.join(rel);
+    match path.is_dir() {
+        true => std::fs::remove_dir_all(&path).unwrap(),
+        false => std::fs::remove_file(&path).unwrap(),
+    }
+    root
+}
+
+/// A scratch copy of `CoreView_377` with the broken fixture `bad/<bad>` in place of its file
+/// `rel`, opened.
+fn with_broken_file(tag: &str, bad: &str, rel: &str) -> (PathBuf, Subject) {
+    let root = scratch_copy("CoreView_377", tag);
+    std::fs::copy(fixtures().join("bad").join(bad), root.join(rel)).unwrap();
+    let subject = Subject::open(&root, &DatasetConfig::zju()).unwrap();
+    (root, subject)
+}
+
+/// Asserts that the error's message names every one of `parts`; the message.
+fn names(err: &DatasetError, parts: &[&str]) -> String {
+    let msg = err.to_string();
+    for part in parts {
+        assert!(msg.contains(part), "`{part}` not in: {msg}");
+    }
+    msg
+}
+
 #[test]
 fn missing_camera_folder_is_named() {
-    let root = scratch_copy("CoreView_377", "nocam");
-    std::fs::remove_dir_all(root.join("Camera_B3")).unwrap();
-    let err = open_err(&root);
-    let msg = err.to_string();
+    let err = open_err(&without("nocam", "Camera_B3"));
+    let msg = names(&err, &["Camera_B3", "camera folder missing"]);
     assert!(
         matches!(err, DatasetError::CameraFolderMissing { camera: 2, .. }),
-        "{msg}"
-    );
-    assert!(
-        msg.contains("Camera_B3") && msg.contains("camera folder missing"),
         "{msg}"
     );
 }
 
 #[test]
 fn frame_without_image_is_named() {
-    let root = scratch_copy("CoreView_377", "noimage");
-    std::fs::remove_file(root.join("Camera_B2/000001.jpg")).unwrap();
-    let err = open_err(&root);
-    let msg = err.to_string();
+    let err = open_err(&without("noimage", "Camera_B2/000001.jpg"));
+    let msg = names(&err, &["Camera_B2/000001.jpg", "image missing"]);
     assert!(
         matches!(
             err,
@@ -312,66 +333,38 @@ fn frame_without_image_is_named() {
         ),
         "{msg}"
     );
-    assert!(
-        msg.contains("Camera_B2/000001.jpg") && msg.contains("image missing"),
-        "{msg}"
-    );
 }
 
 #[test]
 fn mask_of_wrong_size_is_named() {
-    let root = scratch_copy("CoreView_377", "masksize");
-    let target = root.join("mask_cihp/Camera_B1/000000.png");
-    std::fs::copy(fixtures().join("bad/mask_wrong_size.png"), &target).unwrap();
-    let s = Subject::open(&root, &DatasetConfig::zju()).unwrap();
+    let mask = "mask_cihp/Camera_B1/000000.png";
+    let (_, s) = with_broken_file("masksize", "mask_wrong_size.png", mask);
     let err = s.load_view(0, 0).unwrap_err();
-    let msg = err.to_string();
+    let msg = names(&err, &[mask, "64x32", "expected 64x64"]);
     assert!(
         matches!(err, DatasetError::Size { what: "mask", .. }),
         "{msg}"
     );
-    assert!(
-        msg.contains("mask_cihp/Camera_B1/000000.png") && msg.contains("64x32"),
-        "{msg}"
-    );
-    assert!(msg.contains("expected 64x64"), "{msg}");
 }
 
 #[test]
 fn nan_in_params_is_named() {
-    let root = scratch_copy("CoreView_377", "nan");
-    std::fs::copy(
-        fixtures().join("bad/params_nan.npy"),
-        root.join("params/1.npy"),
-    )
-    .unwrap();
-    let s = Subject::open(&root, &DatasetConfig::zju()).unwrap();
+    let (_, s) = with_broken_file("nan", "params_nan.npy", "params/1.npy");
     s.load_params(0).unwrap();
     let err = s.load_params(1).unwrap_err();
-    let msg = err.to_string();
+    let msg = names(&err, &["params/1.npy", "`Th`", "NaN"]);
     assert!(
         matches!(err, DatasetError::NonFinite { ref field, index: 1, .. } if field == "Th"),
-        "{msg}"
-    );
-    assert!(
-        msg.contains("params/1.npy") && msg.contains("`Th`") && msg.contains("NaN"),
         "{msg}"
     );
 }
 
 #[test]
 fn vertices_of_wrong_shape_are_named() {
-    let root = scratch_copy("CoreView_377", "vshape");
-    let target = root.join("vertices/0.npy");
-    std::fs::copy(fixtures().join("bad/vertices_wrong_shape.npy"), &target).unwrap();
-    let s = Subject::open(&root, &DatasetConfig::zju()).unwrap();
+    let (root, s) = with_broken_file("vshape", "vertices_wrong_shape.npy", "vertices/0.npy");
     let err = s.load_vertices(0).unwrap_err();
-    let msg = err.to_string();
+    let msg = names(&err, &["vertices/0.npy", "[V, 3]", "[30, 2]"]);
     assert!(matches!(err, DatasetError::Field { .. }), "{msg}");
-    assert!(
-        msg.contains("vertices/0.npy") && msg.contains("[V, 3]") && msg.contains("[30, 2]"),
-        "{msg}"
-    );
     // inspect fails the same way, naming the file.
     let err = inspect(&root, &DatasetConfig::zju()).unwrap_err();
     assert!(err.to_string().contains("vertices/0.npy"));
@@ -383,41 +376,25 @@ fn smpl_with_other_vertex_count_is_named() {
     let model = BodyModel::load(&model_path).unwrap();
     let s = Subject::open(&fixtures().join("CoreView_377"), &DatasetConfig::zju()).unwrap();
     let err = s.lbs_max_error(&model, &model_path, 0).unwrap_err();
-    let msg = err.to_string();
-    assert!(
-        matches!(
-            err,
-            DatasetError::VertexCount {
-                model_vertices: 29,
-                stored_vertices: 30,
-                ..
-            }
-        ),
-        "{msg}"
+    let msg = names(&err, &["smpl_one_vertex_fewer.npz", "vertices/0.npy"]);
+    let expected = matches!(
+        err,
+        DatasetError::VertexCount {
+            model_vertices: 29,
+            stored_vertices: 30,
+            ..
+        }
     );
-    assert!(
-        msg.contains("smpl_one_vertex_fewer.npz") && msg.contains("vertices/0.npy"),
-        "{msg}"
-    );
+    assert!(expected, "{msg}");
 }
 
 #[test]
 fn missing_annots_and_params_folders_are_named() {
-    let root = scratch_copy("CoreView_377", "noparams");
-    std::fs::remove_dir_all(root.join("params")).unwrap();
-    let msg = open_err(&root).to_string();
-    assert!(
-        msg.contains("params") && msg.contains("new_params"),
-        "{msg}"
-    );
+    let root = without("noparams", "params");
+    names(&open_err(&root), &["params", "new_params"]);
     std::fs::remove_file(root.join("annots.npy")).unwrap();
-    let msg = open_err(&root).to_string();
-    assert!(
-        msg.contains("annots.npy") && msg.contains("missing"),
-        "{msg}"
-    );
-    let msg = open_err(&root.join("nope")).to_string();
-    assert!(msg.contains("not a subject folder"), "{msg}");
+    names(&open_err(&root), &["annots.npy", "missing"]);
+    names(&open_err(&root.join("nope")), &["not a subject folder"]);
 }
 
 #[test]
@@ -442,16 +419,8 @@ fn monocap_subject_reads_lbs_at_full_resolution() {
         root.join("lbs/weights.npy"),
     )
     .unwrap();
-    let msg = Subject::open(&root, &DatasetConfig::monocap())
-        .unwrap_err()
-        .to_string();
-    assert!(
-        msg.contains("lbs/weights.npy") && msg.contains("[V, 24]"),
-        "{msg}"
-    );
+    let open_monocap = || Subject::open(&root, &DatasetConfig::monocap()).unwrap_err();
+    names(&open_monocap(), &["lbs/weights.npy", "[V, 24]"]);
     std::fs::remove_dir_all(root.join("lbs")).unwrap();
-    let msg = Subject::open(&root, &DatasetConfig::monocap())
-        .unwrap_err()
-        .to_string();
-    assert!(msg.contains("lbs") && msg.contains("missing"), "{msg}");
+    names(&open_monocap(), &["lbs", "missing"]);
 }

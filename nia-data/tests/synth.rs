@@ -615,11 +615,8 @@ fn numpy_loads_every_file_with_the_same_values() {
         .args(&paths)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "numpy failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "numpy failed: {stderr}");
     let loaded: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for path in &paths {
         let ours = to_json(&load_any(path).unwrap());

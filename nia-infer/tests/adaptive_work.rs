@@ -4,21 +4,24 @@
 //! with the full computation of the same image; it evaluates far fewer points; novel-view and
 //! reposed rendering count their work.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use burn::prelude::*;
+use glam::Vec3;
 use nia_data::body::reposing::Reposer;
 use nia_data::body::BodyModel;
 use nia_data::dataset::loader::{
     load_scene, LoaderConfig, Scene, SceneRequest, SceneSource, SceneTarget, TargetKind,
 };
 use nia_data::dataset::sampling::BoxPadding;
-use nia_data::dataset::{DatasetConfig, Subject};
+use nia_data::dataset::{DatasetConfig, Subject, ViewImage};
 use nia_data::geometry::rays::RayBundle;
 use nia_data::metrics::{evaluate, ImageView, SsimOptions};
 use nia_data::scene::SceneInput;
-use nia_data::synth::{self, SynthSpec, BODY_MODEL_FILE};
+use nia_data::synth::{self, BODY_MODEL_FILE};
 use nia_model::render_options::RenderOptions;
 use nia_model::renderer::image::{render_image, ImageRenderOptions, RenderedImage};
 use nia_model::renderer::render_rays;
@@ -55,24 +58,20 @@ fn fixture() -> PathBuf {
 fn subject_dir(name: &str) -> PathBuf {
     let root = std::env::temp_dir().join(format!("nia-adaptive-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
-    let spec = SynthSpec {
-        subjects: 1,
-        frames: 2,
-        cameras: 4,
-        size: 96,
-        seed: 99,
-        first_subject_id: 50,
-        supersample: 1,
-        ..SynthSpec::default()
-    };
-    synth::generate(&spec, &root, &mut |_| {}).unwrap();
+    synth::generate(&common::unseen_spec(50, 2, 4, 96, 99), &root, &mut |_| {}).unwrap();
     root
 }
 
+/// An unseen subject with the trained fixture on the CPU and frame 0 loaded.
 struct Case {
     root: PathBuf,
     source: SceneSource,
     body: BodyModel,
+    device: Device,
+    /// The trained test fixture.
+    model: NiaModel,
+    /// Frame 0: sources 0, 1, 2, the whole image of camera 3 as target.
+    scene: Scene,
 }
 
 fn case(name: &str) -> Case {
@@ -86,37 +85,11 @@ fn case(name: &str) -> Case {
         },
     )
     .unwrap();
-    Case {
-        root,
-        source: SceneSource {
-            subjects: vec![subject],
-            faces: body.faces.clone(),
-            cache: None,
-        },
-        body,
-    }
-}
-
-fn loader() -> LoaderConfig {
-    LoaderConfig {
-        box_padding: BoxPadding::nhp(),
-        ..LoaderConfig::default()
-    }
-}
-
-#[allow(deprecated)] // burn 0.22 spells the CPU device this way.
-fn device() -> burn::prelude::Device {
-    burn::prelude::Device::ndarray()
-}
-
-/// The trained test fixture on `device`.
-fn fixture_model(device: &burn::prelude::Device) -> NiaModel {
-    let file = ModelFile::read(&fixture()).unwrap();
-    file.load(&fixture(), device).unwrap()
-}
-
-/// Frame 0 of the case's subject: sources 0, 1, 2, the whole image of camera 3 as target.
-fn frame_0(c: &Case) -> Scene {
+    let source = SceneSource {
+        subjects: vec![subject],
+        faces: body.faces.clone(),
+        cache: None,
+    };
     let request = SceneRequest {
         subject: 0,
         frame: 0,
@@ -125,57 +98,84 @@ fn frame_0(c: &Case) -> Scene {
         target: TargetKind::Image,
         seed: 0,
     };
-    load_scene(&c.source, &request, 0, &loader()).unwrap()
+    let loader = LoaderConfig {
+        box_padding: BoxPadding::nhp(),
+        ..LoaderConfig::default()
+    };
+    let scene = load_scene(&source, &request, 0, &loader).unwrap();
+    #[allow(deprecated)] // burn 0.22 spells the CPU device this way.
+    let device = Device::ndarray();
+    let model = ModelFile::read(&fixture())
+        .unwrap()
+        .load(&fixture(), &device)
+        .unwrap();
+    Case {
+        root,
+        source,
+        body,
+        device,
+        model,
+        scene,
+    }
 }
 
-/// `encoding` rendered through `rays` into a `size` image, `samples` per ray, in chunks of 512.
-fn render_rays_of(
-    model: &NiaModel,
-    encoding: &SceneEncoding,
-    rays: &RayBundle,
-    size: [usize; 2],
-    samples: usize,
-) -> RenderedImage {
-    render_image(
-        model,
-        encoding,
-        rays,
-        size,
-        ImageRenderOptions {
-            samples,
-            chunk: 512,
-            timed: false,
-        },
-        &mut |_, _| {},
-    )
-    .unwrap()
+impl Case {
+    /// The scene's input to the network.
+    fn input(&self) -> SceneInput {
+        SceneInput::from_loaded(&self.scene, &self.source.faces)
+    }
+
+    /// The target image, its pixels whose ray hits the body box, and the rays through those.
+    fn target(&self) -> (&ViewImage, &[bool], RayBundle) {
+        let SceneTarget::Image { image, mask_at_box } = &self.scene.target else {
+            unreachable!()
+        };
+        let box_ = &self.scene.body_box;
+        let rays = RayBundle::through_pixels(&image.camera, box_, Some(mask_at_box));
+        (image, mask_at_box, rays)
+    }
+
+    /// `encoding` with the occupancy grid `adaptive` builds around `vertices`, rendered through
+    /// `rays` into a `size` image, `samples` per ray, in chunks of 512.
+    fn render(
+        &self,
+        encoding: SceneEncoding,
+        adaptive: RenderOptions,
+        vertices: &[Vec3],
+        rays: &RayBundle,
+        size: [usize; 2],
+        samples: usize,
+    ) -> RenderedImage {
+        let grid = adaptive.occupancy(vertices, &self.source.faces).unwrap();
+        render_image(
+            &self.model,
+            &encoding.with_occupancy(grid),
+            rays,
+            size,
+            ImageRenderOptions {
+                samples,
+                chunk: 512,
+                timed: false,
+            },
+            &mut |_, _| {},
+        )
+        .unwrap()
+    }
 }
 
 #[test]
 fn skipped_samples_would_have_contributed_under_the_tolerance() {
     let c = case("novel-view");
-    let device = device();
-    let model = fixture_model(&device);
-    let scene = frame_0(&c);
-    let SceneTarget::Image { image, mask_at_box } = &scene.target else {
-        unreachable!()
-    };
-    let input = SceneInput::from_loaded(&scene, &c.source.faces);
-    let full_encoding = model.encode(&input, None, &device, None).unwrap();
-    let rays = RayBundle::through_pixels(&image.camera, &scene.body_box, Some(mask_at_box));
+    let (device, model, scene) = (&c.device, &c.model, &c.scene);
+    let (image, mask_at_box, rays) = c.target();
+    let full_encoding = model.encode(&c.input(), None, device, None).unwrap();
     let size = [image.width() as usize, image.height() as usize];
     let pixels: Vec<usize> = rays.pixels.iter().map(|&p| p as usize).collect();
     // Skipping as `adaptive` says; early termination only when asked (the exactness checks
     // below are of skipping alone).
     let render_with = |adaptive: RenderOptions, termination: Option<f32>| -> RenderedImage {
-        let grid = adaptive
-            .occupancy(&scene.vertices, &c.source.faces)
-            .unwrap();
-        let encoding = full_encoding
-            .clone()
-            .with_occupancy(grid)
-            .with_termination(termination);
-        render_rays_of(&model, &encoding, &rays, size, 32)
+        let encoding = full_encoding.clone().with_termination(termination);
+        c.render(encoding, adaptive, &scene.vertices, &rays, size, 32)
     };
     let render = |adaptive: RenderOptions| render_with(adaptive, None);
     let full = render(RenderOptions::exhaustive());
@@ -220,14 +220,14 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
         .map(|&p| grid.occupied(p) as u8 as f32)
         .collect();
     assert!(keep.iter().any(|&k| k == 0.0) && keep.iter().any(|&k| k == 1.0));
-    let keep = Tensor::<1>::from_data(TensorData::new(keep, [r * 32]), &device);
+    let keep = Tensor::<1>::from_data(TensorData::new(keep, [r * 32]), device);
     let n1 = fields.blend_weights.dims()[1];
     let masked = render_rays(
         (fields.sigma * keep).reshape([r, 32]),
         fields.colour.reshape([r, 32, 3]),
         fields.c0.reshape([r, 32, 3]),
-        Tensor::<2>::from_data(TensorData::new(t, [r, 32]), &device),
-        Tensor::<1>::from_data(TensorData::new(rays.far[..r].to_vec(), [r]), &device),
+        Tensor::<2>::from_data(TensorData::new(t, [r, 32]), device),
+        Tensor::<1>::from_data(TensorData::new(rays.far[..r].to_vec(), [r]), device),
         Some(fields.blend_weights.reshape([r, 32, n1])),
     )
     .unwrap();
@@ -296,28 +296,23 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
 #[test]
 fn reposed_rendering_skips_and_counts_like_novel_views() {
     let c = case("reposed");
-    let device = device();
-    let model = fixture_model(&device);
-    let scene = frame_0(&c);
+    let scene = &c.scene;
     let target_params = c.source.subjects[0].load_params(1).unwrap();
     let reposer = Arc::new(Reposer::new(&c.body, &scene.params, &target_params).unwrap());
     assert!(!reposer.is_identity(), "frame 1 has another pose");
-    let input = SceneInput::from_loaded(&scene, &c.source.faces);
-    let encoding = model
-        .encode(&input, Some(reposer.clone()), &device, None)
+    let encoding = c
+        .model
+        .encode(&c.input(), Some(reposer.clone()), &c.device, None)
         .unwrap();
     let body_box = BoxPadding::nhp()
         .body_box(reposer.target_vertices())
         .unwrap();
     let camera = c.source.subjects[0].cameras[3];
     let rays = RayBundle::through_pixels(&camera, &body_box, None);
+    let size = [camera.width as usize, camera.height as usize];
     let render = |adaptive: RenderOptions| {
-        let grid = adaptive
-            .occupancy(reposer.target_vertices(), &c.source.faces)
-            .unwrap();
-        let encoding = encoding.clone().with_occupancy(grid);
-        let size = [camera.width as usize, camera.height as usize];
-        render_rays_of(&model, &encoding, &rays, size, 16)
+        let vertices = reposer.target_vertices();
+        c.render(encoding.clone(), adaptive, vertices, &rays, size, 16)
     };
     let full = render(RenderOptions::exhaustive());
     let skip = render(RenderOptions::default());
@@ -348,26 +343,24 @@ fn reposed_rendering_skips_and_counts_like_novel_views() {
 #[test]
 fn the_visual_hull_skips_exactly_what_it_zeroes() {
     let c = case("hull");
-    let device = device();
-    let model = fixture_model(&device);
-    let scene = frame_0(&c);
-    let SceneTarget::Image { image, mask_at_box } = &scene.target else {
-        unreachable!()
-    };
-    let input = SceneInput::from_loaded(&scene, &c.source.faces);
-    let encoding = model
-        .encode(&input, None, &device, None)
+    let (image, _, rays) = c.target();
+    let input = c.input();
+    let encoding = c
+        .model
+        .encode(&input, None, &c.device, None)
         .unwrap()
         .with_visual_hull(&input, Some(1))
         .unwrap();
-    let rays = RayBundle::through_pixels(&image.camera, &scene.body_box, Some(mask_at_box));
+    let size = [image.width() as usize, image.height() as usize];
     let render = |adaptive: RenderOptions| {
-        let grid = adaptive
-            .occupancy(&scene.vertices, &c.source.faces)
-            .unwrap();
-        let encoding = encoding.clone().with_occupancy(grid);
-        let size = [image.width() as usize, image.height() as usize];
-        render_rays_of(&model, &encoding, &rays, size, 16)
+        c.render(
+            encoding.clone(),
+            adaptive,
+            &c.scene.vertices,
+            &rays,
+            size,
+            16,
+        )
     };
     // Every sample evaluated (the hull still multiplies the density) against an occupancy
     // grid that keeps the whole box (1 m from the body), so the hull is all that skips.

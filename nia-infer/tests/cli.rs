@@ -1,7 +1,10 @@
 //! The `inspect` and `metrics` subcommands, run as a user would, on nia-data's fixtures.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
+use common::{copy_dir, fails_with, fresh_dir, json_stdout, nia_infer, s};
 
 /// `lbs_max_err_m` on the fixture (its vertices are LBS of its params, rounded to float32).
 const LBS_TOL_M: f64 = 1e-5;
@@ -11,35 +14,6 @@ const PSNR_TOL: f64 = 1e-6;
 
 fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../nia-data/tests/fixtures")
-}
-
-fn nia_infer(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nia-infer"))
-        .args(args)
-        .output()
-        .expect("run nia-infer")
-}
-
-fn json_stdout(out: &Output) -> serde_json::Value {
-    assert!(
-        out.status.success(),
-        "nia-infer failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("stdout is one JSON object")
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), &target).unwrap();
-        }
-    }
 }
 
 #[test]
@@ -90,43 +64,26 @@ fn inspect_prints_one_json_object() {
 
 #[test]
 fn inspect_of_malformed_folders_fails_naming_the_file() {
-    let root = std::env::temp_dir().join(format!("nia-infer-cli-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
+    let root = fresh_dir("cli");
     let subject = root.join("CoreView_377");
     copy_dir(&fixtures().join("zju/CoreView_377"), &subject);
     std::fs::remove_dir_all(subject.join("Camera_B2")).unwrap();
-    let out = nia_infer(&["inspect", subject.to_str().unwrap()]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("Camera_B2") && err.contains("camera folder missing"),
-        "{err}"
-    );
-
-    // MonoCap needs lbs/.
     let good = fixtures().join("zju/CoreView_377");
-    let out = nia_infer(&["inspect", good.to_str().unwrap(), "--format", "monocap"]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("lbs") && err.contains("missing"), "{err}");
-
-    // An SMPL model with another vertex count.
     let bad = fixtures().join("zju/bad/smpl_one_vertex_fewer.npz");
-    let out = nia_infer(&[
-        "inspect",
-        good.to_str().unwrap(),
-        "--smpl",
-        bad.to_str().unwrap(),
-    ]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("29 vertices") && err.contains("vertices/0.npy"),
-        "{err}"
-    );
-
-    let out = nia_infer(&["inspect", good.to_str().unwrap(), "--format", "colmap"]);
-    assert!(!out.status.success());
+    let cases: [(Vec<&str>, &[&str]); 4] = [
+        (vec![s(&subject)], &["Camera_B2", "camera folder missing"]),
+        // MonoCap needs lbs/.
+        (vec![s(&good), "--format", "monocap"], &["lbs", "missing"]),
+        // An SMPL model with another vertex count.
+        (
+            vec![s(&good), "--smpl", s(&bad)],
+            &["29 vertices", "vertices/0.npy"],
+        ),
+        (vec![s(&good), "--format", "colmap"], &[]),
+    ];
+    for (args, expected) in cases {
+        fails_with(&nia_infer(&[&["inspect"][..], &args].concat()), expected);
+    }
     let _ = std::fs::remove_dir_all(&root);
 }
 
@@ -184,28 +141,20 @@ fn metrics_match_scikit_image() {
 #[test]
 fn metrics_of_mismatched_images_fail_with_a_message() {
     let dir = fixtures().join("ssim");
-    let out = nia_infer(&[
-        "metrics",
-        "--pred",
-        dir.join("noisy_field_pred.png").to_str().unwrap(),
-        "--gt",
-        dir.join("dark_gt.png").to_str().unwrap(),
-    ]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("noisy_field_pred.png") && err.contains("40x32") && err.contains("16x16"),
-        "{err}"
-    );
-    let out = nia_infer(&[
-        "metrics",
-        "--pred",
-        dir.join("missing.png").to_str().unwrap(),
-        "--gt",
-        dir.join("dark_gt.png").to_str().unwrap(),
-    ]);
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.png"));
+    let gt = dir.join("dark_gt.png");
+    for (pred, expected) in [
+        (
+            "noisy_field_pred.png",
+            &["noisy_field_pred.png", "40x32", "16x16"][..],
+        ),
+        ("missing.png", &["missing.png"]),
+    ] {
+        let pred = dir.join(pred);
+        fails_with(
+            &nia_infer(&["metrics", "--pred", s(&pred), "--gt", s(&gt)]),
+            expected,
+        );
+    }
 }
 
 /// The render flags are checked before the model file is read: a dilation past the limit, a

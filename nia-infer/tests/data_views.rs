@@ -3,44 +3,44 @@
 //! was trained on `data/quickstart`, which does not exist where the tests run, and the set at
 //! `--data` (another seed, another camera count) brings its own protocol.
 
-use std::path::Path;
-use std::process::Command;
+mod common;
 
+use std::path::Path;
+
+use common::{json_file, nia_infer, s};
 use nia_data::dataset::protocol::Protocol;
-use nia_data::synth::{self, SynthSpec};
+use nia_data::synth;
 
 #[test]
 fn render_with_data_takes_that_datasets_source_views() {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/quickstart_tiny.nia");
     let root = std::env::temp_dir().join(format!("nia-data-views-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
-    let spec = SynthSpec {
-        subjects: 1,
-        frames: 1,
-        cameras: 5,
-        size: 48,
-        seed: 31,
-        first_subject_id: 60,
-        supersample: 1,
-        ..SynthSpec::default()
-    };
-    synth::generate(&spec, &root.join("set"), &mut |_| {}).unwrap();
+    let spec = common::unseen_spec(60, 1, 5, 48, 31);
+    let set = root.join("set");
+    synth::generate(&spec, &set, &mut |_| {}).unwrap();
     let out = root.join("render");
-    let run = Command::new(env!("CARGO_BIN_EXE_nia-infer"))
-        .args(["render", "--model"])
-        .arg(&model)
-        .arg("--data")
-        .arg(root.join("set"))
-        .args(["--subject", "CoreView_60", "--frame", "0", "--targets", "1"])
-        .args(["--samples", "8", "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
+    let run = nia_infer(&[
+        "render",
+        "--model",
+        s(&model),
+        "--data",
+        s(&set),
+        "--subject",
+        "CoreView_60",
+        "--frame",
+        "0",
+        "--targets",
+        "1",
+        "--samples",
+        "8",
+        "--out",
+        s(&out),
+    ]);
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(run.status.success(), "{stderr}");
     assert!(!stderr.contains("no dataset here"), "{stderr}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("render.json")).unwrap()).unwrap();
+    let report = json_file(&out.join("render.json"));
     let views: Vec<u64> = report["views"]
         .as_array()
         .unwrap()

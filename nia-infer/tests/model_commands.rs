@@ -262,8 +262,12 @@ fn exported_file_renders_what_the_checkpoint_renders() {
 #[test]
 fn orbit_turns_around_the_subject() {
     let out_dir = scratch("orbit");
-    let flags = "--subject CoreView_2 --frame 1 --steps 4";
-    ok(&on_model("orbit", flags, &[], &out_dir));
+    ok(&on_model(
+        "orbit",
+        "--subject CoreView_2 --frame 1 --steps 4",
+        &[],
+        &out_dir,
+    ));
     let report = json_file(&out_dir.join("orbit.json"));
     assert_eq!(report["views"], serde_json::json!([0, 1, 3]));
     let radius = report["radius_m"].as_f64().unwrap();

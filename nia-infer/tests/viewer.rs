@@ -4,15 +4,14 @@
 //! Chromium driven over the DevTools protocol: it opens the page, drags across the canvas
 //! with real mouse input and the person is there and has turned.
 
+mod common;
+
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
-
-use nia_train::config::TrainConfig;
-use nia_train::train_loop::{train, RunOptions};
 
 /// Image size of the test subject's cameras.
 const SIZE: u32 = 64;
@@ -21,62 +20,33 @@ const SIZE: u32 = 64;
 fn model() -> &'static (PathBuf, PathBuf) {
     static MODEL: OnceLock<(PathBuf, PathBuf)> = OnceLock::new();
     MODEL.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("nia-viewer-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        let config = dir.join("tiny.toml");
-        std::fs::write(
-            &config,
-            format!(
-                "[data]\nroot = \"{}\"\nratio = 1.0\nborder_px = 1\nloader_threads = 1\n\n\
-                 [synth]\nsubjects = 2\nframes = 3\ncameras = 4\nsize = {SIZE}\nsupersample = 1\n\
-                 test_fraction = 0.5\n\n[model]\npreset = \"tiny\"\n\n[train]\nsteps = 2\n\
-                 rays_per_step = 32\nsamples = 8\nsource_views = 3\nseed = 5\n\
-                 checkpoint_every = 2\nvalidate_every = 0\nbackend = \"ndarray\"\n",
-                dir.join("data").display().to_string().replace('\\', "/")
-            ),
-        )
-        .unwrap();
-        let config = TrainConfig::load(&config).unwrap();
-        let run = dir.join("run");
-        train(
-            &config,
-            &RunOptions {
-                out: run.clone(),
-                resume: false,
-            },
-            &mut |_| {},
-        )
-        .unwrap();
-        let model = dir.join("tiny.nia");
-        let out = Command::new(env!("CARGO_BIN_EXE_nia-infer"))
-            .args(["export", "--checkpoint"])
-            .arg(&run)
-            .arg("--out")
-            .arg(&model)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        let dir = common::fresh_dir("viewer");
+        let (_, model) = common::train_tiny(&dir, SIZE, 5, false, &mut |_| {});
         (dir, model)
     })
 }
 
-/// A running `nia-infer view`, killed on drop.
-struct Viewer {
+/// A child process, killed and reaped on drop, then its scratch folder (if any) removed.
+struct Running {
     child: Child,
-    /// `127.0.0.1:PORT`
-    address: String,
+    scratch: Option<PathBuf>,
 }
 
-impl Drop for Viewer {
+impl Drop for Running {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        if let Some(dir) = &self.scratch {
+            let _ = std::fs::remove_dir_all(dir);
+        }
     }
+}
+
+/// A running `nia-infer view`, killed on drop.
+struct Viewer {
+    process: Running,
+    /// `127.0.0.1:PORT`
+    address: String,
 }
 
 /// The viewer on the tiny model, or on `NIA_VIEWER_MODEL` with `NIA_VIEWER_DATA` and
@@ -118,24 +88,35 @@ fn start_viewer() -> Viewer {
         address.starts_with("127.0.0.1:"),
         "loopback by default: {address}"
     );
-    Viewer { child, address }
+    Viewer {
+        process: Running {
+            child,
+            scratch: None,
+        },
+        address,
+    }
+}
+
+/// Sends `request` to `address` (reads time out after 60 s): (the status line, the reader
+/// after it).
+fn send(address: &str, request: &str) -> (String, BufReader<TcpStream>) {
+    let stream = TcpStream::connect(address).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(60)))
+        .unwrap();
+    (&stream).write_all(request.as_bytes()).unwrap();
+    let mut reader = BufReader::new(stream);
+    let mut status_line = String::new();
+    reader.read_line(&mut status_line).unwrap();
+    (status_line, reader)
 }
 
 /// One HTTP/1.1 request: (status, headers in lower case, body).
 fn http(address: &str, method: &str, target: &str) -> (u16, Vec<(String, String)>, Vec<u8>) {
-    let mut stream = TcpStream::connect(address).unwrap();
-    stream
-        .set_read_timeout(Some(Duration::from_secs(60)))
-        .unwrap();
-    write!(
-        stream,
-        "{method} {target} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
+    let request =
+        format!("{method} {target} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n");
     // Headers, then Content-Length bytes (some servers keep the connection open).
-    let mut reader = BufReader::new(stream);
-    let mut status_line = String::new();
-    reader.read_line(&mut status_line).unwrap();
+    let (status_line, mut reader) = send(address, &request);
     let status: u16 = status_line
         .split_whitespace()
         .nth(1)
@@ -275,7 +256,7 @@ fn twenty_dragging_clients_keep_the_server_answering_with_bounded_memory() {
     for frame in 0..3 {
         assert_eq!(get(&a, &format!("/render?scale=0.25&frame={frame}")).0, 200);
     }
-    let before = rss_kb(v.child.id());
+    let before = rss_kb(v.process.child.id());
     let started = Instant::now();
     let threads: Vec<_> = (0..20)
         .map(|c| {
@@ -311,7 +292,7 @@ fn twenty_dragging_clients_keep_the_server_answering_with_bounded_memory() {
     );
     assert_eq!(get(&a, "/state").0, 200, "still answering");
     let rendered = codes.iter().filter(|&&c| c == 200).count();
-    if let (Some(b), Some(after)) = (before, rss_kb(v.child.id())) {
+    if let (Some(b), Some(after)) = (before, rss_kb(v.process.child.id())) {
         eprintln!(
             "load: {} requests ({rendered} rendered, the rest superseded) in {seconds:.1} s, \
              RSS {b} -> {after} kB",
@@ -323,8 +304,10 @@ fn twenty_dragging_clients_keep_the_server_answering_with_bounded_memory() {
 
 // ---- headless Chromium over the DevTools protocol ----
 
+/// The installed Chromium; None (the test is skipped, saying so) where there is none, unless
+/// `NIA_REQUIRE_CHROMIUM=1`, where that fails the test.
 fn chromium() -> Option<PathBuf> {
-    ["chromium", "chromium-browser", "google-chrome"]
+    let found = ["chromium", "chromium-browser", "google-chrome"]
         .iter()
         .map(PathBuf::from)
         .find(|c| {
@@ -332,7 +315,14 @@ fn chromium() -> Option<PathBuf> {
                 .arg("--version")
                 .output()
                 .is_ok_and(|o| o.status.success())
-        })
+        });
+    let required = std::env::var("NIA_REQUIRE_CHROMIUM").as_deref() == Ok("1");
+    match found {
+        None if required => panic!("NIA_REQUIRE_CHROMIUM=1 but no chromium is installed"),
+        None => eprintln!("skipped: no chromium (apt-get install chromium)"),
+        Some(_) => {}
+    }
+    found
 }
 
 /// A minimal WebSocket client (RFC 6455) for the DevTools session: the opening handshake,
@@ -346,19 +336,11 @@ impl WebSocket {
     fn connect(url: &str) -> WebSocket {
         let rest = url.strip_prefix("ws://").expect("a ws:// URL");
         let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
-        let mut stream = TcpStream::connect(host).unwrap();
-        stream
-            .set_read_timeout(Some(Duration::from_secs(60)))
-            .unwrap();
-        write!(
-            stream,
+        let request = format!(
             "GET {path} HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
              Sec-WebSocket-Key: bmlhLXJzLXZpZXdlci10ZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
-        )
-        .unwrap();
-        let mut reader = BufReader::new(stream);
-        let mut status = String::new();
-        reader.read_line(&mut status).unwrap();
+        );
+        let (status, mut reader) = send(host, &request);
         assert!(status.contains(" 101 "), "WebSocket handshake: {status}");
         loop {
             let mut line = String::new();
@@ -478,21 +460,9 @@ impl DevTools {
     }
 }
 
-/// A headless Chromium on `url`, killed on drop, with its DevTools session.
-struct Browser {
-    child: Child,
-    profile: PathBuf,
-}
-
-impl Drop for Browser {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-        let _ = std::fs::remove_dir_all(&self.profile);
-    }
-}
-
-fn open_browser(binary: &Path, url: &str) -> (Browser, DevTools) {
+/// A headless Chromium on `url`, killed on drop (its profile folder removed), with its DevTools
+/// session.
+fn open_browser(binary: &Path, url: &str) -> (Running, DevTools) {
     let profile = std::env::temp_dir().join(format!("nia-chromium-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&profile);
     std::fs::create_dir_all(&profile).unwrap();
@@ -511,8 +481,11 @@ fn open_browser(binary: &Path, url: &str) -> (Browser, DevTools) {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    let browser = Browser { child, profile };
-    let port_file = browser.profile.join("DevToolsActivePort");
+    let port_file = profile.join("DevToolsActivePort");
+    let browser = Running {
+        child,
+        scratch: Some(profile),
+    };
     let deadline = Instant::now() + Duration::from_secs(60);
     let port = loop {
         if let Some(port) = std::fs::read_to_string(&port_file)
@@ -574,11 +547,6 @@ fn full_frames_at_least(n: u64) -> String {
 #[test]
 fn chromium_drags_the_person_around() {
     let Some(binary) = chromium() else {
-        assert!(
-            std::env::var("NIA_REQUIRE_CHROMIUM").as_deref() != Ok("1"),
-            "NIA_REQUIRE_CHROMIUM=1 but no chromium is installed"
-        );
-        eprintln!("skipped: no chromium (apt-get install chromium)");
         return;
     };
     let v = start_viewer();

@@ -270,32 +270,33 @@ fn check_against_dense(
     }
 }
 
-#[test]
-fn submanifold_conv_matches_dense_conv3d() {
-    let mut rng = Rng::new(11);
-    for (dims, fraction) in [([5, 4, 6], 0.35), ([4, 4, 4], 0.9), ([6, 3, 5], 0.08)] {
+/// `check_against_dense` (its weights seeded with `weights_seed`) on random sites of each
+/// `(dims, occupied fraction)` grid (drawn in turn from one generator seeded with `seed`), with
+/// both methods, on ndarray and flex.
+fn conv_matches_dense(seed: u64, grids: [([usize; 3], f32); 3], strided: bool, weights_seed: u64) {
+    let mut rng = Rng::new(seed);
+    for (dims, fraction) in grids {
         let sites = random_sites(&mut rng, dims, fraction);
         for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
             for dev in [device(), Device::flex()] {
-                check_against_dense(&dev, &sites, false, method, 3);
+                check_against_dense(&dev, &sites, strided, method, weights_seed);
             }
         }
     }
 }
 
 #[test]
+fn submanifold_conv_matches_dense_conv3d() {
+    let grids = [([5, 4, 6], 0.35), ([4, 4, 4], 0.9), ([6, 3, 5], 0.08)];
+    conv_matches_dense(11, grids, false, 3);
+}
+
+#[test]
 fn strided_conv_matches_dense_conv3d() {
-    let mut rng = Rng::new(12);
     // Even and odd extents: with an even extent the last input row reaches past the coarse
     // grid (dropped, like spconv and the dense conv).
-    for (dims, fraction) in [([6, 5, 7], 0.3), ([4, 8, 3], 0.6), ([7, 7, 7], 0.05)] {
-        let sites = random_sites(&mut rng, dims, fraction);
-        for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
-            for dev in [device(), Device::flex()] {
-                check_against_dense(&dev, &sites, true, method, 4);
-            }
-        }
-    }
+    let grids = [([6, 5, 7], 0.3), ([4, 8, 3], 0.6), ([7, 7, 7], 0.05)];
+    conv_matches_dense(12, grids, true, 4);
 }
 
 #[test]
@@ -322,6 +323,16 @@ fn site_norm_normalises_each_view_over_its_sites() {
     assert!(norm
         .forward(tensor3(vec![0.0; 6], [1, 2, 3], &dev))
         .is_err());
+}
+
+/// `x` with coordinate `i` moved up by `FD_STEP`, and that moved down by twice the step (in
+/// f32, as the tolerances were measured).
+fn steps_at(x: &[f32], i: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut up = x.to_vec();
+    up[i] += FD_STEP as f32;
+    let mut down = up.clone();
+    down[i] -= 2.0 * FD_STEP as f32;
+    (up, down)
 }
 
 /// `sum(out^2 * r)` in f64 from the output values.
@@ -388,19 +399,17 @@ fn sparse_conv_gradients_match_finite_differences() {
                      finite difference {fd}"
                 );
             };
-            for i in 0..weight.len() {
-                let mut w = weight.clone();
-                w[i] += FD_STEP as f32;
-                let plus = loss(&w, &features);
-                w[i] -= 2.0 * FD_STEP as f32;
-                check("weight", grad_w[i], plus, loss(&w, &features), i);
+            assert_eq!(grad_w.len(), weight.len());
+            for (i, &g) in grad_w.iter().enumerate() {
+                let (up, down) = steps_at(&weight, i);
+                let (plus, minus) = (loss(&up, &features), loss(&down, &features));
+                check("weight", g, plus, minus, i);
             }
-            for i in 0..features.len() {
-                let mut f = features.clone();
-                f[i] += FD_STEP as f32;
-                let plus = loss(&weight, &f);
-                f[i] -= 2.0 * FD_STEP as f32;
-                check("features", grad_x[i], plus, loss(&weight, &f), i);
+            assert_eq!(grad_x.len(), features.len());
+            for (i, &g) in grad_x.iter().enumerate() {
+                let (up, down) = steps_at(&features, i);
+                let (plus, minus) = (loss(&weight, &up), loss(&weight, &down));
+                check("features", g, plus, minus, i);
             }
         }
     }

@@ -6,7 +6,7 @@ mod common;
 use burn::module::Param;
 use burn::nn::Linear;
 use burn::prelude::*;
-use common::{assert_close, device, tensor, values};
+use common::{assert_close, central_difference, device, tensor, values};
 use nia_data::rng::Rng;
 use nia_model::field::attention::ViewCrossAttentionConfig;
 use nia_model::field::heads::{view_mean, ColourHeadConfig, DensityHead, DensityHeadConfig};
@@ -46,6 +46,16 @@ fn assert_fd_close(autodiff: f32, fd: f32, what: &str) {
         (autodiff - fd).abs() <= FD_ABS_TOL + FD_REL_TOL * fd.abs(),
         "{what}: autodiff {autodiff} vs finite difference {fd}"
     );
+}
+
+/// Asserts that autodiff's gradient `grad` of `f` at `x` matches the central differences, one
+/// coordinate at a time (`what[i]`).
+fn assert_gradient(what: &str, x: &[f32], grad: &[f32], f: impl Fn(Vec<f32>) -> f32) {
+    assert_eq!(grad.len(), x.len(), "{what}");
+    for (i, &g) in grad.iter().enumerate() {
+        let fd = central_difference(x, i, FD_STEP, &f);
+        assert_fd_close(g, fd, &format!("{what}[{i}]"));
+    }
 }
 
 /// A linear layer with given weights `[d_in, d_out]` (row-major) and bias.
@@ -122,8 +132,7 @@ fn positional_encoding_tensor_and_cpu_agree_for_directions() {
 /// reach +-1e4 (the softmax must subtract its maximum), and a shape error.
 #[test]
 fn host_attention_view_mean_matches_the_tensor_form() {
-    let dev = device();
-    let d = 8;
+    let (dev, d) = (device(), 8);
     let attention = ViewCrossAttentionConfig::new().with_d_model(d).init(&dev);
     let mut rng = Rng::new(77);
     for (n, amplitude) in [(1usize, 1.0f32), (3, 1.0), (3, 60.0)] {
@@ -440,6 +449,15 @@ fn small_blender(dev: &Device) -> Blender {
 }
 
 /// Random blender inputs for M points and N views.
+/// A small blender on `dev` and the inputs of `m` points from `n` views, drawn from a generator
+/// seeded with `seed`: (device, blender, the generator, inputs).
+fn blend_case(dev: Device, seed: u64, m: usize, n: usize) -> (Device, Blender, Rng, BlendInputs) {
+    let blender = small_blender(&dev);
+    let mut rng = Rng::new(seed);
+    let x = blend_inputs(&mut rng, m, n, &dev);
+    (dev, blender, rng, x)
+}
+
 fn blend_inputs(rng: &mut Rng, m: usize, n: usize, dev: &Device) -> BlendInputs {
     BlendInputs {
         c0: tensor(random(rng, m * 3, 0.0, 1.0), [m, 3], dev),
@@ -654,31 +672,18 @@ fn blend_gradient_matches_finite_differences() {
     let g_logits = values(logits.grad(&grads).unwrap());
     let g_c0 = values(c0.grad(&grads).unwrap());
     let scalar = |t: Tensor<1>| values(t)[0];
-    for i in 0..logit_vals.len() {
-        let (mut up, mut down) = (logit_vals.clone(), logit_vals.clone());
-        up[i] += FD_STEP;
-        down[i] -= FD_STEP;
-        let fd = (scalar(loss(up, c0_vals.clone())) - scalar(loss(down, c0_vals.clone())))
-            / (2.0 * FD_STEP);
-        assert_fd_close(g_logits[i], fd, &format!("d/dlogit[{i}]"));
-    }
-    for i in 0..c0_vals.len() {
-        let (mut up, mut down) = (c0_vals.clone(), c0_vals.clone());
-        up[i] += FD_STEP;
-        down[i] -= FD_STEP;
-        let fd = (scalar(loss(logit_vals.clone(), up)) - scalar(loss(logit_vals.clone(), down)))
-            / (2.0 * FD_STEP);
-        assert_fd_close(g_c0[i], fd, &format!("d/dc0[{i}]"));
-    }
+    assert_gradient("d/dlogit", &logit_vals, &g_logits, |v| {
+        scalar(loss(v, c0_vals.clone()))
+    });
+    assert_gradient("d/dc0", &c0_vals, &g_c0, |v| {
+        scalar(loss(logit_vals.clone(), v))
+    });
 }
 
 #[test]
 fn blender_gradient_wrt_inputs_matches_finite_differences() {
-    let dev = device().autodiff();
-    let blender = small_blender(&dev);
-    let mut rng = Rng::new(6);
     let (m, n) = (2, 2);
-    let x = blend_inputs(&mut rng, m, n, &dev);
+    let (dev, blender, mut rng, x) = blend_case(device().autodiff(), 6, m, n);
     let vis_vals = values(x.visibility.clone());
     let psi_vals = values(x.confidence.clone());
     let probe = tensor(random(&mut rng, m * 3, -1.0, 1.0), [m, 3], &dev);
@@ -697,35 +702,20 @@ fn blender_gradient_wrt_inputs_matches_finite_differences() {
     let g_vis = values(vis.grad(&grads).unwrap());
     let g_psi = values(psi.grad(&grads).unwrap());
     let scalar = |t: Tensor<1>| values(t)[0];
-    for i in 0..vis_vals.len() {
-        let (mut up, mut down) = (vis_vals.clone(), vis_vals.clone());
-        up[i] += FD_STEP;
-        down[i] -= FD_STEP;
-        let psi_t = || tensor(psi_vals.clone(), [m, 1], &dev);
-        let fd = (scalar(loss(tensor(up, [n, m], &dev), psi_t()))
-            - scalar(loss(tensor(down, [n, m], &dev), psi_t())))
-            / (2.0 * FD_STEP);
-        assert_fd_close(g_vis[i], fd, &format!("d/do[{i}]"));
-    }
-    for i in 0..psi_vals.len() {
-        let (mut up, mut down) = (psi_vals.clone(), psi_vals.clone());
-        up[i] += FD_STEP;
-        down[i] -= FD_STEP;
-        let vis_t = || tensor(vis_vals.clone(), [n, m], &dev);
-        let fd = (scalar(loss(vis_t(), tensor(up, [m, 1], &dev)))
-            - scalar(loss(vis_t(), tensor(down, [m, 1], &dev))))
-            / (2.0 * FD_STEP);
-        assert_fd_close(g_psi[i], fd, &format!("d/dpsi[{i}]"));
-    }
+    let vis_t = |v: Vec<f32>| tensor(v, [n, m], &dev);
+    let psi_t = |v: Vec<f32>| tensor(v, [m, 1], &dev);
+    assert_gradient("d/do", &vis_vals, &g_vis, |v| {
+        scalar(loss(vis_t(v), psi_t(psi_vals.clone())))
+    });
+    assert_gradient("d/dpsi", &psi_vals, &g_psi, |v| {
+        scalar(loss(vis_t(vis_vals.clone()), psi_t(v)))
+    });
 }
 
 #[test]
 fn invisible_views_stay_finite() {
-    let dev = device().autodiff();
-    let blender = small_blender(&dev);
-    let mut rng = Rng::new(8);
     let (m, n) = (3, 3);
-    let x = blend_inputs(&mut rng, m, n, &dev);
+    let (dev, blender, _, x) = blend_case(device().autodiff(), 8, m, n);
     // Case 1: view 1 has o_n = 0 everywhere. Case 2: every view is invisible.
     let mut one_view = values(x.visibility.clone());
     one_view[m..2 * m].iter_mut().for_each(|o| *o = 0.0);
@@ -784,11 +774,8 @@ fn stable_softmax_matches_definition() {
 
 #[test]
 fn variant_colour_rules() {
-    let dev = device();
-    let blender = small_blender(&dev);
-    let mut rng = Rng::new(9);
     let (m, n) = (4, 3);
-    let x = blend_inputs(&mut rng, m, n, &dev);
+    let (dev, blender, _, x) = blend_case(device(), 9, m, n);
 
     // (b) NoIbr: c = c0, weights one-hot on token 0.
     let no_ibr = blender.colour(Variant::NoIbr, x.clone()).unwrap();

@@ -5,6 +5,8 @@
 //! (scripts/fixtures/make_lpips_fixture.py, nia-model/tests/fixtures/lpips/), the package's
 //! distances on four image pairs, and the loader's errors on bad files.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
@@ -65,6 +67,46 @@ fn load(dir: &Path, net: LpipsNet, config: &LpipsConfig, device: &Device) -> Lpi
         device,
     )
     .unwrap()
+}
+
+/// The narrow fixture network `net` on the CPU.
+fn narrow(net: LpipsNet, device: &Device) -> Lpips {
+    let dir = fixture("");
+    load(&dir, net, &narrow_config(&dir, net), device)
+}
+
+/// The file a load error names (none for a configuration error).
+fn named_file(err: &LpipsLoadError) -> Option<&Path> {
+    use LpipsLoadError::*;
+    match err {
+        Config(_) => None,
+        Read { file, .. } | ShapeMismatch { file, .. } | UnsupportedDType { file, .. } => {
+            Some(file)
+        }
+        MissingTensors { file, .. } | UnexpectedTensors { file, .. } => Some(file),
+        Tensor { file, .. } => Some(file),
+    }
+}
+
+/// The tensor and the expected and found shapes of a shape error.
+fn shape_mismatch(err: &LpipsLoadError) -> (&str, &[usize], &[usize]) {
+    match err {
+        LpipsLoadError::ShapeMismatch {
+            tensor,
+            expected,
+            found,
+            ..
+        } => (tensor, expected, found),
+        other => panic!("expected ShapeMismatch, got {other:?}"),
+    }
+}
+
+/// The error of loading the fixture files `trunk` and `heads` under `config`, printed.
+fn load_error(config: &LpipsConfig, trunk: &str, heads: &str) -> LpipsLoadError {
+    let (trunk, heads) = (fixture(trunk), fixture(heads));
+    let err = Lpips::load(config, &trunk, &heads, &Device::ndarray()).unwrap_err();
+    eprintln!("{err}");
+    err
 }
 
 /// The fixture's image pairs, each [N, 3, H, W].
@@ -181,15 +223,14 @@ fn legacy_serialisation_loads_the_same_trunk() {
 fn identical_images_are_at_distance_zero() {
     let dir = fixture("");
     let device = Device::ndarray();
-    let (a, _) = images(&dir, &device);
     for net in [LpipsNet::Alex, LpipsNet::Vgg] {
-        let lpips = load(&dir, net, &narrow_config(&dir, net), &device);
+        let lpips = narrow(net, &device);
+        let (a, b) = images(&dir, &device);
         let d = values(lpips.distance(a.clone(), a.clone()).unwrap());
         assert!(d.iter().all(|&d| d == 0.0), "{net}: {d:?}");
         // The fixture's identical pair, as the package also gives exactly 0.
         let (_, reference) = npy(&dir, &format!("{net}_distances_f64.npy"));
         assert_eq!(reference[IDENTICAL_PAIR], 0.0);
-        let (a, b) = images(&dir, &device);
         let d = values(lpips.distance(a, b).unwrap());
         assert_eq!(d[IDENTICAL_PAIR], 0.0, "{net}: {d:?}");
     }
@@ -197,11 +238,10 @@ fn identical_images_are_at_distance_zero() {
 
 #[test]
 fn distance_is_symmetric() {
-    let dir = fixture("");
     let device = Device::ndarray();
-    let (a, b) = images(&dir, &device);
+    let (a, b) = images(&fixture(""), &device);
     for net in [LpipsNet::Alex, LpipsNet::Vgg] {
-        let lpips = load(&dir, net, &narrow_config(&dir, net), &device);
+        let lpips = narrow(net, &device);
         let ab = values(lpips.distance(a.clone(), b.clone()).unwrap());
         let ba = values(lpips.distance(b.clone(), a.clone()).unwrap());
         // The squared difference is symmetric in exact arithmetic and each image's features
@@ -215,10 +255,9 @@ fn distance_is_symmetric() {
 
 #[test]
 fn too_small_images_name_the_shape_and_the_minimum() {
-    let dir = fixture("");
     let device = Device::ndarray();
     for (net, min) in [(LpipsNet::Alex, 31), (LpipsNet::Vgg, 16)] {
-        let lpips = load(&dir, net, &narrow_config(&dir, net), &device);
+        let lpips = narrow(net, &device);
         for [h, w] in [[min - 1, 64], [64, min - 1]] {
             let x = Tensor::<4>::zeros([2, 3, h, w], &device);
             let err = lpips.distance(x.clone(), x).unwrap_err();
@@ -248,14 +287,8 @@ fn too_small_images_name_the_shape_and_the_minimum() {
 
 #[test]
 fn mismatched_or_non_rgb_inputs_are_refused() {
-    let dir = fixture("");
     let device = Device::ndarray();
-    let lpips = load(
-        &dir,
-        LpipsNet::Vgg,
-        &narrow_config(&dir, LpipsNet::Vgg),
-        &device,
-    );
+    let lpips = narrow(LpipsNet::Vgg, &device);
     let a = Tensor::<4>::zeros([2, 3, 32, 32], &device);
     let b = Tensor::<4>::zeros([2, 3, 32, 48], &device);
     assert_eq!(
@@ -281,194 +314,113 @@ fn mismatched_or_non_rgb_inputs_are_refused() {
 
 #[test]
 fn published_widths_refuse_the_narrow_trunk_naming_file_and_tensor() {
-    let dir = fixture("");
-    let trunk = dir.join("alex_trunk.pth");
-    let err = Lpips::load(
-        &LpipsConfig::new(LpipsNet::Alex),
-        &trunk,
-        &dir.join("alex_heads.pth"),
-        &Device::ndarray(),
-    )
-    .unwrap_err();
-    eprintln!("{err}");
-    match &err {
-        LpipsLoadError::ShapeMismatch {
-            file,
-            tensor,
-            expected,
-            found,
-            net,
-            others,
-        } => {
-            assert_eq!(*file, trunk);
-            assert_eq!(tensor, "features.0.weight");
-            assert_eq!(*expected, vec![64, 3, 11, 11]);
-            assert_eq!(*found, vec![8, 3, 11, 11]);
-            assert_eq!(*net, LpipsNet::Alex);
-            // All 10 conv weights and biases are narrower than torchvision's.
-            assert_eq!(*others, 9);
-        }
-        other => panic!("expected ShapeMismatch, got {other:?}"),
-    }
-    let message = err.to_string();
-    for part in [
-        "alex_trunk.pth",
-        "features.0.weight",
-        "[8, 3, 11, 11]",
-        "[64, 3, 11, 11]",
-    ] {
-        assert!(message.contains(part), "{part} not in {message}");
-    }
-}
-
-#[test]
-fn heads_of_another_width_are_refused() {
-    let dir = fixture("");
-    let heads = dir.join("vgg_heads.pth");
-    let err = Lpips::load(
-        &narrow_config(&dir, LpipsNet::Alex),
-        &dir.join("alex_trunk.pth"),
-        &heads,
-        &Device::ndarray(),
-    )
-    .unwrap_err();
-    eprintln!("{err}");
+    let config = LpipsConfig::new(LpipsNet::Alex);
+    let err = load_error(&config, "alex_trunk.pth", "alex_heads.pth");
+    assert_eq!(named_file(&err), Some(&*fixture("alex_trunk.pth")));
     let LpipsLoadError::ShapeMismatch {
-        file,
         tensor,
         expected,
         found,
+        net,
+        others,
         ..
     } = &err
     else {
         panic!("expected ShapeMismatch, got {err:?}");
     };
-    assert_eq!(*file, heads);
-    assert_eq!(tensor, "lin0.model.1.weight");
-    assert_eq!(*expected, vec![1, 8, 1, 1]);
-    assert_eq!(*found, vec![1, 4, 1, 1]);
-}
-
-#[test]
-fn alexnet_trunk_for_vgg_is_refused() {
-    let dir = fixture("");
-    let trunk = dir.join("alex_trunk.pth");
-    let err = Lpips::load(
-        &narrow_config(&dir, LpipsNet::Vgg),
-        &trunk,
-        &dir.join("vgg_heads.pth"),
-        &Device::ndarray(),
-    )
-    .unwrap_err();
-    eprintln!("{err}");
-    assert!(
-        matches!(&err, LpipsLoadError::ShapeMismatch { file, tensor, .. }
-            if *file == trunk && tensor == "features.0.weight"),
-        "{err:?}"
+    assert_eq!(tensor, "features.0.weight");
+    assert_eq!(*expected, vec![64, 3, 11, 11]);
+    assert_eq!(*found, vec![8, 3, 11, 11]);
+    assert_eq!(*net, LpipsNet::Alex);
+    // All 10 conv weights and biases are narrower than torchvision's.
+    assert_eq!(*others, 9);
+    common::assert_mentions(
+        &err.to_string(),
+        &[
+            "alex_trunk.pth",
+            "features.0.weight",
+            "[8, 3, 11, 11]",
+            "[64, 3, 11, 11]",
+        ],
     );
 }
 
 #[test]
+fn heads_of_another_width_are_refused() {
+    let config = narrow_config(&fixture(""), LpipsNet::Alex);
+    let err = load_error(&config, "alex_trunk.pth", "vgg_heads.pth");
+    assert_eq!(named_file(&err), Some(&*fixture("vgg_heads.pth")));
+    let (expected, found) = (&[1, 8, 1, 1][..], &[1, 4, 1, 1][..]);
+    assert_eq!(
+        shape_mismatch(&err),
+        ("lin0.model.1.weight", expected, found)
+    );
+}
+
+#[test]
+fn alexnet_trunk_for_vgg_is_refused() {
+    let config = narrow_config(&fixture(""), LpipsNet::Vgg);
+    let err = load_error(&config, "alex_trunk.pth", "vgg_heads.pth");
+    assert_eq!(named_file(&err), Some(&*fixture("alex_trunk.pth")));
+    assert_eq!(shape_mismatch(&err).0, "features.0.weight");
+}
+
+#[test]
 fn missing_conv_is_reported_by_its_torchvision_key() {
-    let dir = fixture("");
-    let trunk = dir.join("alex_trunk_no_conv4.pth");
-    let err = Lpips::load(
-        &narrow_config(&dir, LpipsNet::Alex),
-        &trunk,
-        &dir.join("alex_heads.pth"),
-        &Device::ndarray(),
-    )
-    .unwrap_err();
-    eprintln!("{err}");
-    let LpipsLoadError::MissingTensors { file, net, missing } = &err else {
+    let config = narrow_config(&fixture(""), LpipsNet::Alex);
+    let err = load_error(&config, "alex_trunk_no_conv4.pth", "alex_heads.pth");
+    assert_eq!(named_file(&err), Some(&*fixture("alex_trunk_no_conv4.pth")));
+    let LpipsLoadError::MissingTensors { net, missing, .. } = &err else {
         panic!("expected MissingTensors, got {err:?}");
     };
-    assert_eq!(*file, trunk);
     assert_eq!(*net, LpipsNet::Alex);
     let mut missing = missing.clone();
     missing.sort();
     assert_eq!(missing, vec!["features.8.bias", "features.8.weight"]);
-    let message = err.to_string();
-    assert!(
-        message.contains("alex_trunk_no_conv4.pth") && message.contains("features.8.weight"),
-        "{message}"
+    common::assert_mentions(
+        &err.to_string(),
+        &["alex_trunk_no_conv4.pth", "features.8.weight"],
     );
 }
 
 #[test]
 fn missing_head_is_reported_by_its_package_key() {
-    let dir = fixture("");
-    let heads = dir.join("alex_heads_no_lin4.pth");
-    let err = Lpips::load(
-        &narrow_config(&dir, LpipsNet::Alex),
-        &dir.join("alex_trunk.pth"),
-        &heads,
-        &Device::ndarray(),
-    )
-    .unwrap_err();
-    eprintln!("{err}");
-    let LpipsLoadError::MissingTensors { file, missing, .. } = &err else {
+    let config = narrow_config(&fixture(""), LpipsNet::Alex);
+    let err = load_error(&config, "alex_trunk.pth", "alex_heads_no_lin4.pth");
+    assert_eq!(named_file(&err), Some(&*fixture("alex_heads_no_lin4.pth")));
+    let LpipsLoadError::MissingTensors { missing, .. } = &err else {
         panic!("expected MissingTensors, got {err:?}");
     };
-    assert_eq!(*file, heads);
     assert_eq!(*missing, vec!["lin4.model.1.weight"]);
     assert!(err.to_string().contains("alex_heads_no_lin4.pth"), "{err}");
 }
 
 #[test]
 fn float64_head_is_refused() {
-    let dir = fixture("");
-    let heads = dir.join("alex_heads_f64.pth");
-    let err = Lpips::load(
-        &narrow_config(&dir, LpipsNet::Alex),
-        &dir.join("alex_trunk.pth"),
-        &heads,
-        &Device::ndarray(),
-    )
-    .unwrap_err();
-    eprintln!("{err}");
-    let LpipsLoadError::UnsupportedDType {
-        file,
-        tensor,
-        found,
-    } = &err
-    else {
-        panic!("expected UnsupportedDType, got {err:?}");
-    };
-    assert_eq!(*file, heads);
-    assert_eq!(tensor, "lin2.model.1.weight");
-    assert_eq!(*found, DType::F64);
+    let config = narrow_config(&fixture(""), LpipsNet::Alex);
+    let err = load_error(&config, "alex_trunk.pth", "alex_heads_f64.pth");
+    assert_eq!(named_file(&err), Some(&*fixture("alex_heads_f64.pth")));
+    match &err {
+        LpipsLoadError::UnsupportedDType { tensor, found, .. } => {
+            assert_eq!(tensor, "lin2.model.1.weight");
+            assert_eq!(*found, DType::F64);
+        }
+        other => panic!("expected UnsupportedDType, got {other:?}"),
+    }
 }
 
 #[test]
 fn nonexistent_file_is_a_read_error_naming_it() {
-    let dir = fixture("");
-    let missing = dir.join("does_not_exist.pth");
-    let err = Lpips::load(
-        &narrow_config(&dir, LpipsNet::Alex),
-        &missing,
-        &dir.join("alex_heads.pth"),
-        &Device::ndarray(),
-    )
-    .unwrap_err();
-    eprintln!("{err}");
-    assert!(
-        matches!(&err, LpipsLoadError::Read { file, .. } if *file == missing),
-        "{err:?}"
-    );
+    let config = narrow_config(&fixture(""), LpipsNet::Alex);
+    let err = load_error(&config, "does_not_exist.pth", "alex_heads.pth");
+    assert_eq!(named_file(&err), Some(&*fixture("does_not_exist.pth")));
+    assert!(matches!(&err, LpipsLoadError::Read { .. }), "{err:?}");
     assert!(err.to_string().contains("does_not_exist.pth"), "{err}");
 }
 
 #[test]
 fn invalid_widths_are_a_config_error() {
-    let dir = fixture("");
-    let err = Lpips::load(
-        &LpipsConfig::new(LpipsNet::Alex).with_widths(Some(vec![8; 13])),
-        &dir.join("alex_trunk.pth"),
-        &dir.join("alex_heads.pth"),
-        &Device::ndarray(),
-    )
-    .unwrap_err();
-    eprintln!("{err}");
+    let config = LpipsConfig::new(LpipsNet::Alex).with_widths(Some(vec![8; 13]));
+    let err = load_error(&config, "alex_trunk.pth", "alex_heads.pth");
     assert!(matches!(err, LpipsLoadError::Config(_)), "{err:?}");
 }

@@ -11,6 +11,7 @@ use burn::prelude::*;
 use nia_model::config::SourceColoursAt;
 use nia_model::loss::{ibr_loss, render_loss};
 use nia_model::renderer::termination::TERMINATION_SEGMENTS;
+use nia_model::renderer::RenderOutput;
 use nia_model::{ModelConfig, Variant};
 
 const SAMPLES: usize = 8;
@@ -86,10 +87,7 @@ fn variant_b_colour_is_the_nerf_colour_and_variant_a_has_no_body_volume() {
 
 #[test]
 fn any_number_of_source_views_runs_with_the_same_weights() {
-    let device = Device::ndarray();
-    device.seed(3);
-    let config = ModelConfig::tiny();
-    let model = config.init(&device);
+    let (device, model) = common::tiny_model(3);
     for n in [1, 2, 4] {
         let input = common::scene(n, 32);
         let scene = model.encode(&input, None, &device, None).unwrap();
@@ -203,10 +201,7 @@ fn wgpu_matches_ndarray() {
 fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another() {
     use nia_data::body::reposing::Reposer;
     use nia_data::body::{pose_for_motion, MotionKind, ProceduralBody, ProceduralSpec, SmplParams};
-    let device = Device::ndarray();
-    device.seed(6);
-    let config = ModelConfig::tiny();
-    let model = config.init(&device);
+    let (device, model) = common::tiny_model(6);
     let input = common::scene(3, 32);
     let spec = ProceduralSpec {
         target_vertices: 1500,
@@ -303,20 +298,46 @@ fn configs_without_the_surface_switch_load_as_the_papers_per_sample_form() {
     assert_eq!(model.source_colours_at, SourceColoursAt::Samples);
 }
 
+/// One output of a render as a flat list: `rgb`, `rgb0`, `blend` (the blend weights), `acc` or
+/// `depth`.
+fn channel(r: &RenderOutput, name: &str) -> Vec<f32> {
+    let flat = |data: TensorData| data.try_to_vec::<f32>().unwrap();
+    match name {
+        "rgb" => flat(r.rgb.to_data()),
+        "rgb0" => flat(r.rgb0.to_data()),
+        "blend" => flat(r.blend_weights.as_ref().unwrap().to_data()),
+        "acc" => flat(r.acc.to_data()),
+        "depth" => flat(r.depth.to_data()),
+        other => panic!("no output {other}"),
+    }
+}
+
+/// Asserts that two renders of the same rays agree: every value of each named output finite
+/// in both and within the output's bound (plus 1e-5 of float slack).
+fn assert_renders_agree(a: &RenderOutput, b: &RenderOutput, bounds: &[(&str, f32)], case: &str) {
+    for &(what, bound) in bounds {
+        let (a, b) = (channel(a, what), channel(b, what));
+        assert_eq!(a.len(), b.len(), "{case}: {what}");
+        for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+            assert!(x.is_finite() && y.is_finite(), "{case}: {what}[{i}]");
+            assert!(
+                (x - y).abs() <= bound + 1e-5,
+                "{case}: {what}[{i}] {x} vs {y}"
+            );
+        }
+    }
+}
+
 /// Early ray termination: with densities that make rays opaque part-way (a density shift of
 /// the tiny network's F_sigma), rays stop evaluating once their transmittance is below epsilon;
 /// colour, opacity and depth change by at most about epsilon (times the largest colour or
 /// depth), and a jittered (training) render evaluates every sample.
 #[test]
 fn early_termination_skips_what_the_front_hides_within_epsilon() {
-    let device = common::device();
-    device.seed(6);
-    let mut model = ModelConfig::tiny().init(&device);
+    let (device, mut model) = common::tiny_model(6);
     let input = common::scene(3, 32);
     let rays = common::target_rays(&input, 4);
     let samples = 32;
-    let to_vec = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap();
-    let to_vec2 = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
     for (shift, expect_cut) in [(-1.0, false), (30.0, true), (2000.0, true)] {
         model.density.density_shift = shift;
         let scene = model.encode(&input, None, &device, None).unwrap();
@@ -345,34 +366,8 @@ fn early_termination_skips_what_the_front_hides_within_epsilon() {
             );
         }
         let far = rays.far.iter().cloned().fold(0.0f32, f32::max);
-        for (what, a, b, bound) in [
-            (
-                "rgb",
-                to_vec2(full.rgb.clone()),
-                to_vec2(cut.rgb.clone()),
-                epsilon,
-            ),
-            (
-                "acc",
-                to_vec(full.acc.clone()),
-                to_vec(cut.acc.clone()),
-                epsilon,
-            ),
-            (
-                "depth",
-                to_vec(full.depth.clone()),
-                to_vec(cut.depth.clone()),
-                epsilon * far,
-            ),
-        ] {
-            for (i, (x, y)) in a.iter().zip(&b).enumerate() {
-                assert!(x.is_finite() && y.is_finite(), "{what}[{i}]");
-                assert!(
-                    (x - y).abs() <= bound + 1e-5,
-                    "shift {shift}: {what}[{i}] {x} vs {y}"
-                );
-            }
-        }
+        let bounds = [("rgb", epsilon), ("acc", epsilon), ("depth", epsilon * far)];
+        assert_renders_agree(&full, &cut, &bounds, &format!("shift {shift}"));
         // Training renders (jittered) never terminate early.
         let jitter = vec![0.5f32; all];
         let trained = model
@@ -392,8 +387,6 @@ fn early_termination_skips_what_the_front_hides_within_epsilon() {
 fn colour_culling_colours_only_samples_that_carry_weight_within_the_budget() {
     let device = common::device();
     device.seed(11);
-    let to_vec = |t: Tensor<1>| t.into_data().try_to_vec::<f32>().unwrap();
-    let to_vec2 = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
     let input = common::scene(3, 32);
     let rays = common::target_rays(&input, 4);
     let samples = 32;
@@ -439,45 +432,15 @@ fn colour_culling_colours_only_samples_that_carry_weight_within_the_budget() {
                 // Early termination moves colour and opacity by up to its epsilon as well.
                 let slack = termination.unwrap_or(0.0);
                 let far = rays.far.iter().cloned().fold(0.0f32, f32::max);
-                let blend = |r: &nia_model::renderer::RenderOutput| {
-                    to_vec2(r.blend_weights.clone().unwrap())
-                };
-                for (what, a, b, bound) in [
-                    (
-                        "rgb",
-                        to_vec2(full.rgb.clone()),
-                        to_vec2(culled.rgb.clone()),
-                        budget + slack,
-                    ),
-                    (
-                        "rgb0",
-                        to_vec2(full.rgb0.clone()),
-                        to_vec2(culled.rgb0.clone()),
-                        budget + slack,
-                    ),
-                    ("blend", blend(&full), blend(&culled), budget + slack),
-                    (
-                        "acc",
-                        to_vec(full.acc.clone()),
-                        to_vec(culled.acc.clone()),
-                        slack,
-                    ),
-                    (
-                        "depth",
-                        to_vec(full.depth.clone()),
-                        to_vec(culled.depth.clone()),
-                        slack * far,
-                    ),
-                ] {
-                    assert_eq!(a.len(), b.len(), "{case}: {what}");
-                    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
-                        assert!(x.is_finite() && y.is_finite(), "{case}: {what}[{i}]");
-                        assert!(
-                            (x - y).abs() <= bound + 1e-5,
-                            "{case}: {what}[{i}] {x} vs {y}"
-                        );
-                    }
-                }
+                let colour = budget + slack;
+                let bounds = [
+                    ("rgb", colour),
+                    ("rgb0", colour),
+                    ("blend", colour),
+                    ("acc", slack),
+                    ("depth", slack * far),
+                ];
+                assert_renders_agree(&full, &culled, &bounds, &case);
             }
             // Training renders (jittered) colour every sample.
             let jitter = vec![0.5f32; all];
@@ -502,9 +465,7 @@ fn colour_culling_colours_only_samples_that_carry_weight_within_the_budget() {
 fn host_body_reads_render_what_the_tensor_reads_render() {
     use nia_data::body::reposing::Reposer;
     use nia_data::body::{pose_for_motion, MotionKind, ProceduralBody, ProceduralSpec, SmplParams};
-    let device = common::device();
-    device.seed(12);
-    let model = ModelConfig::tiny().init(&device);
+    let (device, model) = common::tiny_model(12);
     let input = common::scene(3, 32);
     let rays = common::target_rays(&input, 4);
     let to_vec2 = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
@@ -547,11 +508,7 @@ fn host_body_reads_render_what_the_tensor_reads_render() {
 fn render_plain_and_shuffled(
     model: &nia_model::NiaModel,
     device: &Device,
-) -> (
-    nia_model::renderer::RenderOutput,
-    nia_model::renderer::RenderOutput,
-    usize,
-) {
+) -> (RenderOutput, RenderOutput, usize) {
     use nia_model::ibr::c0_shuffle::C0Shuffle;
     let input = common::scene(3, 32);
     let scene = model.encode(&input, None, device, None).unwrap();

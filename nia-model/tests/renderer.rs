@@ -4,7 +4,7 @@
 mod common;
 
 use burn::prelude::*;
-use common::{assert_close, device, tensor, values};
+use common::{assert_close, central_difference, device, tensor, values};
 use nia_data::rng::Rng;
 use nia_model::loss::{distortion_loss, psnr_from_mse, render_loss};
 use nia_model::renderer::{render_rays, sample_weights};
@@ -146,25 +146,20 @@ fn opaque_sample_hides_the_rest_and_weights_match_alpha() {
 #[test]
 fn shape_errors_are_reported() {
     let dev = device();
-    let err = render_rays(
-        Tensor::zeros([2, 4], &dev),
-        Tensor::zeros([2, 4, 3], &dev),
-        Tensor::zeros([2, 3, 3], &dev),
-        Tensor::zeros([2, 4], &dev),
-        Tensor::zeros([2], &dev),
-        None,
-    )
-    .unwrap_err();
+    // Zeros for 2 rays of 4 samples, but the colour0 and far shapes given.
+    let render = |colour0: [usize; 3], far: usize| {
+        render_rays(
+            Tensor::zeros([2, 4], &dev),
+            Tensor::zeros([2, 4, 3], &dev),
+            Tensor::zeros(colour0, &dev),
+            Tensor::zeros([2, 4], &dev),
+            Tensor::zeros([far], &dev),
+            None,
+        )
+    };
+    let err = render([2, 3, 3], 2).unwrap_err();
     assert!(err.to_string().contains("colour0"), "{err}");
-    assert!(render_rays(
-        Tensor::zeros([2, 4], &dev),
-        Tensor::zeros([2, 4, 3], &dev),
-        Tensor::zeros([2, 4, 3], &dev),
-        Tensor::zeros([2, 4], &dev),
-        Tensor::zeros([3], &dev),
-        None,
-    )
-    .is_err());
+    assert!(render([2, 4, 3], 3).is_err());
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -221,23 +216,19 @@ fn gradients_match_finite_differences() {
     };
     let colour_t = |v: &Vec<f32>| tensor(v.clone(), [r, s, 3], &dev);
     let sigma_t = |v: &Vec<f32>| tensor(v.clone(), [r, s], &dev);
-    for i in 0..sigma_vals.len() {
-        let (mut up, mut down) = (sigma_vals.clone(), sigma_vals.clone());
-        up[i] += FD_STEP;
-        down[i] -= FD_STEP;
-        let fd = (scalar(loss(sigma_t(&up), colour_t(&colour_vals)))
-            - scalar(loss(sigma_t(&down), colour_t(&colour_vals))))
-            / (2.0 * FD_STEP);
-        check(g_sigma[i], fd, format!("d/dsigma[{i}]"));
+    assert_eq!(g_sigma.len(), sigma_vals.len());
+    for (i, &g) in g_sigma.iter().enumerate() {
+        let fd = central_difference(&sigma_vals, i, FD_STEP, |v| {
+            scalar(loss(sigma_t(&v), colour_t(&colour_vals)))
+        });
+        check(g, fd, format!("d/dsigma[{i}]"));
     }
-    for i in 0..colour_vals.len() {
-        let (mut up, mut down) = (colour_vals.clone(), colour_vals.clone());
-        up[i] += FD_STEP;
-        down[i] -= FD_STEP;
-        let fd = (scalar(loss(sigma_t(&sigma_vals), colour_t(&up)))
-            - scalar(loss(sigma_t(&sigma_vals), colour_t(&down))))
-            / (2.0 * FD_STEP);
-        check(g_colour[i], fd, format!("d/dcolour[{i}]"));
+    assert_eq!(g_colour.len(), colour_vals.len());
+    for (i, &g) in g_colour.iter().enumerate() {
+        let fd = central_difference(&colour_vals, i, FD_STEP, |v| {
+            scalar(loss(sigma_t(&sigma_vals), colour_t(&v)))
+        });
+        check(g, fd, format!("d/dcolour[{i}]"));
     }
 }
 

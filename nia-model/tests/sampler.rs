@@ -22,17 +22,12 @@ fn octahedron() -> (Vec<Vec3>, Vec<[u32; 3]>) {
         Vec3::new(0.0, 0.0, r),
         Vec3::new(0.0, 0.0, -r),
     ];
-    let f = vec![
-        [0, 2, 4],
-        [2, 1, 4],
-        [1, 3, 4],
-        [3, 0, 4],
-        [2, 0, 5],
-        [1, 2, 5],
-        [3, 1, 5],
-        [0, 3, 5],
-    ];
-    (v, f)
+    // Around the equator (+x, +y, -x, -y), each edge with the top (+z) and the bottom (-z)
+    // apex, wound outwards.
+    let ring = [(0, 2), (2, 1), (1, 3), (3, 0)];
+    let top = ring.map(|(a, b)| [a, b, 4]);
+    let bottom = ring.map(|(a, b)| [b, a, 5]);
+    (v, [top, bottom].concat())
 }
 
 /// Rays along +z from z = -1, at lateral offsets `xs`, over t in [0, 2].

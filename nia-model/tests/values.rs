@@ -20,7 +20,7 @@ use nia_model::renderer::image::{render_image, ImageRenderOptions};
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::SceneEncoding;
 use nia_model::variant::Variant;
-use nia_model::ModelConfig;
+use nia_model::{ModelConfig, NiaModel};
 
 /// f32 values through bilinear sampling and one linear layer.
 const VALUE_TOL: f32 = 1e-4;
@@ -47,6 +47,16 @@ fn rays_through_view_0(input: &SceneInput) -> RayBundle {
     RayBundle::through_pixels(&input.views[0].camera, &ray_box, None)
 }
 
+/// Three views of `SIZE` px encoded by the tiny network on the CPU: (device, scene, network,
+/// encoding).
+fn tiny_encoded() -> (Device, SceneInput, NiaModel, SceneEncoding) {
+    let dev = device();
+    let input = scene(3, SIZE);
+    let model = ModelConfig::tiny().init(&dev);
+    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    (dev, input, model, encoded)
+}
+
 /// Variant (c) over `views` source views, rendering the rays of view 0 with 16 samples.
 fn variant_c_renders_view_0(
     views: usize,
@@ -66,10 +76,7 @@ fn variant_c_renders_view_0(
 
 #[test]
 fn a_vertex_projected_into_a_view_reads_its_own_pixel_colour_and_feature() {
-    let dev = device();
-    let input = scene(3, SIZE);
-    let model = ModelConfig::tiny().init(&dev);
-    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    let (dev, input, model, encoded) = tiny_encoded();
     let view = &input.views[0];
     let camera = &view.camera;
     // Vertices view 0 sees, projecting well inside the image.
@@ -362,10 +369,7 @@ fn the_depth_test_hides_what_the_body_hides_and_keeps_what_a_view_sees() {
 /// about 1 on the body and exactly 0 for more than half of the points 15 cm off it.
 #[test]
 fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() {
-    let dev = device();
-    let input = scene(3, SIZE);
-    let model = ModelConfig::tiny().init(&dev);
-    let plain_scene = model.encode(&input, None, &dev, None).unwrap();
+    let (_, input, model, plain_scene) = tiny_encoded();
     let hulled_scene = plain_scene
         .clone()
         .with_visual_hull(&input, Some(1))
@@ -421,10 +425,7 @@ fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() 
 /// gives half its colour, opacity, depth and blend weights.
 #[test]
 fn a_pixel_is_the_mean_of_its_rays() {
-    let dev = device();
-    let input = scene(3, SIZE);
-    let model = ModelConfig::tiny().init(&dev);
-    let encoded = model.encode(&input, None, &dev, None).unwrap();
+    let (_, input, model, encoded) = tiny_encoded();
     let all = rays_through_view_0(&input);
     let one = all.slice(all.len() / 2..all.len() / 2 + 48);
     let (mut twice, mut with_blank) = (RayBundle::default(), RayBundle::default());

@@ -73,16 +73,16 @@ fn ablation_command_trains_evaluates_and_resumes() {
         String::from_utf8_lossy(&first.stderr)
     );
     // Plain lines (no terminal here): a row per variant, the orderings, the files.
-    for label in [
+    for line in [
         "(a) no_body",
         "(b) no_ibr",
         "(c) simple_average",
         "(d) cosine_weighted",
+        "(e) full, 1 view",
+        "e > a: ",
     ] {
-        assert!(stdout.contains(label), "{label} missing from:\n{stdout}");
+        assert!(stdout.contains(line), "{line} missing from:\n{stdout}");
     }
-    assert!(stdout.contains("(e) full, 1 view"), "{stdout}");
-    assert!(stdout.contains("e > a: "), "{stdout}");
     let rows: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("ablation.json")).unwrap()).unwrap();
     let rows = rows.as_array().unwrap();

@@ -263,8 +263,8 @@ fn mutate_bytes(rng: &mut Rng, src: &[u8], other: &[u8]) -> Vec<u8> {
                 }
             }
             5 => {
-                let end = (at + 1 + rng.below(64)).min(v.len());
-                let chunk = v[at..end].to_vec();
+                // A copy of up to 64 bytes inserted somewhere else.
+                let chunk = v[at..(at + 1 + rng.below(64)).min(v.len())].to_vec();
                 let to = rng.below(v.len() + 1);
                 v.splice(to..to, chunk);
             }

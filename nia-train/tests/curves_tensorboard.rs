@@ -61,18 +61,7 @@ fn a_run_writes_curves_and_event_files_tensorboard_reads() {
     let dir = common::scratch("curves", "run");
     let config = common::tiny_config(&dir, 2, 3, "validate_every = 1\nvalidation_images = 1");
     let out = dir.join("run");
-    let run = common::nia_train()
-        .arg("--config")
-        .arg(&config)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    common::ok(&common::train_run(&[], &config, &out));
 
     // The logged values, to compare with what the event files hold.
     let log = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
@@ -99,12 +88,7 @@ fn a_run_writes_curves_and_event_files_tensorboard_reads() {
         assert!(svg.contains(text), "curves.svg lacks {text}");
     }
     std::fs::remove_file(out.join("curves.svg")).unwrap();
-    let again = common::nia_train()
-        .arg("curves")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(again.status.success());
+    common::run_ok(common::nia_train().arg("curves").arg(&out));
     assert_eq!(
         std::fs::read_to_string(out.join("curves.svg")).unwrap(),
         svg
@@ -115,8 +99,7 @@ fn a_run_writes_curves_and_event_files_tensorboard_reads() {
         .arg(&dir)
         .output()
         .unwrap();
-    assert!(!none.status.success());
-    assert!(String::from_utf8_lossy(&none.stderr).contains("metrics.jsonl"));
+    common::fails_with(&none, &["metrics.jsonl"]);
 
     // One event file: the version event, 4 scalars per step, 2 scalars and one image per
     // validation (no final evaluation here), each record's checksums valid.
@@ -133,15 +116,10 @@ fn a_run_writes_curves_and_event_files_tensorboard_reads() {
     if !tensorboard_available() {
         return;
     }
-    let read = std::process::Command::new("python3")
-        .args(["-c", READ_WITH_TENSORBOARD])
-        .arg(out.join("tensorboard"))
-        .output()
-        .unwrap();
-    assert!(
-        read.status.success(),
-        "{}",
-        String::from_utf8_lossy(&read.stderr)
+    let read = common::run_ok(
+        std::process::Command::new("python3")
+            .args(["-c", READ_WITH_TENSORBOARD])
+            .arg(out.join("tensorboard")),
     );
     let tb: serde_json::Value = serde_json::from_slice(&read.stdout).unwrap();
     let scalars = |tag: &str| -> Vec<(u64, f64)> {

@@ -23,6 +23,7 @@ use std::process::Command;
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
+use common::slash;
 use nia_model::store::checkpoint;
 
 mod common;
@@ -38,12 +39,7 @@ struct Fixture {
 
 impl Fixture {
     fn new(name: &str) -> Fixture {
-        let root = std::env::temp_dir().join(format!(
-            "nia-train-determinism-{}-{name}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&root);
-        std::fs::create_dir_all(&root).unwrap();
+        let root = common::scratch("determinism", name);
         let data = root.join("data");
         common::synth_small(&data, 32);
         Fixture { root, data }
@@ -60,23 +56,9 @@ impl Drop for Fixture {
 fn config(fx: &Fixture, name: &str, backend: &str, seed: u64, loader_threads: usize) -> PathBuf {
     let dir = fx.root.join(name);
     std::fs::create_dir_all(&dir).unwrap();
-    let slash = |p: &Path| p.display().to_string().replace('\\', "/");
+    let cache = format!("visibility_cache = \"{}\"\n", slash(&dir.join("vis_cache")));
     let text = format!(
-        r#"
-[data]
-root = "{root}"
-ratio = 1.0
-border_px = 1
-loader_threads = {loader_threads}
-visibility_cache = "{cache}"
-
-[synth]
-subjects = 2
-frames = 2
-cameras = 4
-size = 32
-supersample = 1
-
+        r#"{data}
 [model]
 preset = "tiny"
 
@@ -90,8 +72,7 @@ checkpoint_every = {STEPS}
 keep_last = 1
 backend = "{backend}"
 "#,
-        root = slash(&fx.data),
-        cache = slash(&dir.join("vis_cache")),
+        data = common::data_sections(&fx.data, 32, loader_threads, &cache),
     );
     let path = dir.join("run.toml");
     std::fs::write(&path, text).unwrap();
@@ -108,12 +89,7 @@ fn train(config: &Path, env: &[(&str, &str)]) -> PathBuf {
     for (k, v) in env {
         cmd.env(k, v);
     }
-    let output = cmd.output().unwrap();
-    assert!(
-        output.status.success(),
-        "nia-train failed: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    common::run_ok(&mut cmd);
     out.join(checkpoint::CHECKPOINT_DIR)
         .join(checkpoint::dir_name(STEPS))
 }
@@ -245,30 +221,30 @@ fn assert_bit_identical(a: &Run, b: &Run) {
     );
 }
 
+/// Two runs `<prefix>_a` and `<prefix>_b` of seed 7 on `backend` (the second with
+/// `loader_threads_b` loader threads, the first with 1) end bit-identical: the first.
+fn repeated(fx: &Fixture, prefix: &str, backend: &str, loader_threads_b: usize) -> Run {
+    let a = run(fx, &format!("{prefix}_a"), backend, 7, 1, &[]);
+    let b = run(
+        fx,
+        &format!("{prefix}_b"),
+        backend,
+        7,
+        loader_threads_b,
+        &[],
+    );
+    assert_bit_identical(&a, &b);
+    a
+}
+
 #[test]
 fn ndarray_weights_are_bit_identical_across_runs_and_thread_counts() {
     let fx = Fixture::new("ndarray");
-    let a = run(&fx, "nd_a", "ndarray", 7, 1, &[]);
-    let b = run(&fx, "nd_b", "ndarray", 7, 1, &[]);
-    assert_bit_identical(&a, &b);
-    let one = run(
-        &fx,
-        "nd_rayon1",
-        "ndarray",
-        7,
-        1,
-        &[("RAYON_NUM_THREADS", "1")],
-    );
-    assert_bit_identical(&a, &one);
-    let many = run(
-        &fx,
-        "nd_rayon16",
-        "ndarray",
-        7,
-        2,
-        &[("RAYON_NUM_THREADS", "16")],
-    );
-    assert_bit_identical(&a, &many);
+    let a = repeated(&fx, "nd", "ndarray", 1);
+    for (name, loader_threads, rayon) in [("nd_rayon1", 1, "1"), ("nd_rayon16", 2, "16")] {
+        let env = [("RAYON_NUM_THREADS", rayon)];
+        assert_bit_identical(&a, &run(&fx, name, "ndarray", 7, loader_threads, &env));
+    }
     // The comparison can see a difference: another seed changes the weights.
     let other = run(&fx, "nd_seed8", "ndarray", 8, 1, &[]);
     let diff = differing(&a.weights, &other.weights);
@@ -290,9 +266,7 @@ fn ndarray_weights_are_bit_identical_across_runs_and_thread_counts() {
 #[test]
 fn flex_weights_are_bit_identical_across_runs() {
     let fx = Fixture::new("flex");
-    let a = run(&fx, "flex_a", "flex", 7, 1, &[]);
-    let b = run(&fx, "flex_b", "flex", 7, 2, &[]);
-    assert_bit_identical(&a, &b);
+    let a = repeated(&fx, "flex", "flex", 2);
     eprintln!(
         "determinism (flex): {} weight tensors bit-identical after {STEPS} steps over 2 runs",
         a.weights.len()

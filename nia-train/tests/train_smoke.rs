@@ -3,8 +3,8 @@
 //! naming the key and the file, and resume equal to an uninterrupted run.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
+use common::{fails_with, ok, slash, train_run};
 use nia_model::store::checkpoint;
 
 mod common;
@@ -20,25 +20,6 @@ fn tiny_config(dir: &Path, steps: u64, extra_train: &str) -> PathBuf {
 
 /// The same weights rendering the same images: only reduction order may differ (ndarray).
 const EVAL_REPEAT_TOL_DB: f64 = 1e-3;
-
-fn nia_train(args: &[&str], config: &Path, out: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nia-train"))
-        .args(args)
-        .arg("--config")
-        .arg(config)
-        .arg("--out")
-        .arg(out)
-        .output()
-        .unwrap()
-}
-
-fn ok(output: &Output) {
-    assert!(
-        output.status.success(),
-        "nia-train failed:\n{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-}
 
 fn events(out: &Path) -> Vec<serde_json::Value> {
     std::fs::read_to_string(out.join("metrics.jsonl"))
@@ -57,7 +38,7 @@ fn trains_two_steps_end_to_end_on_ndarray() {
     let dir = scratch("two");
     let config = tiny_config(&dir, 2, "validate_every = 2\nevaluate_at_end = true");
     let out = dir.join("run");
-    let run = nia_train(&[], &config, &out);
+    let run = train_run(&[], &config, &out);
     ok(&run);
     assert!(dir.join("data/synth.json").is_file(), "dataset generated");
     // Without a terminal every event and phase reaches stdout as a plain line.
@@ -128,13 +109,10 @@ fn trains_two_steps_end_to_end_on_ndarray() {
     let eval_config = tiny_config(
         &dir,
         0,
-        &format!(
-            "evaluate_at_end = true\ninit_from = \"{}\"",
-            ckpt.display().to_string().replace('\\', "/")
-        ),
+        &format!("evaluate_at_end = true\ninit_from = \"{}\"", slash(&ckpt)),
     );
     let eval_out = dir.join("eval");
-    ok(&nia_train(&[], &eval_config, &eval_out));
+    ok(&train_run(&[], &eval_config, &eval_out));
     let again = events(&eval_out);
     assert!(of_kind(&again, "step").is_empty(), "no training step");
     let again = of_kind(&again, "evaluation");
@@ -154,25 +132,18 @@ fn trains_two_steps_end_to_end_on_ndarray() {
 fn config_errors_name_the_key_and_the_file() {
     let dir = scratch("bad");
     let config = tiny_config(&dir, 2, "stepz = 3");
-    let output = nia_train(&[], &config, &dir.join("run"));
-    assert!(!output.status.success());
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(stderr.contains("stepz"), "names the key: {stderr}");
-    assert!(stderr.contains("tiny.toml"), "names the file: {stderr}");
-    assert!(!stderr.contains("panicked"), "{stderr}");
-
-    let text = std::fs::read_to_string(&config)
-        .unwrap()
+    let unknown_key = std::fs::read_to_string(&config).unwrap();
+    let wrong_type = unknown_key
         .replace("stepz = 3", "")
         .replace("samples = 8", "samples = \"eight\"");
-    std::fs::write(&config, text).unwrap();
-    let output = nia_train(&[], &config, &dir.join("run"));
-    assert!(!output.status.success());
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(
-        stderr.contains("samples") && stderr.contains("tiny.toml"),
-        "wrong type names key and file: {stderr}"
-    );
+    // An unknown key, then a value of the wrong type: each names the key and the file.
+    for (text, key) in [(unknown_key, "stepz"), (wrong_type, "samples")] {
+        std::fs::write(&config, text).unwrap();
+        fails_with(
+            &train_run(&[], &config, &dir.join("run")),
+            &[key, "tiny.toml"],
+        );
+    }
     assert!(
         !dir.join("data").exists(),
         "nothing generated for a bad config"
@@ -184,15 +155,14 @@ fn config_errors_name_the_key_and_the_file() {
 fn resume_continues_like_an_uninterrupted_run() {
     let dir = scratch("resume");
     let config = tiny_config(&dir, 4, "");
-    let straight = dir.join("straight");
-    ok(&nia_train(&[], &config, &straight));
-    let resumed = dir.join("resumed");
-    ok(&nia_train(&["--steps", "2"], &config, &resumed));
+    let (straight, resumed) = (dir.join("straight"), dir.join("resumed"));
+    ok(&train_run(&[], &config, &straight));
+    ok(&train_run(&["--steps", "2"], &config, &resumed));
     // A write killed half-way leaves only a hidden temporary folder: never resumed from.
     let partial = resumed.join("checkpoints/.tmp_step_00000099");
     std::fs::create_dir_all(&partial).unwrap();
     std::fs::write(partial.join("model.bpk"), b"truncated").unwrap();
-    ok(&nia_train(&["--resume"], &config, &resumed));
+    ok(&train_run(&["--resume"], &config, &resumed));
     let a = events(&straight);
     let b = events(&resumed);
     let started = of_kind(&b, "started");
@@ -257,10 +227,13 @@ fn final_weights(out: &Path) -> Vec<Vec<u32>> {
     c.0
 }
 
+/// `<workspace>/<rel>`, a file other crates keep.
+fn in_workspace(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(rel)
+}
+
 fn preset(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../configs")
-        .join(name)
+    in_workspace("configs").join(name)
 }
 
 #[test]
@@ -291,16 +264,12 @@ fn a_rerun_into_a_used_folder_must_say_resume_or_overwrite() {
     let dir = scratch("rerun");
     let config = tiny_config(&dir, 1, "validate_every = 0");
     let out = dir.join("run");
-    ok(&nia_train(&[], &config, &out));
+    ok(&train_run(&[], &config, &out));
     let log = std::fs::read(out.join("metrics.jsonl")).unwrap();
-    let refused = nia_train(&[], &config, &out);
-    assert!(!refused.status.success());
-    let message = String::from_utf8_lossy(&refused.stderr);
-    assert!(
-        message.contains("already holds a run")
-            && message.contains("--resume")
-            && message.contains("--overwrite"),
-        "{message}"
+    let refused = train_run(&[], &config, &out);
+    fails_with(
+        &refused,
+        &["already holds a run", "--resume", "--overwrite"],
     );
     assert_eq!(
         std::fs::read(out.join("metrics.jsonl")).unwrap(),
@@ -309,7 +278,7 @@ fn a_rerun_into_a_used_folder_must_say_resume_or_overwrite() {
     );
     assert_eq!(checkpoint::latest(&out).unwrap().unwrap().0, 1);
 
-    ok(&nia_train(&["--overwrite"], &config, &out));
+    ok(&train_run(&["--overwrite"], &config, &out));
     let fresh = std::fs::read_to_string(out.join("metrics.jsonl")).unwrap();
     assert_eq!(
         fresh
@@ -320,16 +289,14 @@ fn a_rerun_into_a_used_folder_must_say_resume_or_overwrite() {
         "one run in the new log:\n{fresh}"
     );
     assert_eq!(checkpoint::latest(&out).unwrap().unwrap().0, 1);
-    let both = nia_train(&["--resume", "--overwrite"], &config, &out);
+    let both = train_run(&["--resume", "--overwrite"], &config, &out);
     assert!(!both.status.success(), "--resume and --overwrite together");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The torchvision ResNet fixture of nia-model's import tests (trunk width 8, the tiny preset's).
 fn resnet_fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../nia-model/tests/fixtures/resnet")
-        .join(name)
+    in_workspace("nia-model/tests/fixtures/resnet").join(name)
 }
 
 /// `train.encoder_weights` puts the torchvision weights into the encoder before the first step,
@@ -341,13 +308,10 @@ fn encoder_weights_start_the_encoder_and_it_trains() {
     use burn::prelude::*;
     let dir = scratch("encoder_weights");
     let weights = resnet_fixture("resnet_tiny.pth");
-    let line = format!(
-        "encoder_weights = \"{}\"",
-        weights.display().to_string().replace('\\', "/")
-    );
+    let line = format!("encoder_weights = \"{}\"", slash(&weights));
     let config = tiny_config(&dir, 1, &line);
     let out = dir.join("run");
-    ok(&nia_train(&[], &config, &out));
+    ok(&train_run(&[], &config, &out));
 
     struct Conv1(Option<Vec<f32>>);
     impl ModuleVisitor for Conv1 {
@@ -393,20 +357,8 @@ fn encoder_weights_start_the_encoder_and_it_trains() {
 
     // A trunk of another width is refused, naming the key and the file.
     let bad = dir.join("bad");
-    let output = Command::new(env!("CARGO_BIN_EXE_nia-train"))
-        .args(["--set", "model.encoder_width=16", "--config"])
-        .arg(&config)
-        .arg("--out")
-        .arg(&bad)
-        .output()
-        .unwrap();
-    assert!(!output.status.success());
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(
-        stderr.contains("train.encoder_weights") && stderr.contains("resnet_tiny.pth"),
-        "{stderr}"
-    );
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    let output = train_run(&["--set", "model.encoder_width=16"], &config, &bad);
+    fails_with(&output, &["train.encoder_weights", "resnet_tiny.pth"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -416,16 +368,15 @@ fn encoder_weights_start_the_encoder_and_it_trains() {
 #[test]
 fn lpips_is_scored_in_validation_and_evaluation() {
     let dir = scratch("lpips");
-    let lpips_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../nia-model/tests/fixtures/lpips");
-    let slash = |p: PathBuf| p.display().to_string().replace('\\', "/");
+    let lpips_dir = in_workspace("nia-model/tests/fixtures/lpips");
     let line = format!(
         "validate_every = 1\nevaluate_at_end = true\nlpips = {{ net = \"vgg\", backbone = \"{}\", heads = \"{}\", widths = [4, 4, 8, 8, 8, 8, 8, 12, 12, 12, 12, 12, 12] }}",
-        slash(lpips_dir.join("vgg_trunk.pth")),
-        slash(lpips_dir.join("vgg_heads.pth")),
+        slash(&lpips_dir.join("vgg_trunk.pth")),
+        slash(&lpips_dir.join("vgg_heads.pth")),
     );
     let config = tiny_config(&dir, 1, &line);
     let out = dir.join("run");
-    let run = nia_train(&[], &config, &out);
+    let run = train_run(&[], &config, &out);
     ok(&run);
     let all = events(&out);
     for kind in ["validation", "evaluation"] {
@@ -446,12 +397,7 @@ fn lpips_is_scored_in_validation_and_evaluation() {
         .unwrap()
         .replace("vgg_heads.pth", "no_such_heads.pth");
     std::fs::write(&config, text).unwrap();
-    let refused = nia_train(&[], &config, &dir.join("run2"));
-    assert!(!refused.status.success());
-    let stderr = String::from_utf8_lossy(&refused.stderr);
-    assert!(
-        stderr.contains("train.lpips") && stderr.contains("no_such_heads.pth"),
-        "{stderr}"
-    );
+    let refused = train_run(&[], &config, &dir.join("run2"));
+    fails_with(&refused, &["train.lpips", "no_such_heads.pth"]);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -8,68 +8,48 @@ fn write_scratch(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
     p
 }
 
+/// Writes `bytes` as `name` in `dir` and reads it back: the `.npy` error, and the message, which
+/// names the file.
+fn npy_error(dir: &Path, name: &str, bytes: &[u8]) -> (NpyError, String) {
+    let err = load_any(&write_scratch(dir, name, bytes)).unwrap_err();
+    let msg = err.to_string();
+    assert!(msg.contains(name), "{msg}");
+    match err {
+        FormatError::Npy { source, .. } => (source, msg),
+        other => panic!("not an .npy error: {other}"),
+    }
+}
+
 #[test]
 fn bad_npy_files_give_typed_errors_naming_the_file() {
     let dir = scratch("bad-npy");
     let good = std::fs::read(fixture_dir().join("dtype_f8.npy")).unwrap();
 
-    let p = write_scratch(&dir, "magic.npy", b"PK\x03\x04 not numpy at all");
-    let err = load_any(&p).unwrap_err();
-    assert!(
-        matches!(
-            err,
-            FormatError::Npy {
-                source: NpyError::BadMagic { .. },
-                ..
-            }
-        ),
-        "{err}"
-    );
-    let msg = err.to_string();
-    assert!(
-        msg.contains("magic.npy") && msg.contains("expected magic"),
-        "{msg}"
-    );
+    let (err, msg) = npy_error(&dir, "magic.npy", b"PK\x03\x04 not numpy at all");
+    assert!(matches!(err, NpyError::BadMagic { .. }), "{msg}");
+    assert!(msg.contains("expected magic"), "{msg}");
 
     let mut v = good.clone();
     v[6] = 9;
-    let p = write_scratch(&dir, "version.npy", &v);
-    let err = load_any(&p).unwrap_err();
-    assert!(matches!(
-        err,
-        FormatError::Npy {
-            source: NpyError::UnsupportedVersion { major: 9, minor: 0 },
-            ..
-        }
-    ));
-    assert!(err.to_string().contains("version.npy"));
-
-    let p = write_scratch(&dir, "short_header.npy", &good[..40]);
-    let err = load_any(&p).unwrap_err();
+    let (err, msg) = npy_error(&dir, "version.npy", &v);
     assert!(
-        matches!(
-            err,
-            FormatError::Npy {
-                source: NpyError::Truncated { what: "header", .. },
-                ..
-            }
-        ),
-        "{err}"
+        matches!(err, NpyError::UnsupportedVersion { major: 9, minor: 0 }),
+        "{msg}"
     );
-    assert!(err.to_string().contains("short_header.npy"));
+
+    let (err, msg) = npy_error(&dir, "short_header.npy", &good[..40]);
+    assert!(
+        matches!(err, NpyError::Truncated { what: "header", .. }),
+        "{msg}"
+    );
 
     // Data cut short: shape (2, 2) float64 needs 32 bytes.
-    let p = write_scratch(&dir, "truncated.npy", &good[..good.len() - 3]);
-    let err = load_any(&p).unwrap_err();
+    let (err, msg) = npy_error(&dir, "truncated.npy", &good[..good.len() - 3]);
     match &err {
-        FormatError::Npy {
-            source:
-                NpyError::SizeMismatch {
-                    shape,
-                    expected,
-                    found,
-                    ..
-                },
+        NpyError::SizeMismatch {
+            shape,
+            expected,
+            found,
             ..
         } => {
             assert_eq!(
@@ -79,9 +59,8 @@ fn bad_npy_files_give_typed_errors_naming_the_file() {
         }
         other => panic!("{other}"),
     }
-    let msg = err.to_string();
     assert!(
-        msg.contains("truncated.npy") && msg.contains("needs 32 bytes") && msg.contains("has 29"),
+        msg.contains("needs 32 bytes") && msg.contains("has 29"),
         "{msg}"
     );
 
@@ -107,33 +86,14 @@ fn bad_npy_files_give_typed_errors_naming_the_file() {
         err.to_string().contains("missing key 'fortran_order'"),
         "{err}"
     );
-    let p = write_scratch(
-        &dir,
-        "garbage.npy",
-        &header("{'descr': '<f4', 'fortran_order': Maybe}"),
-    );
-    assert!(matches!(
-        load_any(&p).unwrap_err(),
-        FormatError::Npy {
-            source: NpyError::Header { .. },
-            ..
-        }
-    ));
+    let garbage = header("{'descr': '<f4', 'fortran_order': Maybe}");
+    let (err, msg) = npy_error(&dir, "garbage.npy", &garbage);
+    assert!(matches!(err, NpyError::Header { .. }), "{msg}");
     let mut b = header("{'descr': '<c16', 'fortran_order': False, 'shape': (1,), }");
     b.extend_from_slice(&[0; 16]);
-    let p = write_scratch(&dir, "complex.npy", &b);
-    let err = load_any(&p).unwrap_err();
-    assert!(
-        matches!(
-            err,
-            FormatError::Npy {
-                source: NpyError::UnsupportedDtype { .. },
-                ..
-            }
-        ),
-        "{err}"
-    );
-    assert!(err.to_string().contains("'<c16'"));
+    let (err, msg) = npy_error(&dir, "complex.npy", &b);
+    assert!(matches!(err, NpyError::UnsupportedDtype { .. }), "{msg}");
+    assert!(msg.contains("'<c16'"), "{msg}");
     let p = write_scratch(
         &dir,
         "negative.npy",

@@ -7,16 +7,8 @@ use super::*;
 /// centres.
 #[test]
 fn pixel_ray_passes_through_projected_points() {
-    let c = Camera::look_at(
-        Vec3::new(1.0, 2.0, 3.0),
-        Vec3::new(0.0, 0.8, 0.0),
-        Vec3::Y,
-        400.0,
-        410.0,
-        200,
-        150,
-    )
-    .unwrap();
+    let (eye, target) = (Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.0, 0.8, 0.0));
+    let c = Camera::look_at(eye, target, Vec3::Y, 400.0, 410.0, 200, 150).unwrap();
     let mut rng = Rng::new(3);
     for _ in 0..200 {
         let p = Vec3::new(
@@ -157,16 +149,8 @@ fn convex_hull(mut pts: Vec<Vec2>) -> Vec<Vec2> {
 
 #[test]
 fn mask_at_box_is_the_projected_hull() {
-    let c = Camera::look_at(
-        Vec3::new(2.0, 1.5, 3.5),
-        Vec3::new(0.0, 0.1, 0.0),
-        Vec3::Y,
-        180.0,
-        180.0,
-        128,
-        96,
-    )
-    .unwrap();
+    let (eye, target) = (Vec3::new(2.0, 1.5, 3.5), Vec3::new(0.0, 0.1, 0.0));
+    let c = Camera::look_at(eye, target, Vec3::Y, 180.0, 180.0, 128, 96).unwrap();
     let b = Aabb::new(Vec3::new(-0.4, -0.9, -0.3), Vec3::new(0.5, 1.0, 0.2));
     let mask = mask_at_box(&c, &b);
     let hull = convex_hull(
@@ -215,16 +199,8 @@ fn mask_at_box_is_the_projected_hull() {
 /// rays), and s = 1 is the one centre ray of `through_pixels`.
 #[test]
 fn pixel_footprints_cover_the_pixel_square() {
-    let c = Camera::look_at(
-        Vec3::new(0.0, 0.5, 3.0),
-        Vec3::new(0.0, 0.5, 0.0),
-        Vec3::Y,
-        60.0,
-        60.0,
-        32,
-        24,
-    )
-    .unwrap();
+    let (eye, target) = (Vec3::new(0.0, 0.5, 3.0), Vec3::new(0.0, 0.5, 0.0));
+    let c = Camera::look_at(eye, target, Vec3::Y, 60.0, 60.0, 32, 24).unwrap();
     let aabb = Aabb::new(Vec3::new(-0.3, 0.0, -0.3), Vec3::new(0.3, 1.0, 0.3));
     let one = RayBundle::through_pixels(&c, &aabb, None);
     assert_eq!(RayBundle::through_pixel_footprints(&c, &aabb, None, 1), one);

@@ -190,6 +190,15 @@ pub fn device() -> Device {
     Device::ndarray()
 }
 
+/// The tiny network on the reference CPU device, its weights drawn after seeding it with
+/// `seed`: (device, model).
+pub fn tiny_model(seed: u64) -> (Device, nia_model::NiaModel) {
+    let device = device();
+    device.seed(seed);
+    let model = nia_model::ModelConfig::tiny().init(&device);
+    (device, model)
+}
+
 pub fn tensor<const D: usize>(values: Vec<f32>, shape: [usize; D], device: &Device) -> Tensor<D> {
     Tensor::from_data(TensorData::new(values, shape), device)
 }
@@ -206,4 +215,20 @@ pub fn assert_close(got: &[f32], expected: &[f32], tol: f32, what: &str) {
             "{what}[{i}]: got {g}, expected {e} (tol {tol})"
         );
     }
+}
+
+/// Asserts that `text` (an error message) names every one of `parts`.
+pub fn assert_mentions(text: &str, parts: &[&str]) {
+    for part in parts {
+        assert!(text.contains(part), "{part} not in {text}");
+    }
+}
+
+/// The central difference `(f(x + h e_i) - f(x - h e_i)) / 2h` of `f` at `x` along coordinate
+/// `i`, with step `h`.
+pub fn central_difference(x: &[f32], i: usize, h: f32, f: impl Fn(Vec<f32>) -> f32) -> f32 {
+    let (mut up, mut down) = (x.to_vec(), x.to_vec());
+    up[i] += h;
+    down[i] -= h;
+    (f(up) - f(down)) / (2.0 * h)
 }

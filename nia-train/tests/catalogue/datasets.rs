@@ -2,17 +2,95 @@
 
 use super::*;
 
+/// A decoded pickled dict.
+type Dict = Vec<(PyValue, PyValue)>;
+
+/// Removed from the training subject's folder: (case name, texts stderr must contain, path).
+#[rustfmt::skip]
+const REMOVED: &[(&str, &[&str], &str)] = &[
+    ("annots_missing", &["CoreView_1/annots.npy", "missing", "cameras and image list"], "annots.npy"),
+    ("camera_folder_missing", &["CoreView_1/Camera_B2", "camera folder missing"], "Camera_B2"),
+    ("image_missing_for_a_frame", &["CoreView_1/Camera_B2/000001.jpg", "image missing for frame 1"],
+        "Camera_B2/000001.jpg"),
+    ("mask_folder_missing", &["CoreView_1/mask", "a mask folder"], "mask"),
+    ("params_folder_missing", &["CoreView_1/params", "SMPL parameters folder"], "params"),
+    ("vertices_folder_missing", &["CoreView_1/vertices", "SMPL vertices folder"], "vertices"),
+];
+
+/// Emptied folders of the training subject: (case name, texts stderr must contain, folder,
+/// the ending of the files removed).
+#[rustfmt::skip]
+const EMPTIED: &[(&str, &[&str], &str, &str)] = &[
+    ("mask_files_missing", &["CoreView_1/Camera_B", "no mask for this image", "mask/Camera_B"], "mask", ".png"),
+    ("params_file_missing", &["CoreView_1/params/", ".npy", "missing", "SMPL parameters"], "params", ".npy"),
+    ("vertices_file_missing", &["CoreView_1/vertices/", ".npy", "missing", "SMPL vertices"], "vertices", ".npy"),
+];
+
+/// A setup that applies `edit` to every file of the training subject's `folder` whose name
+/// ends with `suffix`, then trains.
+fn each_file(
+    folder: &'static str,
+    suffix: &'static str,
+    edit: impl Fn(&mut Ctx, &str) + 'static,
+) -> impl Fn(&mut Ctx) -> Vec<OsString> {
+    move |c| {
+        for f in c.files(&format!("{SUBJECT}/{folder}"), suffix) {
+            edit(c, &f);
+        }
+        c.train()
+    }
+}
+
+/// A setup that edits the training subject's `annots.npy` (a pickled dict), then trains.
+fn annots_edit(edit: impl Fn(&mut Dict) + 'static) -> impl Fn(&mut Ctx) -> Vec<OsString> {
+    move |c| {
+        c.edit_object(&format!("{SUBJECT}/annots.npy"), &edit);
+        c.train()
+    }
+}
+
+/// A setup that edits every SMPL parameters file (a pickled dict) of the training subject.
+fn params_edit(edit: impl Fn(&mut Dict) + 'static) -> impl Fn(&mut Ctx) -> Vec<OsString> {
+    each_file("params", ".npy", move |c, f| c.edit_object(f, &edit))
+}
+
+/// A setup that replaces every vertices array of the training subject by `edit` of it.
+fn vertices_edit(
+    edit: impl Fn(NdArray) -> NdArray + 'static,
+) -> impl Fn(&mut Ctx) -> Vec<OsString> {
+    each_file("vertices", ".npy", move |c, f| {
+        let p = c.at(f);
+        let a = edit(npy::read(&p).unwrap());
+        std::fs::remove_file(&p).unwrap();
+        npy::write_array(&p, &a).unwrap();
+    })
+}
+
+/// Whether `k` is the string `key`.
+fn is_key(k: &PyValue, key: &str) -> bool {
+    matches!(k, PyValue::Str(s) if s == key)
+}
+
+/// An edit that removes the entry `key` of a dict.
+fn without(key: &'static str) -> impl Fn(&mut Dict) {
+    move |items| items.retain(|(k, _)| !is_key(k, key))
+}
+
 pub(super) fn cases() -> Vec<Case> {
     let v = model_vertices();
-    vec![
-        case(
-            "annots_missing",
-            &["CoreView_1/annots.npy", "missing", "cameras and image list"],
-            |c| {
-                c.remove(&format!("{SUBJECT}/annots.npy"));
+    let mut cases: Vec<Case> = REMOVED
+        .iter()
+        .map(|&(name, expect, rel)| {
+            case(name, expect, move |c| {
+                c.remove(&format!("{SUBJECT}/{rel}"));
                 c.train()
-            },
-        ),
+            })
+        })
+        .collect();
+    cases.extend(EMPTIED.iter().map(|&(name, expect, folder, suffix)| {
+        case(name, expect, each_file(folder, suffix, |c, f| c.remove(f)))
+    }));
+    cases.extend([
         case(
             "annots_truncated",
             &["CoreView_1/annots.npy", "truncated"],
@@ -30,72 +108,59 @@ pub(super) fn cases() -> Vec<Case> {
         case(
             "annots_missing_key_ims",
             &["CoreView_1/annots.npy", "ims", "no such key"],
-            |c| {
-                c.edit_object(&format!("{SUBJECT}/annots.npy"), |items| {
-                    items.retain(|(k, _)| !matches!(k, PyValue::Str(s) if s == "ims"))
-                });
-                c.train()
-            },
+            annots_edit(without("ims")),
         ),
         case(
             "annots_missing_camera_T",
             &["CoreView_1/annots.npy", "T"],
-            |c| {
-                c.edit_object(&format!("{SUBJECT}/annots.npy"), |items| {
-                    for (k, v) in items.iter_mut() {
-                        if matches!(k, PyValue::Str(s) if s == "cams") {
-                            if let PyValue::Dict(cams) = v {
-                                cams.retain(|(k, _)| !matches!(k, PyValue::Str(s) if s == "T"));
-                            }
-                        }
+            annots_edit(|items| {
+                for (k, v) in items.iter_mut() {
+                    if let (true, PyValue::Dict(cams)) = (is_key(k, "cams"), v) {
+                        cams.retain(|(k, _)| !is_key(k, "T"));
                     }
-                });
-                c.train()
-            },
+                }
+            }),
         ),
         case(
             "annots_too_few_image_paths",
             &["CoreView_1/annots.npy", "ims[0]['ims']", "4 image paths"],
-            |c| {
-                c.edit_object(&format!("{SUBJECT}/annots.npy"), |items| {
-                    for (k, v) in items.iter_mut() {
-                        if matches!(k, PyValue::Str(s) if s == "ims") {
-                            if let PyValue::List(frames) = v {
-                                if let PyValue::Dict(f0) = &mut frames[0] {
-                                    if let PyValue::List(paths) = &mut f0[0].1 {
-                                        paths.pop();
-                                    }
-                                }
+            annots_edit(|items| {
+                for (k, v) in items.iter_mut() {
+                    if let (true, PyValue::List(frames)) = (is_key(k, "ims"), v) {
+                        if let PyValue::Dict(f0) = &mut frames[0] {
+                            if let PyValue::List(paths) = &mut f0[0].1 {
+                                paths.pop();
                             }
                         }
                     }
-                });
-                c.train()
-            },
+                }
+            }),
+        ),
+        case(
+            "annots_nan_in_camera_K",
+            &["CoreView_1/annots.npy", "K", "non-finite"],
+            annots_edit(|items| {
+                let cams = items
+                    .iter_mut()
+                    .find_map(|(k, v)| match (k, v) {
+                        (PyValue::Str(s), PyValue::Dict(d)) if s == "cams" => Some(d),
+                        _ => None,
+                    })
+                    .expect("cams");
+                match cams.iter_mut().find(|(k, _)| is_key(k, "K")) {
+                    Some((_, PyValue::List(ks))) => match &mut ks[0] {
+                        PyValue::Array(a) => set_f(a, 0, f64::NAN),
+                        other => panic!("K[0] is {}", other.type_name()),
+                    },
+                    Some((_, PyValue::Array(a))) => set_f(a, 0, f64::NAN),
+                    _ => panic!("no cams['K']"),
+                }
+            }),
         ),
         case("subject_folder_missing", &["CoreView_1", "missing"], |c| {
             c.remove(SUBJECT);
             c.train()
         }),
-        case(
-            "camera_folder_missing",
-            &["CoreView_1/Camera_B2", "camera folder missing"],
-            |c| {
-                c.remove(&format!("{SUBJECT}/Camera_B2"));
-                c.train()
-            },
-        ),
-        case(
-            "image_missing_for_a_frame",
-            &[
-                "CoreView_1/Camera_B2/000001.jpg",
-                "image missing for frame 1",
-            ],
-            |c| {
-                c.remove(&format!("{SUBJECT}/Camera_B2/000001.jpg"));
-                c.train()
-            },
-        ),
         case(
             "jpeg_garbage",
             &["CoreView_1/Camera_B2/000000.jpg", "cannot decode image"],
@@ -135,28 +200,6 @@ pub(super) fn cases() -> Vec<Case> {
             },
         ),
         case(
-            "mask_folder_missing",
-            &["CoreView_1/mask", "a mask folder"],
-            |c| {
-                c.remove(&format!("{SUBJECT}/mask"));
-                c.train()
-            },
-        ),
-        case(
-            "mask_files_missing",
-            &[
-                "CoreView_1/Camera_B",
-                "no mask for this image",
-                "mask/Camera_B",
-            ],
-            |c| {
-                for f in c.files(&format!("{SUBJECT}/mask"), ".png") {
-                    c.remove(&f);
-                }
-                c.train()
-            },
-        ),
-        case(
             "mask_of_the_wrong_size",
             &["CoreView_1/mask/Camera_B", ".png", "16x16", "32x32"],
             |c| {
@@ -176,114 +219,48 @@ pub(super) fn cases() -> Vec<Case> {
             },
         ),
         case(
-            "params_folder_missing",
-            &["CoreView_1/params", "SMPL parameters folder"],
-            |c| {
-                c.remove(&format!("{SUBJECT}/params"));
-                c.train()
-            },
-        ),
-        case(
-            "params_file_missing",
-            &["CoreView_1/params/", ".npy", "missing", "SMPL parameters"],
-            |c| {
-                for f in c.files(&format!("{SUBJECT}/params"), ".npy") {
-                    c.remove(&f);
-                }
-                c.train()
-            },
-        ),
-        case(
             "params_with_nan",
             &["CoreView_1/params/", "poses", "non-finite", "NaN"],
-            |c| {
-                for f in c.files(&format!("{SUBJECT}/params"), ".npy") {
-                    c.edit_object(&f, |items| set_f(dict_array(items, "poses"), 5, f64::NAN));
-                }
-                c.train()
-            },
+            params_edit(|items| set_f(dict_array(items, "poses"), 5, f64::NAN)),
         ),
         case(
             "params_missing_key_Th",
             &["CoreView_1/params/", "Th", "no such key"],
-            |c| {
-                for f in c.files(&format!("{SUBJECT}/params"), ".npy") {
-                    c.edit_object(&f, |items| {
-                        items.retain(|(k, _)| !matches!(k, PyValue::Str(s) if s == "Th"))
-                    });
-                }
-                c.train()
-            },
+            params_edit(without("Th")),
         ),
         case(
             "params_poses_wrong_length",
             &["CoreView_1/params/", "poses", "shape [1, 72]", "[1, 69]"],
-            |c| {
-                for f in c.files(&format!("{SUBJECT}/params"), ".npy") {
-                    c.edit_object(&f, |items| {
-                        let a = dict_array(items, "poses");
-                        a.shape = vec![1, 69];
-                        a.data = match &a.data {
-                            ArrayData::F32(v) => ArrayData::F32(v[..69].to_vec()),
-                            ArrayData::F64(v) => ArrayData::F64(v[..69].to_vec()),
-                            _ => panic!("poses not float"),
-                        };
-                    });
-                }
-                c.train()
-            },
-        ),
-        case(
-            "vertices_folder_missing",
-            &["CoreView_1/vertices", "SMPL vertices folder"],
-            |c| {
-                c.remove(&format!("{SUBJECT}/vertices"));
-                c.train()
-            },
-        ),
-        case(
-            "vertices_file_missing",
-            &["CoreView_1/vertices/", ".npy", "missing", "SMPL vertices"],
-            |c| {
-                for f in c.files(&format!("{SUBJECT}/vertices"), ".npy") {
-                    c.remove(&f);
-                }
-                c.train()
-            },
+            params_edit(|items| {
+                let a = dict_array(items, "poses");
+                a.shape = vec![1, 69];
+                a.data = match &a.data {
+                    ArrayData::F32(v) => ArrayData::F32(v[..69].to_vec()),
+                    ArrayData::F64(v) => ArrayData::F64(v[..69].to_vec()),
+                    _ => panic!("poses not float"),
+                };
+            }),
         ),
         case(
             "vertices_wrong_shape",
             &["CoreView_1/vertices/", "shape [V, 3]", &format!("[{v}, 2]")],
-            |c| {
-                for f in c.files(&format!("{SUBJECT}/vertices"), ".npy") {
-                    let p = c.at(&f);
-                    let a = npy::read(&p).unwrap();
-                    let xy: Vec<f32> = a
-                        .to_f32_vec()
-                        .unwrap()
-                        .chunks_exact(3)
-                        .flat_map(|v| [v[0], v[1]])
-                        .collect();
-                    std::fs::remove_file(&p).unwrap();
-                    let n = xy.len() / 2;
-                    npy::write_array(&p, &NdArray::new(vec![n, 2], ArrayData::F32(xy))).unwrap();
-                }
-                c.train()
-            },
+            vertices_edit(|a| {
+                let xy: Vec<f32> = a
+                    .to_f32_vec()
+                    .unwrap()
+                    .chunks_exact(3)
+                    .flat_map(|v| [v[0], v[1]])
+                    .collect();
+                NdArray::new(vec![xy.len() / 2, 2], ArrayData::F32(xy))
+            }),
         ),
         case(
             "vertices_with_nan",
             &["CoreView_1/vertices/", "non-finite"],
-            |c| {
-                for f in c.files(&format!("{SUBJECT}/vertices"), ".npy") {
-                    let p = c.at(&f);
-                    let mut a = npy::read(&p).unwrap();
-                    set_f(&mut a, 10, f64::NAN);
-                    std::fs::remove_file(&p).unwrap();
-                    npy::write_array(&p, &a).unwrap();
-                }
-                c.train()
-            },
+            vertices_edit(|mut a| {
+                set_f(&mut a, 10, f64::NAN);
+                a
+            }),
         ),
         // Stored vertices that do not fit the SMPL model: named with both files at open time.
         case(
@@ -294,16 +271,10 @@ pub(super) fn cases() -> Vec<Case> {
                 &format!("{}", v - 100),
                 &format!("{v}"),
             ],
-            move |c| {
-                for f in c.files(&format!("{SUBJECT}/vertices"), ".npy") {
-                    let p = c.at(&f);
-                    let mut a = npy::read(&p).unwrap();
-                    keep_rows(&mut a, v - 100);
-                    std::fs::remove_file(&p).unwrap();
-                    npy::write_array(&p, &a).unwrap();
-                }
-                c.train()
-            },
+            vertices_edit(move |mut a| {
+                keep_rows(&mut a, v - 100);
+                a
+            }),
         ),
         // More stored vertices than the model has.
         case(
@@ -314,46 +285,12 @@ pub(super) fn cases() -> Vec<Case> {
                 &format!("{}", v + 100),
                 &format!("{v}"),
             ],
-            move |c| {
-                for f in c.files(&format!("{SUBJECT}/vertices"), ".npy") {
-                    let p = c.at(&f);
-                    let a = npy::read(&p).unwrap();
-                    let mut xyz = a.to_f32_vec().unwrap();
-                    let first: Vec<f32> = xyz[..300].to_vec();
-                    xyz.extend(first);
-                    std::fs::remove_file(&p).unwrap();
-                    npy::write_array(&p, &NdArray::new(vec![v + 100, 3], ArrayData::F32(xyz)))
-                        .unwrap();
-                }
-                c.train()
-            },
-        ),
-        case(
-            "annots_nan_in_camera_K",
-            &["CoreView_1/annots.npy", "K", "non-finite"],
-            |c| {
-                c.edit_object(&format!("{SUBJECT}/annots.npy"), |items| {
-                    let cams = items
-                        .iter_mut()
-                        .find_map(|(k, v)| match (k, v) {
-                            (PyValue::Str(s), PyValue::Dict(d)) if s == "cams" => Some(d),
-                            _ => None,
-                        })
-                        .expect("cams");
-                    match cams
-                        .iter_mut()
-                        .find(|(k, _)| matches!(k, PyValue::Str(s) if s == "K"))
-                    {
-                        Some((_, PyValue::List(ks))) => match &mut ks[0] {
-                            PyValue::Array(a) => set_f(a, 0, f64::NAN),
-                            other => panic!("K[0] is {}", other.type_name()),
-                        },
-                        Some((_, PyValue::Array(a))) => set_f(a, 0, f64::NAN),
-                        _ => panic!("no cams['K']"),
-                    }
-                });
-                c.train()
-            },
+            vertices_edit(move |a| {
+                let mut xyz = a.to_f32_vec().unwrap();
+                let first: Vec<f32> = xyz[..300].to_vec();
+                xyz.extend(first);
+                NdArray::new(vec![v + 100, 3], ArrayData::F32(xyz))
+            }),
         ),
         case(
             "monocap_format_without_lbs_folder",
@@ -363,5 +300,6 @@ pub(super) fn cases() -> Vec<Case> {
                 c.train_args(&config, &[])
             },
         ),
-    ]
+    ]);
+    cases
 }

@@ -26,6 +26,7 @@ use std::process::Command;
 use std::sync::OnceLock;
 use std::time::Instant;
 
+use common::slash;
 use nia_data::formats::{npy, npz, pickle_write, ArrayData, NdArray, PyValue};
 
 /// The training subject of the synthetic split (`CoreView_2` is held out).
@@ -50,26 +51,10 @@ fn nia_train() -> Command {
     cmd
 }
 
-fn slash(p: &Path) -> String {
-    p.display().to_string().replace('\\', "/")
-}
-
-/// The tiny run config, reading `root`.
+/// The tiny run config, reading `root` (its `[model]` header on line 14).
 fn config_text(root: &Path) -> String {
     format!(
-        r#"[data]
-root = "{root}"
-ratio = 1.0
-border_px = 1
-loader_threads = 1
-
-[synth]
-subjects = 2
-frames = 2
-cameras = 4
-size = {SIZE}
-supersample = 1
-
+        r#"{data}
 [model]
 preset = "tiny"
 
@@ -84,7 +69,7 @@ keep_last = 1
 validate_every = 0
 backend = "ndarray"
 "#,
-        root = slash(root)
+        data = common::data_sections(root, SIZE, 1, "")
     )
 }
 
@@ -116,18 +101,7 @@ fn base() -> &'static Base {
         let config = root.join("ckpt.toml");
         std::fs::write(&config, config_text(&ckpt_data)).unwrap();
         let out = root.join("ckpt_run");
-        let output = nia_train()
-            .arg("--config")
-            .arg(&config)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert!(
-            output.status.success(),
-            "the 1-step run failed: {}",
-            String::from_utf8_lossy(&output.stderr)
-        );
+        common::ok(&common::train_run(&[], &config, &out));
         let checkpoint = out.join("checkpoints/step_00000001");
         assert!(checkpoint.join("model.bpk").is_file());
         Base {
@@ -265,6 +239,16 @@ impl Ctx {
     /// Training on the (possibly broken) dataset with the unmodified config.
     fn train(&mut self) -> Vec<OsString> {
         let config = self.config(&[]);
+        self.train_args(&config, &[])
+    }
+
+    /// Writes `bytes` to `name` in the case's folder and trains with the `[data]` key `key`
+    /// naming that file.
+    fn train_with_file(&mut self, name: &str, bytes: &[u8], key: &str) -> Vec<OsString> {
+        let path = self.dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        let line = format!("ratio = 1.0\n{key} = \"{}\"", slash(&path));
+        let config = self.config(&[("ratio = 1.0", &line)]);
         self.train_args(&config, &[])
     }
 

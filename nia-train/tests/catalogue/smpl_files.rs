@@ -2,8 +2,19 @@
 
 use super::*;
 
+/// A setup that edits the arrays of the dataset's body model with `edit`, then trains.
+fn model_edit(
+    edit: impl Fn(&mut Vec<(String, NdArray)>) + 'static,
+) -> impl Fn(&mut Ctx) -> Vec<OsString> {
+    move |c| {
+        c.edit_npz("body_model.npz", &edit);
+        c.train()
+    }
+}
+
 pub(super) fn cases() -> Vec<Case> {
     let v = model_vertices();
+    let list = pickle_write::to_pickle_bytes(&PyValue::List(vec![PyValue::Int(1)])).unwrap();
     vec![
         case(
             "smpl_missing",
@@ -21,79 +32,44 @@ pub(super) fn cases() -> Vec<Case> {
         case(
             "smpl_missing_weights",
             &["body_model.npz", "weights", "missing"],
-            |c| {
-                c.edit_npz("body_model.npz", |a| a.retain(|(n, _)| n != "weights"));
-                c.train()
-            },
+            model_edit(|a| a.retain(|(n, _)| n != "weights")),
         ),
         case(
             "smpl_wrong_vertex_count",
             &["body_model.npz", &format!("{}", v - 1)],
-            move |c| {
-                c.edit_npz("body_model.npz", |a| {
-                    keep_rows(npz_array(a, "v_template"), v - 1)
-                });
-                c.train()
-            },
+            model_edit(move |a| keep_rows(npz_array(a, "v_template"), v - 1)),
         ),
         case(
             "smpl_weights_not_normalised",
             &["body_model.npz", "weights", "summing to 1"],
-            |c| {
-                c.edit_npz("body_model.npz", |a| {
-                    let w = npz_array(a, "weights");
-                    let old = w.to_f64_vec().unwrap()[0];
-                    set_f(w, 0, old + 0.5);
-                });
-                c.train()
-            },
+            model_edit(|a| {
+                let w = npz_array(a, "weights");
+                let old = w.to_f64_vec().unwrap()[0];
+                set_f(w, 0, old + 0.5);
+            }),
         ),
         case(
             "smpl_face_index_out_of_range",
             &["body_model.npz", "`f`", "face 0"],
-            |c| {
-                c.edit_npz("body_model.npz", |a| {
-                    let f = npz_array(a, "f");
-                    match &mut f.data {
-                        ArrayData::U32(v) => v[2] = 99_999,
-                        ArrayData::I64(v) => v[2] = 99_999,
-                        ArrayData::I32(v) => v[2] = 99_999,
-                        other => panic!("faces {}", other.dtype_name()),
-                    }
-                });
-                c.train()
-            },
+            model_edit(|a| match &mut npz_array(a, "f").data {
+                ArrayData::U32(v) => v[2] = 99_999,
+                ArrayData::I64(v) => v[2] = 99_999,
+                ArrayData::I32(v) => v[2] = 99_999,
+                other => panic!("faces {}", other.dtype_name()),
+            }),
         ),
         case("smpl_pkl_not_a_pickle", &["bad_smpl.pkl", "pickle"], |c| {
-            let pkl = c.dir.join("bad_smpl.pkl");
-            std::fs::write(&pkl, b"this is not a pickle\n").unwrap();
-            let line = format!("ratio = 1.0\nsmpl_model = \"{}\"", slash(&pkl));
-            let config = c.config(&[("ratio = 1.0", &line)]);
-            c.train_args(&config, &[])
+            c.train_with_file("bad_smpl.pkl", b"this is not a pickle\n", "smpl_model")
         }),
         case(
             "smpl_pkl_of_a_list",
             &["list_smpl.pkl", "a dict with keys", "list"],
-            |c| {
-                let pkl = c.dir.join("list_smpl.pkl");
-                let bytes =
-                    pickle_write::to_pickle_bytes(&PyValue::List(vec![PyValue::Int(1)])).unwrap();
-                std::fs::write(&pkl, bytes).unwrap();
-                let line = format!("ratio = 1.0\nsmpl_model = \"{}\"", slash(&pkl));
-                let config = c.config(&[("ratio = 1.0", &line)]);
-                c.train_args(&config, &[])
-            },
+            move |c| c.train_with_file("list_smpl.pkl", &list, "smpl_model"),
         ),
         case(
             "smpl_unknown_extension",
             &["smpl.obj", "unknown extension", ".pkl"],
-            |c| {
-                let p = c.dir.join("smpl.obj");
-                std::fs::write(&p, b"v 0 0 0\n").unwrap();
-                let line = format!("ratio = 1.0\nsmpl_model = \"{}\"", slash(&p));
-                let config = c.config(&[("ratio = 1.0", &line)]);
-                c.train_args(&config, &[])
-            },
+            |c| c.train_with_file("smpl.obj", b"v 0 0 0\n", "smpl_model"),
         ),
     ]
 }
