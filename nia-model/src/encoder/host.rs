@@ -222,8 +222,21 @@ impl FoldedConv {
                             }
                             (&col[..run * k], k)
                         };
+                        // The extents the product reads and writes; a mismatch is a bug here,
+                        // never a read past a slice.
+                        assert!(
+                            dst_run.len() == run * co
+                                && lhs.len() >= (run - 1) * lhs_rs + k
+                                && self.weight.len() == k * co,
+                            "host convolution: slices of {}, {} and {} values for \
+                             [{run}, {k}] x [{k}, {co}]",
+                            dst_run.len(),
+                            lhs.len(),
+                            self.weight.len()
+                        );
                         // SAFETY: dst_run is [run, C_out] row-major, lhs [run, K] with row stride
-                        // lhs_rs, weight [K, C_out] row-major; the slices hold those extents.
+                        // lhs_rs, weight [K, C_out] row-major; the assert above checked that the
+                        // slices hold those extents.
                         unsafe {
                             gemm::gemm(
                                 run,
