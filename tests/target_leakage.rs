@@ -87,6 +87,7 @@ fn render(model: &NiaModel, source: &SceneSource, device: &Device) -> (Vec<f32>,
             chunk: 512,
             timed: false,
         },
+        cancelled: None,
     };
     let rendered = render_view(model, &encoding, &view, &options, &mut |_, _| {}).unwrap();
     (rendered.rgb, image.image.clone())

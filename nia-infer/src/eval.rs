@@ -302,6 +302,7 @@ pub fn evaluate_images(
                 chunk: options.chunk,
                 timed: options.timed,
             },
+            cancelled: None,
         };
         let mut rendered = render_view(&model, &encoding, &view, &options.render, &mut |_, _| {})
             .map_err(model_err)?;

@@ -14,9 +14,10 @@ use nia_data::geometry::rays::Aabb;
 use nia_data::scene::SceneInput;
 use nia_model::render_options::RenderOptions;
 use nia_model::renderer::image::{ImageRenderOptions, RenderedImage};
-use nia_model::renderer::view::{prepare_pose, prepare_scene, render_view_cancellable, TargetView};
+use nia_model::renderer::view::{prepare_pose, prepare_scene, render_view, TargetView};
 use nia_model::scene_encoding::SceneEncoding;
 use nia_model::timing::StageTimes;
+use nia_model::ModelError;
 
 use crate::model_load::{LoadedModel, ModelArgs};
 use serde::Serialize;
@@ -147,15 +148,13 @@ impl RenderSession {
                 chunk: self.chunk,
                 timed,
             },
+            cancelled: Some(cancelled),
         };
-        Ok(render_view_cancellable(
-            &self.loaded.model,
-            encoding,
-            &view,
-            options,
-            progress,
-            cancelled,
-        )?)
+        match render_view(&self.loaded.model, encoding, &view, options, progress) {
+            Ok(image) => Ok(Some(image)),
+            Err(ModelError::Cancelled) => Ok(None),
+            Err(e) => Err(e.into()),
+        }
     }
 
     /// `camera`'s image of `encoding` with the session's options.

@@ -27,6 +27,9 @@ pub enum ModelError {
     /// Inputs that do not fit together (vertex counts, an encoding without a volume, reposing).
     #[error("{0}")]
     Input(String),
+    /// The caller's cancellation hook stopped the render before it was done.
+    #[error("rendering was cancelled")]
+    Cancelled,
 }
 
 impl From<SparseGridError> for ModelError {

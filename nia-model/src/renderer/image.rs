@@ -81,7 +81,7 @@ pub fn render_image(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RenderedImage, ModelError> {
     render_image_cancellable(model, scene, rays, size, options, progress, &|| false)
-        .and_then(|image| image.ok_or_else(|| ModelError::Input("rendering was cancelled".into())))
+        .and_then(|image| image.ok_or(ModelError::Cancelled))
 }
 
 /// [`render_image`] that asks `cancelled` before every chunk and gives up (`Ok(None)`) as soon

@@ -28,7 +28,7 @@ use crate::scene_encoding::SceneEncoding;
 use crate::timing::StageTimes;
 
 /// One target view of a prepared scene.
-#[derive(Debug, Clone, Copy)]
+#[derive(Clone, Copy)]
 pub struct TargetView<'a> {
     /// The target camera (its image size is the rendered image's).
     pub camera: &'a Camera,
@@ -39,6 +39,10 @@ pub struct TargetView<'a> {
     pub pixels: Option<&'a [bool]>,
     /// Samples per ray, rays per network call, and whether to time the stages.
     pub image: ImageRenderOptions,
+    /// Asked before every chunk of rays: true stops the render with
+    /// [`ModelError::Cancelled`] (an interactive viewer drops a frame a newer request made
+    /// stale). `None` renders to the end.
+    pub cancelled: Option<&'a dyn Fn() -> bool>,
 }
 
 /// The per-scene pass of `input` with what `options` asks of it: empty-space skipping on the
@@ -92,20 +96,6 @@ pub fn render_view(
     options: &RenderOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RenderedImage, ModelError> {
-    render_view_cancellable(model, scene, view, options, progress, &|| false)
-        .and_then(|image| image.ok_or_else(|| ModelError::Input("rendering was cancelled".into())))
-}
-
-/// [`render_view`] that asks `cancelled` before every chunk of rays and gives up (`Ok(None)`)
-/// as soon as it answers true (an interactive viewer drops a frame a newer request made stale).
-pub fn render_view_cancellable(
-    model: &NiaModel,
-    scene: &SceneEncoding,
-    view: &TargetView<'_>,
-    options: &RenderOptions,
-    progress: &mut dyn FnMut(usize, usize),
-    cancelled: &dyn Fn() -> bool,
-) -> Result<Option<RenderedImage>, ModelError> {
     let camera = view.camera;
     let rays = RayBundle::through_pixel_footprints(
         camera,
@@ -120,6 +110,7 @@ pub fn render_view_cancellable(
         [camera.width as usize, camera.height as usize],
         view.image,
         progress,
-        cancelled,
-    )
+        view.cancelled.unwrap_or(&|| false),
+    )?
+    .ok_or(ModelError::Cancelled)
 }
