@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use nia_data::synth::capture::CapturePreset;
 use nia_data::synth::{self, SynthEvent, SynthSpec};
 
 #[derive(Args, Debug)]
@@ -33,6 +34,10 @@ pub struct SynthArgs {
     /// Id of the first subject folder (`CoreView_<id>`).
     #[arg(long, default_value_t = SynthSpec::default().first_subject_id)]
     pub first_subject_id: u32,
+    /// The flaws of a real capture: `none` (clean) or `zju_like` (a fitted SMPL, segmented
+    /// masks, per-camera colour, approximate calibration; docs/data.md).
+    #[arg(long, default_value = "none")]
+    pub capture: CapturePreset,
 }
 
 pub fn run(args: SynthArgs) -> anyhow::Result<()> {
@@ -44,6 +49,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         seed: args.seed,
         supersample: args.supersample,
         first_subject_id: args.first_subject_id,
+        capture: args.capture.flaws(),
         ..SynthSpec::default()
     };
     let bar = ProgressBar::new(spec.total_images() as u64);

@@ -14,7 +14,7 @@ use crate::dataset::protocol::{EvalSplit, Protocol, ProtocolError};
 use crate::dataset::sampling::{BoxPadding, RaySamplingConfig, NHP_BODY_FRACTION, NHP_BORDER_PX};
 use crate::dataset::vis_cache::VisibilityCache;
 use crate::dataset::{DatasetConfig, DatasetError, DatasetFormat, Subject};
-use crate::synth::{SynthSpec, BODY_MODEL_FILE, DESCRIPTION_FILE};
+use crate::synth::{SynthSection, SynthSpec, BODY_MODEL_FILE, DESCRIPTION_FILE};
 
 /// Which split protocol the data follows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -312,6 +312,20 @@ fn check_description(path: &Path, spec: &SynthSpec) -> Result<(), OpenError> {
                 description: path.to_path_buf(),
                 key,
                 config: config.to_string(),
+                data: found.to_string(),
+            });
+        }
+    }
+    // A clean description has no `capture` (written only when some flaw is on).
+    let flaws = spec.capture;
+    for (field, level) in flaws.levels() {
+        let name = field.trim_start_matches("capture.");
+        let found = data["capture"][name].as_f64().unwrap_or(0.0);
+        if (found - level as f64).abs() > 1e-6 {
+            return Err(OpenError::SynthMismatch {
+                description: path.to_path_buf(),
+                key: SynthSection::key(field),
+                config: level.to_string(),
                 data: found.to_string(),
             });
         }

@@ -3,6 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::capture::{CaptureFlaws, CapturePreset};
 use super::SynthSpec;
 
 /// `[synth]`: the user-facing fields of a [`SynthSpec`] (the rest keep their defaults).
@@ -19,6 +20,25 @@ pub struct SynthSection {
     pub supersample: u32,
     #[serde(default = "SynthSection::default_test_fraction")]
     pub test_fraction: f32,
+    /// The capture's flaws as a preset (`"none"`, the default, or `"zju_like"`).
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub capture: CapturePreset,
+    /// Level of the SMPL fit's error over the preset's (0: off, 1: zju_like).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub smpl_fit_level: Option<f32>,
+    /// Level of the calibration's error over the preset's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_level: Option<f32>,
+    /// Level of the per-camera colour response over the preset's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub colour_level: Option<f32>,
+    /// Level of the mask flaws over the preset's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask_level: Option<f32>,
+}
+
+fn is_default(preset: &CapturePreset) -> bool {
+    *preset == CapturePreset::default()
 }
 
 impl SynthSection {
@@ -27,6 +47,17 @@ impl SynthSection {
     }
     fn default_test_fraction() -> f32 {
         SynthSpec::default().test_fraction
+    }
+
+    /// The capture flaws: the preset's levels with the single levels given over them.
+    pub fn capture(&self) -> CaptureFlaws {
+        let preset = self.capture.flaws();
+        CaptureFlaws {
+            smpl_fit: self.smpl_fit_level.unwrap_or(preset.smpl_fit),
+            calibration: self.calibration_level.unwrap_or(preset.calibration),
+            colour: self.colour_level.unwrap_or(preset.colour),
+            masks: self.mask_level.unwrap_or(preset.masks),
+        }
     }
 
     /// The generator's spec.
@@ -39,6 +70,7 @@ impl SynthSection {
             seed: self.seed,
             supersample: self.supersample,
             test_fraction: self.test_fraction,
+            capture: self.capture(),
             ..SynthSpec::default()
         }
     }
@@ -53,6 +85,10 @@ impl SynthSection {
             "seed" => "synth.seed",
             "supersample" => "synth.supersample",
             "test_fraction" => "synth.test_fraction",
+            "capture.smpl_fit" => "synth.smpl_fit_level",
+            "capture.calibration" => "synth.calibration_level",
+            "capture.colour" => "synth.colour_level",
+            "capture.masks" => "synth.mask_level",
             _ => "synth",
         }
     }

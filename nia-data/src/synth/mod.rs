@@ -18,8 +18,10 @@
 //! The library never prints: [`generate`] reports progress through a callback.
 
 pub mod cameras;
+pub mod capture;
 pub mod clothing;
 pub mod config;
+mod frames;
 pub mod render;
 pub mod subject;
 pub mod texture;
@@ -27,20 +29,16 @@ pub mod writer;
 
 pub use config::SynthSection;
 
-use crate::body::{BodyError, BodyModel, ProceduralBody, ProceduralSpec, SmplParams};
+use crate::body::{BodyError, BodyModel, ProceduralBody, ProceduralSpec};
 use crate::formats::FormatError;
-use crate::geometry::camera::{Camera, CameraError};
+use crate::geometry::camera::CameraError;
 use crate::geometry::raster::MeshError;
 use crate::rng::Rng;
-use cameras::{camera_ring, RingSpec};
-use clothing::{clothe, vertex_normals};
-use glam::Vec3;
-use rayon::prelude::*;
-use render::{render_view, SurfaceAttributes};
+use capture::CaptureFlaws;
+use frames::generate_subject;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-use subject::{Subject, SubjectDesign};
 
 /// File name of the body model every subject uses, in the output root.
 pub const BODY_MODEL_FILE: &str = "body_model.npz";
@@ -79,6 +77,10 @@ pub struct SynthSpec {
     pub fps: f32,
     /// Fraction of the subjects suggested as unseen test subjects in `synth.json`.
     pub test_fraction: f32,
+    /// Capture flaws ([`capture`]); none by default, and then not written to `synth.json`, so
+    /// a clean spec writes the same bytes as before the flaws existed.
+    #[serde(skip_serializing_if = "CaptureFlaws::is_none")]
+    pub capture: CaptureFlaws,
 }
 
 impl Default for SynthSpec {
@@ -93,6 +95,7 @@ impl Default for SynthSpec {
             supersample: 2,
             fps: 10.0,
             test_fraction: 0.25,
+            capture: CaptureFlaws::default(),
         }
     }
 }
@@ -142,6 +145,9 @@ impl SynthSpec {
                 "a fraction in [0, 1]",
                 self.test_fraction.to_string(),
             );
+        }
+        if let Some((field, level)) = self.capture.invalid() {
+            return bad(field, "a level in [0, 4] (0: off)", level.to_string());
         }
         // `subjects >= 1` here; ids first..first + subjects - 1 must fit in u32.
         let last_id = u32::try_from(self.subjects - 1)
@@ -308,14 +314,6 @@ struct Description<'a> {
     target_views: Vec<usize>,
 }
 
-/// The per-frame state every camera of that frame renders.
-struct PosedFrame {
-    /// [V] clothed world vertices, metres.
-    clothed: Vec<Vec3>,
-    /// [V] unit normals of the clothed surface.
-    normals: Vec<Vec3>,
-}
-
 /// Generate `spec` under `out_dir` (created if needed) with the default procedural body
 /// ([`ProceduralSpec::default`]), reporting progress through `progress` (on this thread, in
 /// order). Existing files of the same names are overwritten.
@@ -443,130 +441,4 @@ fn write_description(
         path: path.to_path_buf(),
         source,
     })
-}
-
-/// SMPL parameters of `subject` at `frame`.
-fn frame_params(spec: &SynthSpec, subject: &Subject, frame: usize) -> SmplParams {
-    let t_s = frame as f32 / spec.fps;
-    SmplParams {
-        poses: subject.poses(t_s),
-        shapes: subject.design.betas.clone(),
-        rh: subject.rh(t_s),
-        th: subject.th(t_s),
-    }
-}
-
-#[allow(clippy::too_many_arguments)]
-fn generate_subject(
-    spec: &SynthSpec,
-    body: &BodyModel,
-    id: u32,
-    dir: &Path,
-    rng: &mut Rng,
-    done: &mut usize,
-    total: usize,
-    progress: &mut dyn FnMut(SynthEvent),
-) -> Result<(), SynthError> {
-    let design = SubjectDesign::draw(id, &mut rng.fork(1));
-    let subject = Subject::prepare(body, design)?;
-
-    // The ring looks at the body centre at frame 0 (the body walks in place).
-    let p0 = frame_params(spec, &subject, 0);
-    let centre_canonical = Vec3::new(
-        0.0,
-        0.5 * (subject.frame.head_top_y + subject.frame.sole_y),
-        0.0,
-    );
-    let centre = crate::body::rodrigues(p0.rh) * centre_canonical + p0.th;
-    let ring = RingSpec {
-        count: spec.cameras,
-        size: spec.size,
-        centre,
-        body_height_m: subject.body_height_m,
-    };
-    let cameras: Vec<Camera> =
-        camera_ring(&ring, &mut rng.fork(2)).map_err(|source| SynthError::Camera { id, source })?;
-
-    writer::create_subject_dirs(dir, spec.cameras)?;
-    writer::write_annots(dir, &cameras, spec.frames)?;
-
-    let surface = SurfaceAttributes {
-        canonical: &subject.canonical,
-        parts: &subject.parts,
-        frame: &subject.frame,
-        cut: &subject.design.cut,
-        look: &subject.design.look,
-    };
-    // Frames per parallel batch: enough (frame, camera) pairs to keep every thread busy.
-    let threads = rayon::current_num_threads().max(1);
-    let batch = (2 * threads).div_ceil(spec.cameras).max(1);
-    let frames: Vec<usize> = (0..spec.frames).collect();
-    for chunk in frames.chunks(batch) {
-        let posed: Vec<PosedFrame> = chunk
-            .par_iter()
-            .map(|&frame| {
-                let params = frame_params(spec, &subject, frame);
-                let body_posed = body.lbs(&params);
-                writer::write_params(
-                    dir,
-                    frame,
-                    &params.poses,
-                    params.rh,
-                    params.th,
-                    &params.shapes,
-                )?;
-                writer::write_vertices(dir, frame, &body_posed.vertices)?;
-                let body_normals = vertex_normals(&body_posed.vertices, &body.faces);
-                let clothed = clothe(&body_posed.vertices, &body_normals, &subject.offsets_m);
-                let normals = vertex_normals(&clothed, &body.faces);
-                Ok(PosedFrame { clothed, normals })
-            })
-            .collect::<Result<_, SynthError>>()?;
-        let jobs: Vec<(usize, usize)> = (0..chunk.len())
-            .flat_map(|f| (0..spec.cameras).map(move |c| (f, c)))
-            .collect();
-        jobs.par_iter()
-            .map(|&(f, camera)| {
-                let frame = chunk[f];
-                let p = &posed[f];
-                let view = render_view(
-                    &cameras[camera],
-                    spec.supersample,
-                    &p.clothed,
-                    &p.normals,
-                    &body.faces,
-                    &surface,
-                )
-                .map_err(|source| SynthError::Render {
-                    id,
-                    frame,
-                    camera,
-                    source,
-                })?;
-                writer::write_jpeg(
-                    &writer::image_path(dir, camera, frame),
-                    &view.rgb,
-                    view.width,
-                    view.height,
-                )?;
-                writer::write_mask(
-                    &writer::mask_path(dir, camera, frame),
-                    &view.mask,
-                    view.width,
-                    view.height,
-                )
-            })
-            .collect::<Result<Vec<()>, SynthError>>()?;
-        for &(f, camera) in &jobs {
-            *done += 1;
-            progress(SynthEvent::ImageWritten {
-                subject_id: id,
-                frame: chunk[f],
-                camera,
-                done: *done,
-                total,
-            });
-        }
-    }
-    Ok(())
 }

@@ -1,0 +1,223 @@
+//! One subject's frames: its pose at each frame, what the capture writes about it (the true
+//! SMPL fit and cameras, or the flawed ones of [`super::capture`]), and every camera's image
+//! and mask, rendered in parallel and written in the ZJU-MoCap layout.
+
+use std::path::Path;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::cameras::{camera_ring, RingSpec};
+use super::capture::colour::ColourResponse;
+use super::capture::masks::degrade_mask;
+use super::capture::smpl_fit::SmplFitError;
+use super::clothing::{clothe, vertex_normals};
+use super::render::{render_view, SurfaceAttributes};
+use super::subject::{Subject, SubjectDesign};
+use super::{capture, writer, SynthError, SynthEvent, SynthSpec};
+use crate::body::{BodyModel, SmplParams};
+use crate::geometry::camera::Camera;
+use crate::rng::Rng;
+
+/// The per-frame state every camera of that frame renders.
+struct PosedFrame {
+    /// [V] clothed world vertices, metres.
+    clothed: Vec<Vec3>,
+    /// [V] unit normals of the clothed surface.
+    normals: Vec<Vec3>,
+    /// The hands and feet, world metres (where a degraded mask may lose one).
+    extremities: Vec<Vec3>,
+}
+
+/// SMPL joints of the hands and feet.
+const EXTREMITY_JOINTS: [usize; 4] = [10, 11, 22, 23];
+
+/// SMPL parameters of `subject` at `frame`.
+fn frame_params(spec: &SynthSpec, subject: &Subject, frame: usize) -> SmplParams {
+    let t_s = frame as f32 / spec.fps;
+    SmplParams {
+        poses: subject.poses(t_s),
+        shapes: subject.design.betas.clone(),
+        rh: subject.rh(t_s),
+        th: subject.th(t_s),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+pub(super) fn generate_subject(
+    spec: &SynthSpec,
+    body: &BodyModel,
+    id: u32,
+    dir: &Path,
+    rng: &mut Rng,
+    done: &mut usize,
+    total: usize,
+    progress: &mut dyn FnMut(SynthEvent),
+) -> Result<(), SynthError> {
+    let design = SubjectDesign::draw(id, &mut rng.fork(1));
+    let subject = Subject::prepare(body, design)?;
+
+    // The ring looks at the body centre at frame 0 (the body walks in place).
+    let p0 = frame_params(spec, &subject, 0);
+    let centre_canonical = Vec3::new(
+        0.0,
+        0.5 * (subject.frame.head_top_y + subject.frame.sole_y),
+        0.0,
+    );
+    let centre = crate::body::rodrigues(p0.rh) * centre_canonical + p0.th;
+    let ring = RingSpec {
+        count: spec.cameras,
+        size: spec.size,
+        centre,
+        body_height_m: subject.body_height_m,
+    };
+    let cameras: Vec<Camera> =
+        camera_ring(&ring, &mut rng.fork(2)).map_err(|source| SynthError::Camera { id, source })?;
+
+    // The capture's flaws: what it writes about the cameras and the body, and how each camera
+    // sees colour. Each draws from its own fork, so the clean output does not change.
+    let flaws = spec.capture;
+    let written_cameras: Vec<Camera> = cameras
+        .iter()
+        .enumerate()
+        .map(|(c, cam)| {
+            let mut r = rng.fork(3).fork(c as u64);
+            capture::calibration::miscalibrate(cam, flaws.calibration, &mut r)
+        })
+        .collect();
+    let responses: Vec<ColourResponse> = (0..spec.cameras)
+        .map(|c| ColourResponse::draw(flaws.colour, &mut rng.fork(5).fork(c as u64)))
+        .collect();
+    let fit = SmplFitError::draw(
+        flaws.smpl_fit,
+        spec.frames,
+        spec.fps,
+        subject.design.betas.len(),
+        &mut rng.fork(4),
+    );
+    let mask_rng = rng.fork(6);
+
+    writer::create_subject_dirs(dir, spec.cameras)?;
+    writer::write_annots(dir, &written_cameras, spec.frames)?;
+
+    let surface = SurfaceAttributes {
+        canonical: &subject.canonical,
+        parts: &subject.parts,
+        frame: &subject.frame,
+        cut: &subject.design.cut,
+        look: &subject.design.look,
+    };
+    // Frames per parallel batch: enough (frame, camera) pairs to keep every thread busy.
+    let threads = rayon::current_num_threads().max(1);
+    let batch = (2 * threads).div_ceil(spec.cameras).max(1);
+    let frames: Vec<usize> = (0..spec.frames).collect();
+    for chunk in frames.chunks(batch) {
+        let posed: Vec<PosedFrame> = chunk
+            .par_iter()
+            .map(|&frame| {
+                let params = frame_params(spec, &subject, frame);
+                let body_posed = body.lbs(&params);
+                // The fit the capture writes; the images show the true body.
+                let fitted = fit.perturb(frame, &params);
+                writer::write_params(
+                    dir,
+                    frame,
+                    &fitted.poses,
+                    fitted.rh,
+                    fitted.th,
+                    &fitted.shapes,
+                )?;
+                if fitted == params {
+                    writer::write_vertices(dir, frame, &body_posed.vertices)?;
+                } else {
+                    writer::write_vertices(dir, frame, &body.lbs(&fitted).vertices)?;
+                }
+                let body_normals = vertex_normals(&body_posed.vertices, &body.faces);
+                let clothed = clothe(&body_posed.vertices, &body_normals, &subject.offsets_m);
+                let normals = vertex_normals(&clothed, &body.faces);
+                let extremities = EXTREMITY_JOINTS
+                    .iter()
+                    .filter_map(|&j| body_posed.joints.get(j).copied())
+                    .collect();
+                Ok(PosedFrame {
+                    clothed,
+                    normals,
+                    extremities,
+                })
+            })
+            .collect::<Result<_, SynthError>>()?;
+        let jobs: Vec<(usize, usize)> = (0..chunk.len())
+            .flat_map(|f| (0..spec.cameras).map(move |c| (f, c)))
+            .collect();
+        jobs.par_iter()
+            .map(|&(f, camera)| {
+                let frame = chunk[f];
+                let p = &posed[f];
+                let mut view = render_view(
+                    &cameras[camera],
+                    spec.supersample,
+                    &p.clothed,
+                    &p.normals,
+                    &body.faces,
+                    &surface,
+                )
+                .map_err(|source| SynthError::Render {
+                    id,
+                    frame,
+                    camera,
+                    source,
+                })?;
+                responses[camera].apply(&mut view.rgb, view.width, view.height);
+                if flaws.masks > 0.0 {
+                    let extremities: Vec<[f32; 2]> = p
+                        .extremities
+                        .iter()
+                        .filter_map(|&x| cameras[camera].project(x))
+                        .map(|(uv, _)| uv.to_array())
+                        .collect();
+                    let mut r = mask_rng.fork((frame * spec.cameras + camera) as u64);
+                    let radius = person_height_px(&view.mask, view.width) / 20.0;
+                    degrade_mask(
+                        &mut view.mask,
+                        view.width,
+                        view.height,
+                        &extremities,
+                        radius.max(1.0),
+                        flaws.masks,
+                        &mut r,
+                    );
+                }
+                writer::write_jpeg(
+                    &writer::image_path(dir, camera, frame),
+                    &view.rgb,
+                    view.width,
+                    view.height,
+                )?;
+                writer::write_mask(
+                    &writer::mask_path(dir, camera, frame),
+                    &view.mask,
+                    view.width,
+                    view.height,
+                )
+            })
+            .collect::<Result<Vec<()>, SynthError>>()?;
+        for &(f, camera) in &jobs {
+            *done += 1;
+            progress(SynthEvent::ImageWritten {
+                subject_id: id,
+                frame: chunk[f],
+                camera,
+                done: *done,
+                total,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Rows of `mask` ([H * W], `width` wide) that hold some of the person, pixels.
+fn person_height_px(mask: &[u8], width: u32) -> f32 {
+    mask.chunks(width.max(1) as usize)
+        .filter(|row| row.iter().any(|&m| m > 0))
+        .count() as f32
+}
