@@ -57,7 +57,7 @@ impl ColourResponse {
     /// One camera's response drawn from `rng` at `level` (0: identity, exactly, drawing
     /// nothing; 1: the zju_like magnitudes of the module doc; 2: twice as far from identity).
     pub fn draw(level: f32, rng: &mut Rng) -> Self {
-        if !(level > 0.0) || !level.is_finite() {
+        if !level.is_finite() || level <= 0.0 {
             return Self::identity();
         }
         let mut sym = |half: f32| level * half * rng.range(-1.0, 1.0);
@@ -83,8 +83,8 @@ impl ColourResponse {
 
     /// Applies the response in place to an sRGB image `rgb` ([H * W * 3] u8, row-major) of
     /// `width` x `height`, in linear light. The identity leaves every byte unchanged; pixels
-    /// that are 0 in all channels stay 0. A buffer shorter than `H * W * 3` is processed as far
-    /// as it holds whole pixels of whole rows' layout (never panics).
+    /// that are 0 in all channels stay 0. A buffer shorter than `H * W * 3` is processed up to
+    /// its last whole pixel; nothing panics.
     pub fn apply(&self, rgb: &mut [u8], width: u32, height: u32) {
         if self.is_identity() || width == 0 || height == 0 {
             return;

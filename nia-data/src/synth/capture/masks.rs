@@ -38,7 +38,7 @@ pub fn degrade_mask(
 ) {
     let (w, h) = (width as usize, height as usize);
     let n = w.checked_mul(h).unwrap_or(0);
-    if !(level > 0.0) || !level.is_finite() || n == 0 || mask.len() < n {
+    if !level.is_finite() || level <= 0.0 || n == 0 || mask.len() < n {
         return;
     }
     let r = radius_px.max(0.5).min(w.max(h) as f32); // NaN: 0.5
@@ -287,67 +287,5 @@ mod tests {
             &mut Rng::new(2),
         );
         assert!(empty.iter().all(|&v| v == 0));
-    }
-}
-#[cfg(test)]
-mod tmp_stats {
-    use super::*;
-    #[test]
-    fn tmp_print_stats() {
-        let w = 128usize;
-        let orig: Vec<u8> = (0..w * w)
-            .map(|i| 255 * (((i % w) as f32 - 64.0).hypot((i / w) as f32 - 64.0) <= 40.0) as u8)
-            .collect();
-        for level in [1.0f32, 2.0] {
-            let mut ious = vec![];
-            let mut ch = vec![];
-            for seed in 0..200 {
-                let mut m = orig.clone();
-                degrade_mask(
-                    &mut m,
-                    128,
-                    128,
-                    &[],
-                    4.0,
-                    level,
-                    &mut Rng::new(1000 + seed),
-                );
-                let inter = orig.iter().zip(&m).filter(|p| *p.0 & *p.1 == 255).count();
-                let uni = orig.iter().zip(&m).filter(|p| *p.0 | *p.1 == 255).count();
-                ious.push(inter as f32 / uni as f32);
-                ch.push(orig.iter().zip(&m).filter(|p| p.0 != p.1).count());
-                if seed < 3 {
-                    let mut pgm = format!("P2\n128 128\n255\n").into_bytes();
-                    for i in 0..w * w {
-                        let v = if m[i] != orig[i] { 128 } else { m[i] };
-                        pgm.extend(format!("{v}\n").bytes());
-                    }
-                    std::fs::write(format!("/tmp/mask_l{level}_{seed}.pgm"), pgm).unwrap();
-                }
-            }
-            ious.sort_by(|a, b| a.partial_cmp(b).unwrap());
-            ch.sort();
-            println!(
-                "level {level}: IoU min {} median {} ; changed median {} max {}",
-                ious[0], ious[100], ch[100], ch[199]
-            );
-        }
-        // timing on 1024x1024
-        let w = 1024usize;
-        let big: Vec<u8> = (0..w * w)
-            .map(|i| {
-                255 * ((((i % w) as f32 - 512.0) / 200.0).hypot(((i / w) as f32 - 512.0) / 400.0)
-                    <= 1.0) as u8
-            })
-            .collect();
-        let t = std::time::Instant::now();
-        let mut m = big.clone();
-        degrade_mask(&mut m, 1024, 1024, &[], 40.0, 1.0, &mut Rng::new(5));
-        println!("1024^2 mask: {:?}", t.elapsed());
-        let mut img = vec![100u8; w * w * 3];
-        let t = std::time::Instant::now();
-        crate::synth::capture::colour::ColourResponse::draw(1.0, &mut Rng::new(3))
-            .apply(&mut img, 1024, 1024);
-        println!("1024^2 colour: {:?}", t.elapsed());
     }
 }
