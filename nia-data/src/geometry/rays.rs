@@ -136,7 +136,7 @@ impl RayBundle {
     /// crosses `aabb` over a positive length; then all `s * s` of them are, those that miss the
     /// box as zero-length rays (`near == far`, which render black with zero opacity), so the
     /// mean over a pixel's rays is the box filter of its square over a black background (the
-    /// pixel's value for `nia_model::image::render_image`). Pixels in order, each pixel's rays
+    /// pixel's value for `nia_model::renderer::image::render_image`). Pixels in order, each pixel's rays
     /// together.
     pub fn through_pixel_footprints(
         camera: &Camera,

@@ -71,8 +71,8 @@ pub fn prepare_scene(
 }
 
 /// `base` (a [`prepare_scene`] of the reference pose) rendered in `reposer`'s target pose: the
-/// body volume rebuilt on the target vertices, the occupancy grid of the target pose's mesh
-/// (`faces`), and the rest (termination, culling, the hull of the source views) carried over.
+/// body volume rebuilt on the target vertices, the occupancy grid of the target pose's mesh,
+/// and the rest (termination, culling, the hull of the source views) carried over.
 pub fn prepare_pose(
     model: &NiaModel,
     base: &SceneEncoding,
