@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use nia_data::synth::capture::CapturePreset;
-use nia_data::synth::{self, SynthEvent, SynthSpec};
+use nia_data::synth::{self, SynthEvent, SynthSection, SynthSpec};
 
 #[derive(Args, Debug)]
 pub struct SynthArgs {
@@ -38,6 +38,18 @@ pub struct SynthArgs {
     /// masks, per-camera colour, approximate calibration; docs/data.md).
     #[arg(long, default_value = "none")]
     pub capture: CapturePreset,
+    /// Level of the SMPL fit's error over the preset's (0: off, 1: zju_like, at most 4).
+    #[arg(long)]
+    pub smpl_fit_level: Option<f32>,
+    /// Level of the calibration's error over the preset's.
+    #[arg(long)]
+    pub calibration_level: Option<f32>,
+    /// Level of the per-camera colour response over the preset's.
+    #[arg(long)]
+    pub colour_level: Option<f32>,
+    /// Level of the mask flaws over the preset's.
+    #[arg(long)]
+    pub mask_level: Option<f32>,
 }
 
 pub fn run(args: SynthArgs) -> anyhow::Result<()> {
@@ -49,7 +61,15 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         seed: args.seed,
         supersample: args.supersample,
         first_subject_id: args.first_subject_id,
-        capture: args.capture.flaws(),
+        capture: SynthSection::capture_levels(
+            args.capture,
+            [
+                args.smpl_fit_level,
+                args.calibration_level,
+                args.colour_level,
+                args.mask_level,
+            ],
+        ),
         ..SynthSpec::default()
     };
     let bar = ProgressBar::new(spec.total_images() as u64);

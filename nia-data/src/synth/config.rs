@@ -51,12 +51,27 @@ impl SynthSection {
 
     /// The capture flaws: the preset's levels with the single levels given over them.
     pub fn capture(&self) -> CaptureFlaws {
-        let preset = self.capture.flaws();
+        Self::capture_levels(
+            self.capture,
+            [
+                self.smpl_fit_level,
+                self.calibration_level,
+                self.colour_level,
+                self.mask_level,
+            ],
+        )
+    }
+
+    /// `preset`'s levels with `[smpl_fit, calibration, colour, masks]` given over them (the
+    /// config's keys and `nia-train synth`'s flags).
+    pub fn capture_levels(preset: CapturePreset, levels: [Option<f32>; 4]) -> CaptureFlaws {
+        let base = preset.flaws();
+        let [smpl_fit, calibration, colour, masks] = levels;
         CaptureFlaws {
-            smpl_fit: self.smpl_fit_level.unwrap_or(preset.smpl_fit),
-            calibration: self.calibration_level.unwrap_or(preset.calibration),
-            colour: self.colour_level.unwrap_or(preset.colour),
-            masks: self.mask_level.unwrap_or(preset.masks),
+            smpl_fit: smpl_fit.unwrap_or(base.smpl_fit),
+            calibration: calibration.unwrap_or(base.calibration),
+            colour: colour.unwrap_or(base.colour),
+            masks: masks.unwrap_or(base.masks),
         }
     }
 
