@@ -89,11 +89,11 @@ fn without_flaws_the_generator_writes_the_clean_bytes() {
 }
 
 /// Each flaw alone at level 1 changes exactly the files it is about; the images always show
-/// the true body.
+/// the true body (with hair and loose garments off SMPL when the geometry flaw is on).
 #[test]
 fn each_flaw_changes_only_its_own_files() {
     let (clean_root, clean) = generate("base", &tiny(CaptureFlaws::default()));
-    let cases: [(&str, CaptureFlaws, fn(&str) -> bool); 4] = [
+    let cases: [(&str, CaptureFlaws, fn(&str) -> bool); 5] = [
         (
             "smpl_fit",
             CaptureFlaws {
@@ -125,6 +125,15 @@ fn each_flaw_changes_only_its_own_files() {
                 ..Default::default()
             },
             |p| p.contains("/mask/"),
+        ),
+        (
+            "geometry",
+            CaptureFlaws {
+                geometry: 1.0,
+                ..Default::default()
+            },
+            // The images and masks of the body with hair and loose garments; not the SMPL.
+            |p| p.ends_with(".jpg") || p.contains("/mask/"),
         ),
     ];
     for (name, flaws, owns) in cases {
@@ -183,6 +192,32 @@ fn the_preset_its_overrides_and_a_mismatched_set() {
         "{err}"
     );
     assert_eq!(SynthSection::key("capture.colour"), "synth.colour_level");
+    assert_eq!(
+        SynthSection::key("capture.geometry"),
+        "synth.geometry_level"
+    );
+    let geometry: SynthSection = serde_json::from_value(serde_json::json!({
+        "subjects": 1, "frames": 3, "cameras": 3, "size": 32, "geometry_level": 1.5
+    }))
+    .unwrap();
+    assert_eq!(
+        geometry.capture(),
+        CaptureFlaws {
+            geometry: 1.5,
+            ..CaptureFlaws::default()
+        }
+    );
+    let err = SynthSpec {
+        capture: CaptureFlaws {
+            geometry: f32::NAN,
+            ..flaws
+        },
+        ..tiny(flaws)
+    }
+    .validate()
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("capture.geometry"), "{err}");
 
     // A clean set on disk, a config that asks for the flawed one.
     let (root, _) = generate("described", &tiny(CaptureFlaws::default()));

@@ -35,7 +35,8 @@ pub struct SynthArgs {
     #[arg(long, default_value_t = SynthSpec::default().first_subject_id)]
     pub first_subject_id: u32,
     /// The flaws of a real capture: `none` (clean) or `zju_like` (a fitted SMPL, segmented
-    /// masks, per-camera colour, approximate calibration; docs/data.md).
+    /// masks, per-camera colour, approximate calibration, hair and loose clothes off SMPL;
+    /// docs/data.md).
     #[arg(long, default_value = "none")]
     pub capture: CapturePreset,
     /// Level of the SMPL fit's error over the preset's (0: off, 1: zju_like, at most 4).
@@ -50,6 +51,10 @@ pub struct SynthArgs {
     /// Level of the mask flaws over the preset's.
     #[arg(long)]
     pub mask_level: Option<f32>,
+    /// Level of the geometry off SMPL (hair volume, loose swinging garments) over the
+    /// preset's.
+    #[arg(long)]
+    pub geometry_level: Option<f32>,
 }
 
 pub fn run(args: SynthArgs) -> anyhow::Result<()> {
@@ -68,6 +73,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
                 args.calibration_level,
                 args.colour_level,
                 args.mask_level,
+                args.geometry_level,
             ],
         ),
         ..SynthSpec::default()

@@ -93,3 +93,20 @@ fn synth_rejects_a_zero_size_naming_the_field() {
     // The message names the field.
     fails_with(&output, &["size"]);
 }
+
+#[test]
+fn synth_rejects_a_flaw_level_out_of_range_naming_it() {
+    let out = scratch("bad-level");
+    for (flag, field) in [
+        ("--mask-level", "capture.masks"),
+        ("--geometry-level", "capture.geometry"),
+    ] {
+        let output = nia_train()
+            .args(["synth", flag, "9", "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        fails_with(&output, &[field]);
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}

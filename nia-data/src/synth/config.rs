@@ -35,6 +35,9 @@ pub struct SynthSection {
     /// Level of the mask flaws over the preset's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask_level: Option<f32>,
+    /// Level of the geometry off SMPL (hair volume, loose swinging garments) over the preset's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry_level: Option<f32>,
 }
 
 fn is_default(preset: &CapturePreset) -> bool {
@@ -58,20 +61,22 @@ impl SynthSection {
                 self.calibration_level,
                 self.colour_level,
                 self.mask_level,
+                self.geometry_level,
             ],
         )
     }
 
-    /// `preset`'s levels with `[smpl_fit, calibration, colour, masks]` given over them (the
-    /// config's keys and `nia-train synth`'s flags).
-    pub fn capture_levels(preset: CapturePreset, levels: [Option<f32>; 4]) -> CaptureFlaws {
+    /// `preset`'s levels with `[smpl_fit, calibration, colour, masks, geometry]` given over
+    /// them (the config's keys and `nia-train synth`'s flags).
+    pub fn capture_levels(preset: CapturePreset, levels: [Option<f32>; 5]) -> CaptureFlaws {
         let base = preset.flaws();
-        let [smpl_fit, calibration, colour, masks] = levels;
+        let [smpl_fit, calibration, colour, masks, geometry] = levels;
         CaptureFlaws {
             smpl_fit: smpl_fit.unwrap_or(base.smpl_fit),
             calibration: calibration.unwrap_or(base.calibration),
             colour: colour.unwrap_or(base.colour),
             masks: masks.unwrap_or(base.masks),
+            geometry: geometry.unwrap_or(base.geometry),
         }
     }
 
@@ -104,6 +109,7 @@ impl SynthSection {
             "capture.calibration" => "synth.calibration_level",
             "capture.colour" => "synth.colour_level",
             "capture.masks" => "synth.mask_level",
+            "capture.geometry" => "synth.geometry_level",
             _ => "synth",
         }
     }

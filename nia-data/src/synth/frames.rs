@@ -1,6 +1,7 @@
 //! One subject's frames: its pose at each frame, what the capture writes about it (the true
 //! SMPL fit and cameras, or the flawed ones of [`super::capture`]), and every camera's image
-//! and mask, rendered in parallel and written in the ZJU-MoCap layout.
+//! and mask (of the clothed body, with hair and loose garments off SMPL when that flaw is on),
+//! rendered in parallel and written in the ZJU-MoCap layout.
 
 use std::path::Path;
 
@@ -9,6 +10,7 @@ use rayon::prelude::*;
 
 use super::cameras::{camera_ring, RingSpec};
 use super::capture::colour::ColourResponse;
+use super::capture::loose_geometry::LooseGeometry;
 use super::capture::masks::degrade_mask;
 use super::capture::smpl_fit::SmplFitError;
 use super::clothing::{clothe, vertex_normals};
@@ -96,6 +98,14 @@ pub(super) fn generate_subject(
         &mut rng.fork(4),
     );
     let mask_rng = rng.fork(6);
+    let loose = LooseGeometry::draw(
+        flaws.geometry,
+        &subject.frame,
+        &subject.design.cut,
+        &subject.canonical,
+        &subject.parts,
+        &mut rng.fork(7),
+    );
 
     writer::create_subject_dirs(dir, spec.cameras)?;
     writer::write_annots(dir, &written_cameras, spec.frames)?;
@@ -133,7 +143,10 @@ pub(super) fn generate_subject(
                     writer::write_vertices(dir, frame, &body.lbs(&fitted).vertices)?;
                 }
                 let body_normals = vertex_normals(&body_posed.vertices, &body.faces);
-                let clothed = clothe(&body_posed.vertices, &body_normals, &subject.offsets_m);
+                // Hair and loose garments off the body (exactly the garments at level 0): in the
+                // images only, the written SMPL stays the body.
+                let offsets = loose.clothing_offsets_m(&subject.offsets_m, frame as f32 / spec.fps);
+                let clothed = clothe(&body_posed.vertices, &body_normals, &offsets);
                 let normals = vertex_normals(&clothed, &body.faces);
                 let extremities = EXTREMITY_JOINTS
                     .iter()

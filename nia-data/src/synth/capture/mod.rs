@@ -9,12 +9,16 @@
 //! - [`calibration`]: the written extrinsics (`annots.npy`) are off the cameras that rendered;
 //! - [`colour`]: each camera has its own colour response (gain, white balance, gamma,
 //!   vignetting);
-//! - [`masks`]: the written masks are degraded as a segmentation network gets them wrong.
+//! - [`masks`]: the written masks are degraded as a segmentation network gets them wrong;
+//! - [`loose_geometry`]: the images show hair volume and loose, swinging garments that stand
+//!   off the body the written SMPL describes (the one flaw that changes the images' geometry:
+//!   what the set says about the body, SMPL, stays the naked body).
 //!
 //! The magnitudes and their sources are in docs/data.md, "Capture flaws".
 
 pub mod calibration;
 pub mod colour;
+pub mod loose_geometry;
 pub mod masks;
 pub mod smpl_fit;
 
@@ -35,6 +39,8 @@ pub struct CaptureFlaws {
     pub colour: f32,
     /// The written masks are degraded.
     pub masks: f32,
+    /// Hair and loose garments stand off the body the written SMPL describes.
+    pub geometry: f32,
 }
 
 /// A named set of levels (`synth.capture`, `nia-train synth --capture`).
@@ -58,6 +64,7 @@ impl CapturePreset {
                 calibration: 1.0,
                 colour: 1.0,
                 masks: 1.0,
+                geometry: 1.0,
             },
         }
     }
@@ -81,12 +88,13 @@ impl CaptureFlaws {
     }
 
     /// The flaws as spec fields (`capture.<name>`) and levels, in a fixed order.
-    pub fn levels(&self) -> [(&'static str, f32); 4] {
+    pub fn levels(&self) -> [(&'static str, f32); 5] {
         [
             ("capture.smpl_fit", self.smpl_fit),
             ("capture.calibration", self.calibration),
             ("capture.colour", self.colour),
             ("capture.masks", self.masks),
+            ("capture.geometry", self.geometry),
         ]
     }
 
@@ -130,5 +138,43 @@ mod tests {
             Some("capture.smpl_fit")
         );
         assert_eq!(zju.invalid(), None);
+        for geometry in [
+            f32::NAN,
+            f32::INFINITY,
+            -f32::INFINITY,
+            -0.5,
+            MAX_LEVEL + 0.1,
+        ] {
+            let bad = CaptureFlaws { geometry, ..zju };
+            assert_eq!(
+                bad.invalid().map(|(name, _)| name),
+                Some("capture.geometry"),
+                "{geometry}"
+            );
+        }
+        let only = CaptureFlaws {
+            geometry: 1.0,
+            ..CaptureFlaws::default()
+        };
+        assert!(!only.is_none());
+    }
+
+    /// With no flaw on, a spec serialises without `capture` (the clean `synth.json`, byte for
+    /// byte); with the geometry flaw alone, `capture.geometry` is written.
+    #[test]
+    fn a_clean_spec_serialises_without_capture() {
+        let clean = serde_json::to_string(&crate::synth::SynthSpec::default()).unwrap();
+        assert!(!clean.contains("capture"), "{clean}");
+        let geometry = crate::synth::SynthSpec {
+            capture: CaptureFlaws {
+                geometry: 1.5,
+                ..CaptureFlaws::default()
+            },
+            ..Default::default()
+        };
+        let json = serde_json::to_value(&geometry).unwrap();
+        assert_eq!(json["capture"]["geometry"], 1.5);
+        let back: crate::synth::SynthSpec = serde_json::from_value(json).unwrap();
+        assert_eq!(back, geometry);
     }
 }
