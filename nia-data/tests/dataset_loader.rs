@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use nia_data::body::BodyModel;
 use nia_data::dataset::loader::{
-    eval_requests, load_scene, train_requests, LoaderConfig, SceneLoader, SceneSource, SceneTarget,
-    TargetKind,
+    eval_requests, load_scene, train_requests, LoaderConfig, SceneLoader, SceneRequest,
+    SceneSource, SceneTarget, TargetKind,
 };
 use nia_data::dataset::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
 use nia_data::dataset::sampling::{border_band, sample_rays, BoxPadding, RaySamplingConfig};
@@ -270,6 +270,61 @@ fn loader_yields_scenes_in_order_for_any_thread_count() {
                 assert_eq!(scene.subject, "CoreView_313");
             }
             _ => panic!("target kind differs from the request"),
+        }
+    }
+}
+
+/// SMPL jitter (`smpl_jitter_m`) moves the body of training scenes only: the same request
+/// gives the same jittered body, another seed another; whole-image scenes keep the stored body;
+/// the visibility stays the stored fit's; Th moves with the vertices.
+#[test]
+fn smpl_jitter_moves_training_bodies_only() {
+    let source = fixture_source(None);
+    let protocol = fixture_protocol();
+    let mut requests = train_requests(&protocol, &source.subjects, 0, 11).unwrap();
+    let items = protocol
+        .eval_items(EvalSplit::UnseenSubjects, |name| {
+            let s = source.subjects.iter().find(|s| s.name == name).unwrap();
+            (s.num_cameras(), s.num_frames())
+        })
+        .unwrap();
+    requests.extend(eval_requests(&items, &source.subjects).unwrap());
+    let jittered = LoaderConfig {
+        smpl_jitter_m: 0.05,
+        ..small_loader_config(1)
+    };
+    for (i, request) in requests.iter().enumerate() {
+        let plain = load_scene(&source, request, i, &small_loader_config(1)).unwrap();
+        let moved = load_scene(&source, request, i, &jittered).unwrap();
+        assert_eq!(moved, load_scene(&source, request, i, &jittered).unwrap());
+        for (a, b) in moved.sources.iter().zip(&plain.sources) {
+            assert_eq!(a.visibility, b.visibility);
+        }
+        let shift: Vec<f32> = moved
+            .vertices
+            .iter()
+            .zip(&plain.vertices)
+            .map(|(a, b)| a.distance(*b))
+            .collect();
+        match request.target {
+            TargetKind::Image => {
+                assert_eq!(moved.vertices, plain.vertices);
+                assert_eq!(moved.params, plain.params);
+            }
+            TargetKind::Rays => {
+                let mean = shift.iter().sum::<f32>() / shift.len() as f32;
+                assert!(mean > 0.0 && mean < 0.3, "mean shift {mean} m");
+                assert!(moved.vertices.iter().all(|v| v.is_finite()));
+                assert_ne!(moved.params.th, plain.params.th);
+                let other = SceneRequest {
+                    seed: request.seed + 1,
+                    ..request.clone()
+                };
+                assert_ne!(
+                    load_scene(&source, &other, i, &jittered).unwrap().vertices,
+                    moved.vertices
+                );
+            }
         }
     }
 }

@@ -15,7 +15,8 @@ use nia_infer::perceptual::LpipsFiles;
 use nia_infer::run_settings::RunSettings;
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::lpips::{Lpips, LpipsNet};
-use nia_model::render_options::RenderOptions;
+use nia_model::render_options::{RenderOptions, DEFAULT_OCCUPANCY_CELL_M};
+use nia_model::sampler::{RaySampler, DEFAULT_BAND_MARGIN_M};
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
 
@@ -66,6 +67,31 @@ pub struct ModelArgs {
     /// `[render]` setting).
     #[arg(long)]
     pub supersample: Option<usize>,
+    /// Ray sampling: band (around the posed SMPL surface) or stratified (the whole box, the
+    /// paper's) (default: the model's training setting).
+    #[arg(long, value_parser = parse_sampler_kind)]
+    pub ray_sampler: Option<SamplerKind>,
+    /// Reach of the band sampler beyond the posed SMPL surface, metres (default: the model's
+    /// training setting, 0.05); wider tolerates an SMPL fit that is off the body.
+    #[arg(long)]
+    pub band_margin_m: Option<f32>,
+}
+
+/// The kinds of `--ray-sampler`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SamplerKind {
+    /// Samples around the posed SMPL surface.
+    Band,
+    /// Samples over the whole box.
+    Stratified,
+}
+
+fn parse_sampler_kind(s: &str) -> Result<SamplerKind, String> {
+    match s {
+        "band" => Ok(SamplerKind::Band),
+        "stratified" => Ok(SamplerKind::Stratified),
+        other => Err(format!("`{other}`: expected band or stratified")),
+    }
 }
 
 impl ModelArgs {
@@ -122,6 +148,37 @@ impl ModelArgs {
         }
         Ok(options)
     }
+
+    /// `trained` (the model's ray sampler) with `--ray-sampler` and `--band-margin-m`, checked:
+    /// a margin for a stratified sampler, or out of bounds, is an error naming the flag.
+    pub fn ray_sampler(&self, trained: RaySampler) -> anyhow::Result<RaySampler> {
+        let (trained_margin, cell_m) = match trained {
+            RaySampler::Band { margin_m, cell_m } => (margin_m, cell_m),
+            RaySampler::Stratified => (DEFAULT_BAND_MARGIN_M, DEFAULT_OCCUPANCY_CELL_M),
+        };
+        let kind = self.ray_sampler.unwrap_or(match trained {
+            RaySampler::Band { .. } => SamplerKind::Band,
+            RaySampler::Stratified => SamplerKind::Stratified,
+        });
+        let sampler = match kind {
+            SamplerKind::Stratified => {
+                if let Some(m) = self.band_margin_m {
+                    anyhow::bail!(
+                        "--band-margin-m {m}: the ray sampler is stratified; pass --ray-sampler band"
+                    );
+                }
+                RaySampler::Stratified
+            }
+            SamplerKind::Band => RaySampler::Band {
+                margin_m: self.band_margin_m.unwrap_or(trained_margin),
+                cell_m,
+            },
+        };
+        if let Err(e) = sampler.check() {
+            anyhow::bail!("--band-margin-m: {e}");
+        }
+        Ok(sampler)
+    }
 }
 
 pub fn parse_switch(s: &str) -> Result<bool, String> {
@@ -156,6 +213,11 @@ impl LoadedModel {
         }
         // The flags alone, before the model file is read (the defaults are in bounds).
         args.render_options(RenderOptions::default(), &args.model)?;
+        // Judged against a band trained sampler: a stratified model is checked once it is read.
+        args.ray_sampler(RaySampler::Band {
+            margin_m: DEFAULT_BAND_MARGIN_M,
+            cell_m: DEFAULT_OCCUPANCY_CELL_M,
+        })?;
         let path = &args.model;
         let file = ModelFile::read(path)?;
         let run = RunSettings::from_json(&file.header.run).with_context(|| {
@@ -181,7 +243,8 @@ impl LoadedModel {
             index: args.device,
         }
         .device()?;
-        let model = file.load(path, &device)?;
+        let mut model = file.load(path, &device)?;
+        model.ray_sampler = args.ray_sampler(model.ray_sampler)?;
         Ok(LoadedModel {
             path: path.clone(),
             model,

@@ -158,8 +158,8 @@ fn metrics_of_mismatched_images_fail_with_a_message() {
 }
 
 /// The render flags are checked before the model file is read: a dilation past the limit, a
-/// switch that is not on or off and a supersampling of 0 or past the limit are errors naming
-/// the flag.
+/// switch that is not on or off, a supersampling of 0 or past the limit, an unknown ray sampler
+/// and a band margin out of bounds or without a band are errors naming the flag.
 #[test]
 fn bad_render_flags_fail_naming_the_flag() {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/quickstart_tiny.nia");
@@ -168,6 +168,9 @@ fn bad_render_flags_fail_naming_the_flag() {
         ("--visual-hull", "maybe", "on or off"),
         ("--supersample", "0", "1 to 8"),
         ("--supersample", "9", "1 to 8"),
+        ("--ray-sampler", "box", "band or stratified"),
+        ("--band-margin-m", "0", "(0, 1] metres"),
+        ("--band-margin-m", "NaN", "(0, 1] metres"),
     ] {
         let out = nia_infer(&[
             "eval",
@@ -182,4 +185,19 @@ fn bad_render_flags_fail_naming_the_flag() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(flag) && err.contains(expected), "{err}");
     }
+    // A margin with a stratified sampler says what to pass instead.
+    let out = nia_infer(&[
+        "eval",
+        "--model",
+        model.to_str().unwrap(),
+        "--out",
+        "/nonexistent/eval",
+        "--ray-sampler",
+        "stratified",
+        "--band-margin-m",
+        "0.1",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--ray-sampler band"), "{err}");
 }

@@ -44,6 +44,45 @@ pub fn render_loss(
     })
 }
 
+/// The target as the prediction's camera would record it (switchable,
+/// `train.colour_gain_tolerance`; not in the paper): each channel of `gt` times the gain
+/// `k_c = sum_r C_rc C_gt,rc / sum_r C_gt,rc^2` that best maps it onto the prediction `rgb`
+/// (least squares over the scene's rays, the prediction detached), clamped to
+/// `[1 / (1 + tolerance), 1 + tolerance]`. Real rigs' cameras differ in gain and white balance
+/// (docs/data.md, "Capture flaws"): a target view's colours are its own camera's, which no source
+/// view shows, and a loss against them teaches the blend to distrust the sources. Against the
+/// matched target the loss ignores a per-channel gain within the tolerance. `tolerance <= 0`
+/// (or a channel that is black) leaves `gt` unchanged.
+///
+/// # Shapes
+/// - `rgb` C, `gt` C_gt: `[R, 3]`
+/// - output: `[R, 3]`
+pub fn colour_matched_target(
+    rgb: &Tensor<2>,
+    gt: Tensor<2>,
+    tolerance: f32,
+) -> Result<Tensor<2>, ShapeError> {
+    let [r, c] = gt.dims();
+    ShapeError::check("colour match `gt` [R, 3]", &[r, c], &[None, Some(3)])?;
+    ShapeError::check(
+        "colour match `rgb` [R, 3]",
+        &rgb.dims(),
+        &[Some(r), Some(3)],
+    )?;
+    if !(tolerance > 0.0) || r == 0 {
+        return Ok(gt);
+    }
+    let pred = rgb.clone().detach();
+    let cross = (pred * gt.clone()).sum_dim(0); // [1, 3]
+    let power = gt.clone().square().sum_dim(0); // [1, 3]
+                                                // A black channel (power 0) gets gain 1: 0 / 0 is replaced, not passed on.
+    let black = power.clone().lower_equal_elem(1e-12);
+    let gain = (cross / power.clamp_min(1e-12))
+        .mask_fill(black, 1.0)
+        .clamp(1.0 / (1.0 + tolerance), 1.0 + tolerance);
+    Ok(gt * gain)
+}
+
 /// The mask loss (switchable, `train.mask_loss_weight`; not in the paper, whose "RGB only"
 /// means no 3D or depth supervision, while the masks are inputs the reader loads anyway):
 /// `mean (acc - m)^2`, with m = 1 on the person's mask and 0 off it. It pulls the opacity off the

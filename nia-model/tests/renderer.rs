@@ -6,7 +6,7 @@ mod common;
 use burn::prelude::*;
 use common::{assert_close, central_difference, device, tensor, values};
 use nia_data::rng::Rng;
-use nia_model::loss::{distortion_loss, psnr_from_mse, render_loss};
+use nia_model::loss::{colour_matched_target, distortion_loss, psnr_from_mse, render_loss};
 use nia_model::renderer::{render_rays, sample_weights};
 use nia_model::sampler::{stratified_t, SamplerError};
 
@@ -417,6 +417,42 @@ fn loss_and_psnr_hand_values() {
     assert!((psnr_from_mse(0.01) - 20.0).abs() < 1e-12);
     assert!((psnr_from_mse(1.0)).abs() < 1e-12);
     assert_eq!(psnr_from_mse(0.0), f64::INFINITY);
+}
+
+/// The colour-matched target by hand: a target whose red is the prediction's / 1.1 and whose
+/// green is twice the prediction's gets red x 1.1 (within a tolerance of 0.15) and green x 1/1.15
+/// (clamped); a black channel stays black and finite; tolerance 0 and NaN change nothing; the
+/// prediction gets no gradient through the gain.
+#[test]
+fn colour_matched_target_hand_values() {
+    let dev = device();
+    let rgb = tensor(vec![0.55, 0.2, 0.3, 0.22, 0.4, 0.6], [2, 3], &dev);
+    let gt = tensor(vec![0.5, 0.4, 0.0, 0.2, 0.8, 0.0], [2, 3], &dev);
+    let matched = values(colour_matched_target(&rgb, gt.clone(), 0.15).unwrap());
+    let g = 1.0 / 1.15;
+    assert_close(
+        &matched,
+        &[0.55, 0.4 * g, 0.0, 0.22, 0.8 * g, 0.0],
+        1e-5,
+        "matched target",
+    );
+    for tolerance in [0.0, f32::NAN] {
+        let same = values(colour_matched_target(&rgb, gt.clone(), tolerance).unwrap());
+        assert_eq!(same, values(gt.clone()));
+    }
+    assert!(colour_matched_target(&rgb, Tensor::zeros([3, 3], &dev), 0.1).is_err());
+
+    // No gradient reaches the prediction through the gain: d/d rgb of sum(matched) is 0.
+    let ad = dev.autodiff();
+    let rgb = tensor(vec![0.55, 0.2, 0.3, 0.22, 0.4, 0.6], [2, 3], &ad).require_grad();
+    let gt = tensor(vec![0.5, 0.4, 0.1, 0.2, 0.8, 0.1], [2, 3], &ad);
+    let grads = colour_matched_target(&rgb, gt, 0.15)
+        .unwrap()
+        .sum()
+        .backward();
+    assert!(rgb
+        .grad(&grads)
+        .is_none_or(|g| values(g).iter().all(|v| *v == 0.0)));
 }
 
 /// mip-NeRF 360's distortion loss by hand: all weight on one sample costs only its own interval

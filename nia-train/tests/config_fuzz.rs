@@ -51,6 +51,7 @@ const KEYS: &[(&str, &str)] = &[
     ("data", "border_px"),
     ("data", "body_fraction"),
     ("data", "loader_threads"),
+    ("data", "smpl_jitter_m"),
     ("model", "preset"),
     ("model", "variant"),
     ("model", "encoder_width"),
@@ -84,6 +85,7 @@ const KEYS: &[(&str, &str)] = &[
     ("train", "mask_loss_weight"),
     ("train", "distortion_loss_weight"),
     ("train", "ibr_loss_weight"),
+    ("train", "colour_gain_tolerance"),
     ("synth", "subjects"),
     ("synth", "frames"),
     ("synth", "cameras"),
@@ -454,6 +456,8 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
             &["0.0", "-0.0", "0.1", "1e30"],
             &["-1.0", "nan", "inf", "-1e-9"],
         ),
+        "smpl_jitter_m" => (&["0.0", "0.025", "0.2"], &["-0.01", "0.21", "nan", "inf"]),
+        "colour_gain_tolerance" => (&["0.0", "0.15", "1.0"], &["-0.1", "1.01", "nan", "inf"]),
         "grad_clip_norm" => (
             &["0.0", "-0.0", "1.0", "1e30"],
             &["-1.0", "nan", "inf", "-1e-9"],
@@ -494,6 +498,9 @@ fn check_invariants(c: &TrainConfig, path: &Path) {
         assert!(r > 0.0 && r <= 1.0);
     }
     assert!(c.data.loader_threads >= 1);
+    assert!(c.data.smpl_jitter_m.is_finite() && (0.0..=0.2).contains(&c.data.smpl_jitter_m));
+    let tol = t.colour_gain_tolerance;
+    assert!(tol.is_finite() && (0.0..=1.0).contains(&tol));
     let r = &c.render;
     assert!(r.empty_space_m.is_finite() && r.empty_space_m >= 0.0);
     assert!(r.occupancy_cell_m.is_finite() && r.occupancy_cell_m >= 0.005);

@@ -25,11 +25,15 @@ use crate::dataset::protocol::{EvalItem, Protocol};
 use crate::dataset::sampling::{
     sample_rays, BoxPadding, RaySamplingConfig, SamplingError, TrainRays,
 };
+use crate::dataset::smpl_jitter::jitter_smpl;
 use crate::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use crate::dataset::{DatasetError, Subject, ViewImage};
 use crate::geometry::rays::{mask_at_box, Aabb};
 use crate::geometry::visibility::DEFAULT_DEPTH_TOL_M;
 use crate::rng::Rng;
+
+/// Fork of a request's seed that draws its SMPL jitter (the ray sampling uses the seed itself).
+const JITTER_FORK: u64 = 0x5a17;
 
 /// A loader error.
 #[derive(Debug, thiserror::Error)]
@@ -79,6 +83,10 @@ pub struct LoaderConfig {
     /// Visibility depth tolerance, metres.
     #[serde(default = "default_tol")]
     pub visibility_depth_tol_m: f32,
+    /// Largest SMPL jitter of training scenes, metres ([`jitter_smpl`]; 0: off). Scenes of
+    /// whole images (evaluation) are never jittered.
+    #[serde(default)]
+    pub smpl_jitter_m: f32,
 }
 
 fn default_tol() -> f32 {
@@ -93,6 +101,7 @@ impl Default for LoaderConfig {
             sampling: RaySamplingConfig::default(),
             box_padding: BoxPadding::default(),
             visibility_depth_tol_m: DEFAULT_DEPTH_TOL_M,
+            smpl_jitter_m: 0.0,
         }
     }
 }
@@ -201,8 +210,15 @@ pub fn load_scene(
             expected,
         });
     }
-    let params = subject.load_params(frame)?;
+    let mut params = subject.load_params(frame)?;
     let vertices_path = subject.vertices_path(frame)?;
+    // Visibility is the stored fit's (cached); the jitter moves the body the network reads.
+    let stored_vertices = vertices.clone();
+    let mut vertices = vertices;
+    if request.target == TargetKind::Rays {
+        let mut rng = Rng::new(request.seed).fork(JITTER_FORK);
+        jitter_smpl(&mut vertices, &mut params, config.smpl_jitter_m, &mut rng);
+    }
     let body_box = config.box_padding.body_box(&vertices).ok_or_else(|| {
         DatasetError::field(
             &vertices_path,
@@ -219,7 +235,7 @@ pub fn load_scene(
             frame,
             view,
             camera: &image.camera,
-            vertices: &vertices,
+            vertices: &stored_vertices,
             faces: &source.faces,
             depth_tol_m: config.visibility_depth_tol_m,
         };

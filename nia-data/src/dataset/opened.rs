@@ -56,6 +56,14 @@ pub struct DataConfig {
     /// Loader worker threads.
     #[serde(default = "DataConfig::default_threads")]
     pub loader_threads: usize,
+    /// Largest SMPL jitter of the training scenes, metres (0: off;
+    /// [`crate::dataset::smpl_jitter`]).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub smpl_jitter_m: f32,
+}
+
+fn is_zero(x: &f32) -> bool {
+    *x == 0.0
 }
 
 impl DataConfig {
@@ -87,6 +95,7 @@ impl DataConfig {
             border_px: Self::default_border_px(),
             body_fraction: Self::default_body_fraction(),
             loader_threads: Self::default_threads(),
+            smpl_jitter_m: 0.0,
         }
     }
 
@@ -115,6 +124,7 @@ impl DataConfig {
                 border_px: self.border_px,
             },
             box_padding: BoxPadding::nhp(),
+            smpl_jitter_m: self.smpl_jitter_m,
             ..LoaderConfig::default()
         }
     }

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use nia_data::dataset::smpl_jitter::MAX_SMPL_JITTER_M;
 use nia_data::dataset::{DataConfig, ProtocolName};
 use nia_data::synth::SynthSection;
 use nia_infer::perceptual::LpipsFiles;
@@ -214,6 +215,10 @@ pub struct TrainSection {
     /// (false: every point may be shuffled; see `nia_model::ibr::c0_shuffle`).
     #[serde(default)]
     pub c0_shuffle_seen_only: bool,
+    /// Per-channel gain of the target, relative, that the loss ignores (0: off, the paper's
+    /// loss; see `nia_model::loss::colour_matched_target`).
+    #[serde(default)]
+    pub colour_gain_tolerance: f32,
 }
 
 impl TrainSection {
@@ -388,6 +393,14 @@ impl TrainConfig {
                 t.distortion_loss_weight.to_string(),
             ));
         }
+        if !(t.colour_gain_tolerance.is_finite() && (0.0..=1.0).contains(&t.colour_gain_tolerance))
+        {
+            return Err(bad(
+                "train.colour_gain_tolerance",
+                "a relative gain in [0, 1]",
+                t.colour_gain_tolerance.to_string(),
+            ));
+        }
         if !(t.ibr_loss_weight.is_finite() && t.ibr_loss_weight >= 0.0) {
             return Err(bad(
                 "train.ibr_loss_weight",
@@ -425,6 +438,13 @@ impl TrainConfig {
                 "data.body_fraction",
                 "a fraction in [0, 1]",
                 d.body_fraction.to_string(),
+            ));
+        }
+        if !(d.smpl_jitter_m.is_finite() && (0.0..=MAX_SMPL_JITTER_M).contains(&d.smpl_jitter_m)) {
+            return Err(bad(
+                "data.smpl_jitter_m",
+                &format!("a distance in [0, {MAX_SMPL_JITTER_M}] metres"),
+                d.smpl_jitter_m.to_string(),
             ));
         }
         if let Err(e) = self.render.check() {

@@ -8,7 +8,7 @@ use nia_data::dataset::loader::{Scene, SceneTarget};
 use nia_data::rng::Rng;
 use nia_data::scene::SceneInput;
 use nia_model::ibr::c0_shuffle::C0Shuffle;
-use nia_model::loss::{distortion_loss, ibr_loss, mask_loss, render_loss};
+use nia_model::loss::{colour_matched_target, distortion_loss, ibr_loss, mask_loss, render_loss};
 use nia_model::{ModelError, NiaModel};
 
 use super::gradients::{global_norm, scale_gradients, Merge};
@@ -174,6 +174,8 @@ fn scene_gradients(
         .map_err(model_err)?;
     let gt: Vec<f32> = rays.rgb.iter().flatten().copied().collect();
     let gt = Tensor::<2>::from_data(TensorData::new(gt, [rays.len(), 3]), device);
+    let gt = colour_matched_target(&out.rgb, gt, config.train.colour_gain_tolerance)
+        .map_err(|e| model_err(ModelError::Shape(e)))?;
     let acc = out.acc.clone();
     let distortion = if config.train.distortion_loss_weight > 0.0 {
         Some(
