@@ -212,14 +212,16 @@ pub fn load_scene(
     }
     let mut params = subject.load_params(frame)?;
     let vertices_path = subject.vertices_path(frame)?;
-    // Visibility is the stored fit's (cached); the jitter moves the body the network reads.
-    let stored_vertices = vertices.clone();
-    let mut vertices = vertices;
-    if request.target == TargetKind::Rays {
+    // The body the network reads: for training scenes, the stored fit moved by the SMPL jitter
+    // (`None`: the stored fit). Visibility stays the stored fit's, which the cache holds.
+    let moved = (request.target == TargetKind::Rays && config.smpl_jitter_m > 0.0).then(|| {
+        let mut moved = vertices.clone();
         let mut rng = Rng::new(request.seed).fork(JITTER_FORK);
-        jitter_smpl(&mut vertices, &mut params, config.smpl_jitter_m, &mut rng);
-    }
-    let body_box = config.box_padding.body_box(&vertices).ok_or_else(|| {
+        jitter_smpl(&mut moved, &mut params, config.smpl_jitter_m, &mut rng);
+        moved
+    });
+    let body = moved.as_ref().unwrap_or(&vertices);
+    let body_box = config.box_padding.body_box(body).ok_or_else(|| {
         DatasetError::field(
             &vertices_path,
             "<array>",
@@ -235,7 +237,7 @@ pub fn load_scene(
             frame,
             view,
             camera: &image.camera,
-            vertices: &stored_vertices,
+            vertices: &vertices,
             faces: &source.faces,
             depth_tol_m: config.visibility_depth_tol_m,
         };
@@ -278,7 +280,7 @@ pub fn load_scene(
         index,
         subject: subject.name.clone(),
         frame,
-        vertices,
+        vertices: moved.unwrap_or(vertices),
         params,
         body_box,
         sources,
