@@ -200,6 +200,17 @@ fn fixture_source(cache: Option<VisibilityCache>) -> Arc<SceneSource> {
     })
 }
 
+/// The whole-image requests of the protocol's unseen-subject split.
+fn unseen_subject_requests(protocol: &Protocol, source: &SceneSource) -> Vec<SceneRequest> {
+    let items = protocol
+        .eval_items(EvalSplit::UnseenSubjects, |name| {
+            let s = source.subjects.iter().find(|s| s.name == name).unwrap();
+            (s.num_cameras(), s.num_frames())
+        })
+        .unwrap();
+    eval_requests(&items, &source.subjects).unwrap()
+}
+
 fn small_loader_config(threads: usize) -> LoaderConfig {
     LoaderConfig {
         threads,
@@ -232,13 +243,7 @@ fn loader_yields_scenes_in_order_for_any_thread_count() {
         }
         again
     });
-    let items = protocol
-        .eval_items(EvalSplit::UnseenSubjects, |name| {
-            let s = source.subjects.iter().find(|s| s.name == name).unwrap();
-            (s.num_cameras(), s.num_frames())
-        })
-        .unwrap();
-    requests.extend(eval_requests(&items, &source.subjects).unwrap());
+    requests.extend(unseen_subject_requests(&protocol, &source));
     assert_eq!(requests.len(), 6 + 2 * 2);
 
     let serial: Vec<_> = requests
@@ -282,13 +287,7 @@ fn smpl_jitter_moves_training_bodies_only() {
     let source = fixture_source(None);
     let protocol = fixture_protocol();
     let mut requests = train_requests(&protocol, &source.subjects, 0, 11).unwrap();
-    let items = protocol
-        .eval_items(EvalSplit::UnseenSubjects, |name| {
-            let s = source.subjects.iter().find(|s| s.name == name).unwrap();
-            (s.num_cameras(), s.num_frames())
-        })
-        .unwrap();
-    requests.extend(eval_requests(&items, &source.subjects).unwrap());
+    requests.extend(unseen_subject_requests(&protocol, &source));
     let jittered = LoaderConfig {
         smpl_jitter_m: 0.05,
         ..small_loader_config(1)

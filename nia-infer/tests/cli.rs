@@ -163,6 +163,20 @@ fn metrics_of_mismatched_images_fail_with_a_message() {
 #[test]
 fn bad_render_flags_fail_naming_the_flag() {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/quickstart_tiny.nia");
+    // `eval` with `flags` fails before reading the model; its stderr.
+    let refused = |flags: &[&str]| {
+        let mut args = vec![
+            "eval",
+            "--model",
+            model.to_str().unwrap(),
+            "--out",
+            "/nonexistent/eval",
+        ];
+        args.extend_from_slice(flags);
+        let out = nia_infer(&args);
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
     for (flag, value, expected) in [
         ("--hull-dilate-px", "1000", "256"),
         ("--visual-hull", "maybe", "on or off"),
@@ -172,32 +186,10 @@ fn bad_render_flags_fail_naming_the_flag() {
         ("--band-margin-m", "0", "(0, 1] metres"),
         ("--band-margin-m", "NaN", "(0, 1] metres"),
     ] {
-        let out = nia_infer(&[
-            "eval",
-            "--model",
-            model.to_str().unwrap(),
-            "--out",
-            "/nonexistent/eval",
-            flag,
-            value,
-        ]);
-        assert!(!out.status.success());
-        let err = String::from_utf8_lossy(&out.stderr);
+        let err = refused(&[flag, value]);
         assert!(err.contains(flag) && err.contains(expected), "{err}");
     }
     // A margin with a stratified sampler says what to pass instead.
-    let out = nia_infer(&[
-        "eval",
-        "--model",
-        model.to_str().unwrap(),
-        "--out",
-        "/nonexistent/eval",
-        "--ray-sampler",
-        "stratified",
-        "--band-margin-m",
-        "0.1",
-    ]);
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(&["--ray-sampler", "stratified", "--band-margin-m", "0.1"]);
     assert!(err.contains("--ray-sampler band"), "{err}");
 }
