@@ -13,6 +13,7 @@ pub mod dataset;
 pub mod formats;
 pub mod geometry;
 pub mod metrics;
+pub mod own_capture;
 pub mod rng;
 pub mod scene;
 pub mod synth;
