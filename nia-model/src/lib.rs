@@ -23,6 +23,7 @@ pub mod config;
 pub mod device;
 pub mod encoder;
 pub mod error;
+pub mod fitting;
 pub mod field;
 pub mod ibr;
 pub mod linear_rows;
