@@ -5,8 +5,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use nia_data::own_capture::KeypointLayout;
 use nia_data::synth::capture::CapturePreset;
-use nia_data::synth::{self, SynthEvent, SynthSection, SynthSpec};
+use nia_data::synth::{self, KeypointSpec, SynthEvent, SynthSection, SynthSpec};
 
 #[derive(Args, Debug)]
 pub struct SynthArgs {
@@ -55,6 +56,24 @@ pub struct SynthArgs {
     /// preset's.
     #[arg(long)]
     pub geometry_level: Option<f32>,
+    /// Also write the 2D keypoints a detector would report, in OpenPose's JSON:
+    /// `CoreView_<id>/keypoints/Camera_B<k>/<frame:06>_keypoints.json` (the true body's
+    /// keypoints seen by the true cameras, with noise, occluded ones and drops left out, and
+    /// outliers; docs/data.md "Own-capture inputs").
+    #[arg(long)]
+    pub keypoints: bool,
+    /// Keypoint set of `--keypoints`: `body25` (OpenPose BODY_25) or `coco18`.
+    #[arg(long, default_value_t = KeypointSpec::default().layout, requires = "keypoints")]
+    pub keypoint_layout: KeypointLayout,
+    /// Standard deviation of the keypoints' pixel noise per axis, pixels.
+    #[arg(long, default_value_t = KeypointSpec::default().noise_px, requires = "keypoints")]
+    pub keypoint_noise_px: f32,
+    /// Fraction of the visible keypoints not reported (a detector's misses).
+    #[arg(long, default_value_t = KeypointSpec::default().drop, requires = "keypoints")]
+    pub keypoint_drop: f32,
+    /// Fraction of the reported keypoints moved 30 to 80 pixels (a detector's confusions).
+    #[arg(long, default_value_t = KeypointSpec::default().outliers, requires = "keypoints")]
+    pub keypoint_outliers: f32,
 }
 
 pub fn run(args: SynthArgs) -> anyhow::Result<()> {
@@ -76,6 +95,12 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
                 args.geometry_level,
             ],
         ),
+        keypoints: args.keypoints.then_some(KeypointSpec {
+            layout: args.keypoint_layout,
+            noise_px: args.keypoint_noise_px,
+            drop: args.keypoint_drop,
+            outliers: args.keypoint_outliers,
+        }),
         ..SynthSpec::default()
     };
     let bar = ProgressBar::new(spec.total_images() as u64);
@@ -102,6 +127,15 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         summary.out_dir.display()
     );
     println!("body model: {}", summary.body_model.display());
+    if let Some(k) = spec.keypoints {
+        println!(
+            "keypoints: OpenPose {} in CoreView_<id>/keypoints/ ({} px noise, {:.0}% dropped, {:.0}% outliers)",
+            k.layout,
+            k.noise_px,
+            k.drop * 100.0,
+            k.outliers * 100.0
+        );
+    }
     println!(
         "train subjects {:?}, unseen test subjects {:?}",
         summary.train_subjects, summary.test_subjects

@@ -93,6 +93,7 @@ const KEYS: &[(&str, &str)] = &[
     ("synth", "seed"),
     ("synth", "supersample"),
     ("synth", "test_fraction"),
+    ("synth", "keypoints"),
     ("render", "skip_empty_space"),
     ("render", "empty_space_m"),
     ("render", "occupancy_cell_m"),
@@ -441,7 +442,9 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
             &["\"e\"", "\"Full\""],
         ),
         "backend" => (&["\"ndarray\"", "\"flex\"", "\"wgpu\""], &["\"cuda\""]),
-        "evaluate_at_end" | "skip_empty_space" => (&["true", "false"], &["1", "\"yes\""]),
+        "evaluate_at_end" | "skip_empty_space" | "keypoints" => {
+            (&["true", "false"], &["1", "\"yes\""])
+        }
         "empty_space_m" => (&["0.0", "0.03", "1.0"], &["-0.1", "nan", "inf"]),
         "occupancy_cell_m" => (&["0.005", "0.02", "1.0"], &["0.004", "0.0", "nan", "-1.0"]),
         "ratio" => (

@@ -38,6 +38,14 @@ pub struct SynthSection {
     /// Level of the geometry off SMPL (hair volume, loose swinging garments) over the preset's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geometry_level: Option<f32>,
+    /// Also write the 2D keypoints a detector would report (OpenPose BODY_25, 2 px noise,
+    /// 10% dropped, 2% outliers: [`super::keypoints`]).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub keypoints: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 fn is_default(preset: &CapturePreset) -> bool {
@@ -91,6 +99,7 @@ impl SynthSection {
             supersample: self.supersample,
             test_fraction: self.test_fraction,
             capture: self.capture(),
+            keypoints: self.keypoints.then(super::KeypointSpec::default),
             ..SynthSpec::default()
         }
     }
@@ -110,6 +119,7 @@ impl SynthSection {
             "capture.colour" => "synth.colour_level",
             "capture.masks" => "synth.mask_level",
             "capture.geometry" => "synth.geometry_level",
+            "keypoints.noise_px" | "keypoints.drop" | "keypoints.outliers" => "synth.keypoints",
             _ => "synth",
         }
     }

@@ -14,6 +14,7 @@ use super::capture::loose_geometry::LooseGeometry;
 use super::capture::masks::degrade_mask;
 use super::capture::smpl_fit::SmplFitError;
 use super::clothing::{clothe, vertex_normals};
+use super::keypoints::{self, KeypointRig};
 use super::render::{render_view, SurfaceAttributes};
 use super::subject::{Subject, SubjectDesign};
 use super::{capture, writer, SynthError, SynthEvent, SynthSpec};
@@ -29,6 +30,9 @@ struct PosedFrame {
     normals: Vec<Vec3>,
     /// The hands and feet, world metres (where a degraded mask may lose one).
     extremities: Vec<Vec3>,
+    /// With `--keypoints`: the true body's `[K]` 3D keypoints and `[V]` vertices (world
+    /// metres), before any SMPL-fit flaw.
+    keypoint_body: Option<(Vec<Option<Vec3>>, Vec<Vec3>)>,
 }
 
 /// SMPL joints of the hands and feet.
@@ -108,6 +112,12 @@ pub(super) fn generate_subject(
     );
 
     writer::create_subject_dirs(dir, spec.cameras)?;
+    // The detector's keypoints (`--keypoints`), from a fork no other file uses.
+    let rig = spec.keypoints.map(|k| KeypointRig::new(k, body));
+    let keypoint_rng = rng.fork(8);
+    if rig.is_some() {
+        keypoints::create_dirs(dir, spec.cameras)?;
+    }
     writer::write_annots(dir, &written_cameras, spec.frames)?;
 
     let surface = SurfaceAttributes {
@@ -152,10 +162,15 @@ pub(super) fn generate_subject(
                     .iter()
                     .filter_map(|&j| body_posed.joints.get(j).copied())
                     .collect();
+                let keypoint_body = rig.as_ref().map(|rig| {
+                    let points = rig.points_3d(&body_posed.vertices, &body_posed.joints);
+                    (points, body_posed.vertices.clone())
+                });
                 Ok(PosedFrame {
                     clothed,
                     normals,
                     extremities,
+                    keypoint_body,
                 })
             })
             .collect::<Result<_, SynthError>>()?;
@@ -211,7 +226,20 @@ pub(super) fn generate_subject(
                     &view.mask,
                     view.width,
                     view.height,
-                )
+                )?;
+                if let (Some(rig), Some((points, vertices))) = (&rig, &p.keypoint_body) {
+                    let mut r = keypoint_rng.fork((frame * spec.cameras + camera) as u64);
+                    let kp = rig
+                        .observe(&cameras[camera], points, vertices, &body.faces, &mut r)
+                        .map_err(|source| SynthError::Render {
+                            id,
+                            frame,
+                            camera,
+                            source,
+                        })?;
+                    keypoints::write(&keypoints::keypoints_path(dir, camera, frame), &kp)?;
+                }
+                Ok(())
             })
             .collect::<Result<Vec<()>, SynthError>>()?;
         for &(f, camera) in &jobs {

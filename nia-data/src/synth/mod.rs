@@ -11,6 +11,7 @@
 //! OUT/body_model.npz                  the body model every subject uses (SMPL key set)
 //! OUT/synth.json                      the spec and a suggested train / test subject split
 //! OUT/CoreView_<id>/annots.npy, params/, vertices/, Camera_B<k>/, mask/Camera_B<k>/
+//! OUT/CoreView_<id>/keypoints/Camera_B<k>/<frame:06>_keypoints.json   with `keypoints` only
 //! ```
 //!
 //! Same spec and seed give byte-identical files. Rendering runs in parallel (rayon) over frames
@@ -22,6 +23,7 @@ pub mod capture;
 pub mod clothing;
 pub mod config;
 mod frames;
+pub mod keypoints;
 pub mod render;
 pub mod subject;
 pub mod texture;
@@ -36,6 +38,7 @@ use crate::geometry::raster::MeshError;
 use crate::rng::Rng;
 use capture::CaptureFlaws;
 use frames::generate_subject;
+pub use keypoints::KeypointSpec;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -81,6 +84,10 @@ pub struct SynthSpec {
     /// a clean spec writes the same bytes as before the flaws existed.
     #[serde(skip_serializing_if = "CaptureFlaws::is_none")]
     pub capture: CaptureFlaws,
+    /// The 2D keypoints a detector would report ([`keypoints`]), written when set; not
+    /// written to `synth.json` when unset, so the set without them is the same bytes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub keypoints: Option<KeypointSpec>,
 }
 
 impl Default for SynthSpec {
@@ -96,6 +103,7 @@ impl Default for SynthSpec {
             fps: 10.0,
             test_fraction: 0.25,
             capture: CaptureFlaws::default(),
+            keypoints: None,
         }
     }
 }
@@ -148,6 +156,9 @@ impl SynthSpec {
         }
         if let Some((field, level)) = self.capture.invalid() {
             return bad(field, "a level in [0, 4] (0: off)", level.to_string());
+        }
+        if let Some((field, expected, value)) = self.keypoints.and_then(|k| k.invalid()) {
+            return bad(field, expected, value.to_string());
         }
         // `subjects >= 1` here; ids first..first + subjects - 1 must fit in u32.
         let last_id = u32::try_from(self.subjects - 1)
