@@ -9,5 +9,6 @@ pub mod config;
 pub mod curves;
 pub mod data;
 pub mod events;
+pub mod prepare;
 pub mod tensorboard;
 pub mod train_loop;

@@ -42,6 +42,9 @@ enum Command {
     /// The paper's ablation (Table 3): variants (a)..(e) at equal budget, 1..3 source views,
     /// novel pose; writes a markdown table and a picture.
     Ablation(ablation_cmd::AblationArgs),
+    /// Fit SMPL to a calibrated multi-view capture (images, person masks, OpenPose keypoints)
+    /// and write the ZJU-MoCap layout the readers and the trainer take (docs/own-capture.md).
+    Prepare(nia_train::prepare::PrepareArgs),
     /// Draw a run's loss and PSNR curves (`RUN/curves.svg`) from its `metrics.jsonl`, also
     /// while it trains.
     Curves {
@@ -122,6 +125,7 @@ fn main() -> anyhow::Result<()> {
         Some(Command::Synth(args)) => synth_cmd::run(args),
         Some(Command::Ablation(args)) => ablation_cmd::run(args),
         Some(Command::Train(args)) => run_train(args),
+        Some(Command::Prepare(args)) => run_prepare(&args),
         Some(Command::Curves { run }) => {
             let path = write_curves(&run)?;
             println!("curves: {}", path.display());
@@ -129,6 +133,55 @@ fn main() -> anyhow::Result<()> {
         }
         None => run_train(cli.train),
     }
+}
+
+/// `nia-train prepare`: one bar over the frames (read, fitted, written), then the summary.
+fn run_prepare(args: &nia_train::prepare::PrepareArgs) -> anyhow::Result<()> {
+    use nia_model::fitting::FitProgress;
+    use nia_train::prepare::PrepareEvent;
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {elapsed_precise}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let stage = |msg: &'static str, done: usize, total: usize| {
+        bar.set_message(msg);
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let report = nia_train::prepare::run(args, &mut |e| match e {
+        PrepareEvent::Loaded { done, total } => stage("reading", done, total),
+        PrepareEvent::Fit(FitProgress::ShapeFrame { done, total }) => {
+            stage("shape frames", done, total)
+        }
+        PrepareEvent::Fit(FitProgress::Shape) => stage("shape", 1, 1),
+        PrepareEvent::Fit(FitProgress::Frame { done, total }) => stage("fitting", done, total),
+        PrepareEvent::Written { done, total } => stage("writing", done, total),
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "fitted {} frames x {} views ({} keypoints) -> {}",
+        report.frames,
+        report.views,
+        report.layout,
+        report.subject_dir.display()
+    );
+    println!(
+        "fit time {:.2} s per frame; mean keypoint reprojection error {:.2} px",
+        report.seconds_per_frame, report.keypoint_error_px
+    );
+    if let Some(t) = report.truth {
+        println!(
+            "against the truth: MPJPE {:.2} cm (worst frame {:.2} cm), mean vertex error {:.2} cm",
+            t.mpjpe_cm, t.worst_frame_mpjpe_cm, t.vertex_cm
+        );
+    }
+    println!(
+        "check the fit: {}",
+        report.subject_dir.join("fit_overlay").display()
+    );
+    Ok(())
 }
 
 fn run_train(args: TrainArgs) -> anyhow::Result<()> {
