@@ -86,6 +86,12 @@ pub enum DeviceError {
         "`{backend}:{index}`: {backend} is a CPU backend with a single device (write `{backend}`)"
     )]
     IndexedCpu { backend: &'static str, index: usize },
+    #[error(
+        "`{0}`: wgpu found no GPU adapter. Install the GPU's driver and the Vulkan loader \
+         (Debian/Ubuntu: `apt-get install libvulkan1`), or `mesa-vulkan-drivers` for a slow \
+         software one; `VK_DRIVER_FILES` names the driver's ICD file where it is not found"
+    )]
+    NoAdapter(String),
 }
 
 impl DeviceSpec {
@@ -105,11 +111,32 @@ impl DeviceSpec {
                 index,
             }),
             #[cfg(feature = "wgpu")]
-            (Backend::Wgpu, Some(index)) => {
-                Ok(Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(index)))
-            }
+            (Backend::Wgpu, Some(index)) => probe_gpu(
+                Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(index)),
+                self,
+            ),
+            #[cfg(feature = "wgpu")]
+            (Backend::Wgpu, None) => probe_gpu(Backend::Wgpu.device()?, self),
             (backend, _) => Ok(backend.device()?),
         }
+    }
+}
+
+/// wgpu picks its adapter at the first operation, and without one burn 0.22 panics in a worker
+/// thread (`AdapterUnavailable`, then `RecvError` here). One tiny operation, caught, turns that
+/// into [`DeviceError::NoAdapter`]; the worker's own panic message still reaches stderr.
+#[cfg(feature = "wgpu")]
+fn probe_gpu(device: Device, spec: DeviceSpec) -> Result<Device, DeviceError> {
+    use burn::tensor::Tensor;
+    let probe = device.clone();
+    let sum = std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+        Tensor::<1>::from_floats([1.0, 2.0], &probe)
+            .sum()
+            .into_scalar::<f32>()
+    }));
+    match sum {
+        Ok(x) if x == 3.0 => Ok(device),
+        _ => Err(DeviceError::NoAdapter(spec.to_string())),
     }
 }
 

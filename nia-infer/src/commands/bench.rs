@@ -18,6 +18,7 @@ use nia_data::rng::Rng;
 use nia_data::scene::{SceneBody, SceneInput, SourceView, RAY_BOX_PADDING_M};
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::loss::render_loss;
+use nia_model::renderer::RenderOutput;
 use nia_model::timing::{Stage, StageTimes};
 use nia_model::ModelConfig;
 
@@ -53,6 +54,23 @@ pub struct BenchArgs {
     /// Skip the training step (forward only).
     #[arg(long)]
     pub no_train: bool,
+    /// Skip the inference forward (training step only; the forward figures are then null).
+    #[arg(long, conflicts_with_all = ["no_train", "check_against"])]
+    pub train_only: bool,
+    /// Also run the forward with the same weights on this backend and report how far the
+    /// colours differ (`--backend wgpu --check-against flex`: the GPU path against the CPU's).
+    #[arg(long, value_parser = str::parse::<Backend>)]
+    pub check_against: Option<Backend>,
+}
+
+/// The forward's colours on two backends with the same weights and inputs.
+#[derive(Serialize)]
+struct BackendCheck {
+    against: String,
+    /// Largest |a - b| over the colours and opacities (both in [0, 1]).
+    max_abs_diff: f32,
+    /// ||a - b|| / ||b|| over the colours and opacities.
+    rel_l2: f32,
 }
 
 #[derive(Serialize)]
@@ -66,6 +84,11 @@ struct Report {
     size: u32,
     forward_s: f64,
     forward_rays_per_s: f64,
+    /// The warm-up forward: the time to a first result, shader compilation and autotuning
+    /// included on GPU backends.
+    first_forward_s: f64,
+    /// The warm-up training step, likewise.
+    first_train_step_s: Option<f64>,
     train_step_s: Option<f64>,
     /// Of the training step: the forward on the autodiff device (graph recording included).
     train_forward_s: Option<f64>,
@@ -73,6 +96,7 @@ struct Report {
     train_backward_s: Option<f64>,
     train_rays_per_s: Option<f64>,
     stages_s: Vec<(String, f64)>,
+    check: Option<BackendCheck>,
 }
 
 /// The benchmark scene and `rays` rays of a target camera that hit the ray box.
@@ -144,6 +168,21 @@ fn bench_scene(args: &BenchArgs) -> anyhow::Result<(SceneInput, RayBundle)> {
     Ok((input, rays))
 }
 
+/// The forward's colours and opacities as one host vector, refused if any is not finite.
+fn forward_colours(out: RenderOutput) -> anyhow::Result<Vec<f32>> {
+    let read = |data: burn::tensor::TensorData| {
+        data.try_to_vec::<f32>()
+            .map_err(|e| anyhow::anyhow!("{e:?}"))
+    };
+    let mut values = read(out.rgb.into_data())?;
+    values.extend(read(out.acc.into_data())?);
+    anyhow::ensure!(
+        values.iter().all(|x| x.is_finite()),
+        "non-finite colours in the benchmark forward"
+    );
+    Ok(values)
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let backend = args.backend;
     let device = DeviceSpec {
@@ -161,7 +200,11 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let model = config.init(&device);
 
     // One warm-up and `reps` timed repetitions of the forward, and of the training step.
-    let passes = if args.no_train { 1 } else { 2 };
+    let passes = if args.no_train || args.train_only {
+        1
+    } else {
+        2
+    };
     let bar = progress_bar((passes * (args.reps + 1)) as u64, "bench");
     // Per-repetition times: above the bar, or on stderr without a terminal (stdout carries the
     // table and the JSON line).
@@ -176,21 +219,19 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     // Forward (inference device), per stage.
     let mut stages = StageTimes::default();
     let mut forward_s = 0.0;
-    for rep in 0..=args.reps {
+    let mut first_forward_s = 0.0;
+    let mut colours = Vec::new();
+    let forward_reps = if args.train_only { 0 } else { args.reps + 1 };
+    for rep in 0..forward_reps {
         let mut times = StageTimes::default();
         let start = Instant::now();
         let scene = model.encode(&input, None, &device, Some(&mut times))?;
         let out = model.render(&scene, &rays, args.samples, None, Some(&mut times))?;
-        let rgb = out
-            .rgb
-            .into_data()
-            .try_to_vec::<f32>()
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        anyhow::ensure!(
-            rgb.iter().all(|x| x.is_finite()),
-            "non-finite colours in the benchmark forward"
-        );
-        if rep > 0 {
+        let rgb = forward_colours(out)?;
+        if rep == 0 {
+            first_forward_s = start.elapsed().as_secs_f64();
+            colours = rgb;
+        } else {
             forward_s += start.elapsed().as_secs_f64();
             stages.merge(&times);
         }
@@ -203,10 +244,47 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     }
     let reps = args.reps.max(1) as f64;
     forward_s /= reps;
+    if args.train_only {
+        // Serialised as null.
+        forward_s = f64::NAN;
+        first_forward_s = f64::NAN;
+    }
+
+    let check = match args.check_against {
+        None => None,
+        Some(against) => {
+            let other = DeviceSpec {
+                backend: against,
+                index: None,
+            }
+            .device()?;
+            let reference = model.clone().to_device(&other);
+            let scene = reference.encode(&input, None, &other, None)?;
+            let theirs =
+                forward_colours(reference.render(&scene, &rays, args.samples, None, None)?)?;
+            let (mut max_abs_diff, mut diff2, mut ref2) = (0.0f32, 0.0f64, 0.0f64);
+            for (a, b) in colours.iter().zip(&theirs) {
+                max_abs_diff = max_abs_diff.max((a - b).abs());
+                diff2 += f64::from(a - b).powi(2);
+                ref2 += f64::from(*b).powi(2);
+            }
+            note(format!(
+                "{} against {}: max |difference| {max_abs_diff:.2e}, relative L2 {:.2e}",
+                args.backend.name(),
+                against.name(),
+                (diff2 / ref2.max(1e-30)).sqrt()
+            ));
+            Some(BackendCheck {
+                against: against.name().to_string(),
+                max_abs_diff,
+                rel_l2: (diff2 / ref2.max(1e-30)).sqrt() as f32,
+            })
+        }
+    };
 
     // Training step (autodiff device): forward, loss, backward, Adam.
-    let (train_step_s, train_forward_s, train_rays_per_s) = if args.no_train {
-        (None, None, None)
+    let (train_step_s, train_forward_s, train_rays_per_s, first_train_step_s) = if args.no_train {
+        (None, None, None, None)
     } else {
         let ad = device.clone().autodiff();
         ad.seed(0);
@@ -215,6 +293,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         let gt = Tensor::<2>::ones([rays.len(), 3], &ad).mul_scalar(0.5);
         let mut total = 0.0;
         let mut total_forward = 0.0;
+        let mut first = 0.0;
         let mut rng = Rng::new(3);
         for rep in 0..=args.reps {
             let jitter: Vec<f32> = (0..rays.len() * args.samples)
@@ -224,6 +303,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             let scene = model.encode(&input, None, &ad, None)?;
             let out = model.render(&scene, &rays, args.samples, Some(&jitter), None)?;
             let loss = render_loss(out.rgb, out.rgb0, gt.clone())?;
+            // The forward's own time on asynchronous backends too.
+            ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
             let forward_dt = start.elapsed().as_secs_f64();
             let grads = GradientsParams::from_grads(loss.total.backward(), &model);
             model = optim.step(5e-4, model, grads);
@@ -235,7 +316,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 dt - forward_dt
             ));
             bar.inc(1);
-            if rep > 0 {
+            if rep == 0 {
+                first = dt;
+            } else {
                 total += dt;
                 total_forward += forward_dt;
             }
@@ -245,6 +328,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             Some(step),
             Some(total_forward / reps),
             Some(rays.len() as f64 / step),
+            Some(first),
         )
     };
 
@@ -260,6 +344,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         size: args.size,
         forward_s,
         forward_rays_per_s: rays.len() as f64 / forward_s,
+        first_forward_s,
+        first_train_step_s,
         train_step_s,
         train_forward_s,
         train_backward_s: train_step_s.zip(train_forward_s).map(|(s, f)| s - f),
@@ -268,6 +354,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             .iter()
             .map(|s| (s.name().to_string(), stages.get(*s).as_secs_f64() / reps))
             .collect(),
+        check,
     };
     println!("| stage | seconds | share |\n|---|---|---|");
     let staged: f64 = report.stages_s.iter().map(|(_, t)| t).sum();

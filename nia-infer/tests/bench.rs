@@ -1,0 +1,106 @@
+//! `nia-infer bench` as a user runs it, at toy sizes on the CPU backends: the JSON line it ends
+//! with, the cross-backend check, the training-only mode, and refused flag combinations.
+
+mod common;
+
+use common::{fails_with, nia_infer, ok};
+
+/// ndarray and flex run the same network with different kernels (host fast paths on flex):
+/// colours in [0, 1] agree far inside this.
+const BACKEND_TOL: f64 = 1e-4;
+
+/// The last stdout line as JSON (the table comes first).
+fn report(args: &[&str]) -> serde_json::Value {
+    let out = nia_infer(args);
+    ok(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout.lines().last().expect("bench printed nothing");
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("not JSON ({e}): {line}"))
+}
+
+const TOY: [&str; 10] = [
+    "--tiny",
+    "--rays",
+    "8",
+    "--samples",
+    "4",
+    "--size",
+    "32",
+    "--reps",
+    "1",
+    "--no-train",
+];
+
+#[test]
+fn check_against_reports_a_small_difference_between_backends() {
+    let mut args = vec!["bench", "--backend", "ndarray"];
+    args.extend(TOY);
+    args.extend(["--check-against", "flex"]);
+    let v = report(&args);
+    let check = &v["check"];
+    assert_eq!(check["against"], "flex");
+    let max = check["max_abs_diff"].as_f64().unwrap();
+    let rel = check["rel_l2"].as_f64().unwrap();
+    assert!(
+        max.is_finite() && max <= BACKEND_TOL,
+        "max |difference| {max}"
+    );
+    assert!(rel.is_finite() && rel <= BACKEND_TOL, "relative L2 {rel}");
+    // The first (warm-up) forward is reported apart from the steady state.
+    assert!(v["first_forward_s"].as_f64().unwrap() > 0.0);
+    assert!(v["forward_s"].as_f64().unwrap() > 0.0);
+    assert!(
+        v["train_step_s"].is_null(),
+        "--no-train: {}",
+        v["train_step_s"]
+    );
+}
+
+#[test]
+fn train_only_times_the_training_step_alone() {
+    let v = report(&[
+        "bench",
+        "--backend",
+        "flex",
+        "--tiny",
+        "--rays",
+        "8",
+        "--samples",
+        "4",
+        "--size",
+        "32",
+        "--reps",
+        "1",
+        "--train-only",
+    ]);
+    assert!(
+        v["forward_s"].is_null() && v["first_forward_s"].is_null(),
+        "{v}"
+    );
+    let step = v["train_step_s"].as_f64().unwrap();
+    let forward = v["train_forward_s"].as_f64().unwrap();
+    let backward = v["train_backward_s"].as_f64().unwrap();
+    assert!(step > 0.0 && forward > 0.0 && backward >= 0.0);
+    assert!(
+        (forward + backward - step).abs() < 1e-9,
+        "{forward} + {backward} != {step}"
+    );
+    assert!(v["first_train_step_s"].as_f64().unwrap() > 0.0);
+    assert!(v["check"].is_null());
+}
+
+#[test]
+fn contradictory_flags_are_refused() {
+    fails_with(
+        &nia_infer(&["bench", "--train-only", "--no-train"]),
+        &["--train-only", "--no-train"],
+    );
+    fails_with(
+        &nia_infer(&["bench", "--train-only", "--check-against", "flex"]),
+        &["--train-only", "--check-against"],
+    );
+    fails_with(
+        &nia_infer(&["bench", "--check-against", "cuda"]),
+        &["unknown backend `cuda`", "ndarray, flex or wgpu"],
+    );
+}

@@ -1,0 +1,184 @@
+#!/usr/bin/env bash
+# The accelerated path on a real GPU, in one command: wgpu against the CPU backend (parity),
+# `nia-infer bench --backend wgpu` at the paper's dimensions against the PyTorch CUDA reference
+# (scripts/reference_gpu.py) back to back, one 512x512 unseen-subject image with the paper
+# network, peak GPU memory of each, and the time to a first result (shader compilation and
+# autotuning included) apart from steady state. Prints a table last; logs, JSON and the images
+# go to ./gpu_check_out, packed into $OUT/gpu_check.tar.gz where $OUT is set (the device tool).
+#
+#   scripts/gpu_check.sh prepare        # here, once: fills .gpu/ (binary, model, data, Vulkan loader)
+#   scripts/gpu_check.sh run [--quick]  # on the GPU machine, from the repository root
+#   GPU_CHECK_STEPS="train render" scripts/gpu_check.sh run   # some steps only (default: all of
+#                                       # probe paper 4k tiny torch render flex; train: the paper
+#                                       # network's training step alone). GPU_CHECK_LIMIT and
+#                                       # GPU_CHECK_RENDER_LIMIT: seconds for a bench / the render
+#   scripts/gpu_check.sh run --dry      # a rehearsal here on lavapipe and CPU torch, small sizes
+#                                       # (NIA_PYTHON: a python with torch; default python3)
+#
+# `prepare` builds nia-infer with the wgpu feature (the CI profile: dependencies optimised),
+# strips and compresses it, exports the paper-width model `runs/paper300` (trained with the
+# command in docs/speed.md, "One 512x512 image"), packs the 512-px unseen subject of
+# data/quickstart512, and downloads the Vulkan loader .debs (the GPU machine has a driver but no
+# loader, nor the GL vendor-neutral libraries its ICD library needs). Everything lands in .gpu/ (ignored by git), about 60 MB, which the device tool
+# carries. `run` needs nvidia-smi, python3 with torch (CUDA), and nothing else.
+#
+# A user with a GPU runs the same benchmark with `nia-infer bench --backend wgpu` directly.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+mode=${1:-}
+shift || true
+
+prepare() {
+  export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$HOME/.cache/nia-rs/target}
+  mkdir -p .gpu
+  cargo build --quiet --workspace --all-features
+  cp "$CARGO_TARGET_DIR/debug/nia-infer" .gpu/nia-infer && strip .gpu/nia-infer
+  xz -T2 -6 -f .gpu/nia-infer
+  [ -d runs/paper300 ] || { echo "runs/paper300 missing: train it first (docs/speed.md)" >&2; exit 1; }
+  "$CARGO_TARGET_DIR/debug/nia-infer" export --checkpoint runs/paper300 --out .gpu/paper300.nia
+  [ -d data/quickstart512 ] || "$CARGO_TARGET_DIR/debug/nia-train" synth --out data/quickstart512 \
+    --subjects 4 --frames 6 --cameras 6 --size 512 --seed 0
+  tar -cJf .gpu/bundle.tar.xz .gpu/paper300.nia data/quickstart512/body_model.npz \
+    data/quickstart512/synth.json data/quickstart512/CoreView_4
+  rm .gpu/paper300.nia
+  mkdir -p .gpu/debs /tmp/amd64/partial
+  local o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
+  # shellcheck disable=SC2086
+  apt-get $o update >/dev/null && (cd .gpu/debs && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2 >/dev/null)
+  du -sh .gpu
+}
+
+# Peak of `nvidia-smi --query-gpu=memory.used` (MiB) while a command runs, polled every 100 ms;
+# the baseline before it starts is printed too, so the command's own share is the difference.
+with_memory() {
+  local name=$1; shift
+  if ! command -v nvidia-smi >/dev/null; then "$@"; return; fi
+  nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 100 > "$out/mem_$name.csv" &
+  local poller=$!
+  sleep 0.3
+  local rc=0
+  "$@" || rc=$?
+  kill "$poller" 2>/dev/null || true
+  wait "$poller" 2>/dev/null || true
+  return $rc
+}
+
+run() {
+  local quick=0 dry=0
+  [ "${1:-}" = "--quick" ] && quick=1
+  [ "${1:-}" = "--dry" ] && quick=1 dry=1
+  local python=${NIA_PYTHON:-python3}
+  out=$PWD/gpu_check_out
+  rm -rf "$out" && mkdir -p "$out"
+  # The Vulkan loader (the image has NVIDIA's driver and ICD file but no libvulkan).
+  if ! ldconfig -p | grep -q libvulkan.so.1 && [ $dry = 0 ]; then
+    for f in .gpu/debs/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+  fi
+  for icd in /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json /usr/share/vulkan/icd.d/nvidia_icd.json \
+             /etc/vulkan/icd.d/nvidia_icd.json; do
+    [ -f "$icd" ] && { export VK_DRIVER_FILES=$icd; break; }
+  done
+  local egl=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+  [ -f $egl ] && export __EGL_VENDOR_LIBRARY_FILENAMES=$egl
+  local bin=/tmp/nia-infer
+  xz -dc .gpu/nia-infer.xz > $bin && chmod +x $bin
+  tar -xJf .gpu/bundle.tar.xz
+  if command -v nvidia-smi >/dev/null; then
+    nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$out/card.txt"
+  else
+    echo "no nvidia-smi (rehearsal)" | tee "$out/card.txt"
+  fi
+  echo "VK_DRIVER_FILES=${VK_DRIVER_FILES:-unset}; CPU: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2)"
+
+  # Each step has its own time limit, so a slow one cannot keep the rest from running.
+  local steps=" ${GPU_CHECK_STEPS:-probe paper 4k tiny torch render flex} "
+  step() { [[ "$steps" == *" $1 "* ]]; }
+  # wgpu must find the GPU before anything is timed; if not, say why and stop.
+  if step probe && ! timeout 60 $bin bench --backend wgpu --tiny --rays 8 --samples 4 --size 32 --reps 1 --no-train \
+      > "$out/probe.txt" 2> "$out/probe.err"; then
+    echo "wgpu found no adapter; the Vulkan loader says:"
+    VK_LOADER_DEBUG=error,warn,info timeout 60 $bin bench --backend wgpu --tiny --rays 8 --samples 4 \
+      --size 32 --reps 1 --no-train 2>&1 | grep -v "^$" | head -40
+    ldconfig -p | grep -iE "vulkan|glx|gldispatch|nvidia" | head -20
+    cat "${VK_DRIVER_FILES:-/dev/null}"
+    exit 1
+  fi
+  step probe && echo "wgpu probe: $(tail -n 1 "$out/probe.txt" | cut -c1-120)"
+
+  # Shader compilation and autotuning make the first call of every new shape slow (a minute for
+  # the paper network's forward on an H200), so the limits are generous.
+  local reps=3 limit=${GPU_CHECK_LIMIT:-150} short=60 render_limit=${GPU_CHECK_RENDER_LIMIT:-60}
+  [ $quick = 1 ] && reps=2 limit=90 short=45
+  local dims=(--rays 1024 --samples 64 --views 3 --size 512)
+  local tiny=(--rays 256 --samples 32 --size 128)
+  local render_ratio=1.0
+  if [ $dry = 1 ]; then
+    dims=(--rays 32 --samples 8 --views 3 --size 64) tiny=(--rays 16 --samples 8 --size 64)
+    render_ratio=0.125 limit=900 short=900 render_limit=900 reps=1
+  fi
+
+  if step train; then
+    echo "== nia-rs wgpu, paper dimensions, training step only =="
+    with_memory nia_paper timeout $limit $bin bench --backend wgpu "${dims[@]}" --reps $reps \
+      --train-only > "$out/nia_paper.txt" 2> "$out/nia_paper.err" || echo "bench failed: $?"
+    grep -v XDG "$out/nia_paper.err" | tail -n 3 || true
+  fi
+  if step paper; then
+    echo "== nia-rs wgpu, paper dimensions, against flex (CPU) =="
+    with_memory nia_paper timeout $limit $bin bench --backend wgpu "${dims[@]}" --reps $reps \
+      --check-against flex > "$out/nia_paper.txt" 2> "$out/nia_paper.err" || echo "bench failed: $?"
+    grep -v XDG "$out/nia_paper.err" | tail -n 3 || true
+  fi
+
+  if step 4k && [ $quick = 0 ]; then
+    echo "== nia-rs wgpu, forward only, 4x the rays (fixed cost against per-ray cost) =="
+    timeout $short $bin bench --backend wgpu --rays 4096 --samples 64 --views 3 --size 512 --reps 3 \
+      --no-train > "$out/nia_paper4k.txt" 2> "$out/nia_paper4k.err" || echo "4k bench failed: $?"
+  fi
+
+  if step tiny; then
+    echo "== nia-rs wgpu, the quickstart's tiny network (256 rays x 32 samples, 128 px) =="
+    with_memory nia_tiny timeout $short $bin bench --backend wgpu --tiny "${tiny[@]}" \
+      --reps $reps --check-against flex > "$out/nia_tiny.txt" 2> "$out/nia_tiny.err" || echo "tiny bench failed: $?"
+  fi
+
+  if step torch; then
+    echo "== PyTorch CUDA reference =="
+    with_memory torch_paper timeout $((2 * short)) "$python" scripts/reference_gpu.py "${dims[@]}" \
+      --reps $reps > "$out/torch_paper.json" 2> "$out/torch_paper.err" || echo "reference failed: $?"
+    tail -n 2 "$out/torch_paper.err" || true
+  fi
+
+  # One ray per pixel (the paper's), the model's other [render] settings (skipping, termination,
+  # culling, carving).
+  local render=(render --model .gpu/paper300.nia --samples 64 --data data/quickstart512 --subject CoreView_4
+                --ratio $render_ratio --frame 0 --views 0,2,4 --targets 1 --supersample 1)
+  if step render; then
+    echo "== one 512x512 unseen-subject image, paper network (wgpu) =="
+    local t0 t1
+    t0=$(date +%s.%N)
+    with_memory render timeout $render_limit $bin "${render[@]}" --backend wgpu --out "$out/render_wgpu" \
+      > "$out/render.txt" 2>&1 || echo "render failed: $?"
+    t1=$(date +%s.%N)
+    echo "$t0 $t1" > "$out/render_wall.txt"
+    grep -v XDG "$out/render.txt" | tail -n 4 || true
+  fi
+  # The same render a second time in one process is not available from the CLI; the first
+  # render's `render.json` splits encoding and rendering, and the wall time includes start-up.
+  if step flex && [ $quick = 0 ]; then
+    echo "== the same image on the CPU (flex, $(nproc) cores) =="
+    timeout $short $bin "${render[@]}" --backend flex --out "$out/render_flex" > "$out/render_flex.txt" 2>&1 \
+      || echo "flex render failed: $?"
+  fi
+  "$python" scripts/gpu_check_table.py "$out" | tee "$out/table.md"
+  if [ -n "${OUT:-}" ]; then
+    tar -czf "$OUT/gpu_check.tar.gz" -C "$out" .
+  fi
+}
+
+case "$mode" in
+  prepare) prepare "$@" ;;
+  run) run "$@" ;;
+  *) sed -n '2,20p' "$0"; exit 2 ;;
+esac

@@ -1,0 +1,100 @@
+"""The table of scripts/gpu_check.sh from the files it wrote: python3 gpu_check_table.py OUT_DIR."""
+import json, os, sys
+
+out = sys.argv[1]
+
+
+def read(name):
+    path = os.path.join(out, name)
+    return open(path).read() if os.path.exists(path) else ""
+
+
+def last_json(name):
+    """The last line of a file that parses as a JSON object (nia-infer bench ends with one)."""
+    for line in reversed(read(name).strip().splitlines()):
+        try:
+            value = json.loads(line)
+            if isinstance(value, dict):
+                return value
+        except json.JSONDecodeError:
+            continue
+    return None
+
+
+def peak(name):
+    """(baseline, peak) MiB of the nvidia-smi poll, or None."""
+    values = [int(v) for v in read(f"mem_{name}.csv").split() if v.strip().isdigit()]
+    return (values[0], max(values)) if values else None
+
+
+def fmt(x, unit="s", digits=3):
+    return "-" if x is None else f"{x:.{digits}f} {unit}".strip()
+
+
+def ratio(a, b):
+    return f"{a / b:.2f}x" if a is not None and b else "-"
+
+
+def mem(name):
+    p = peak(name)
+    return "-" if p is None else f"{p[1] - p[0]} MiB (peak {p[1]}, idle {p[0]})"
+
+
+card = read("card.txt").strip()
+nia, tiny, ref = last_json("nia_paper.txt"), last_json("nia_tiny.txt"), last_json("torch_paper.json")
+print(f"\ncard: {card}")
+if ref:
+    print(f"reference: PyTorch {ref['torch']} on {ref['device']}, {ref['precision']}, sparse conv: {ref['sparse_conv']}")
+if nia:
+    print(f"dimensions: {nia['rays']} rays x {nia['samples']} samples, {nia['views']} views of {nia['size']}^2, paper network")
+print()
+print("| paper network | PyTorch CUDA | nia-rs wgpu | nia-rs / PyTorch |")
+print("|---|---:|---:|---:|")
+rows = [("forward", "forward_s"), ("training step", "train_step_s"),
+        ("first forward (start-up included)", "first_forward_s"),
+        ("first training step", "first_train_step_s")]
+for label, key in rows:
+    a = nia.get(key) if nia else None
+    b = ref.get(key) if ref else None
+    print(f"| {label} | {fmt(b)} | {fmt(a)} | {ratio(a, b)} |")
+if nia and nia.get("train_forward_s") is not None:
+    print(f"| training step: forward / backward + Adam | - | {nia['train_forward_s']:.3f} / {nia['train_backward_s']:.3f} s | - |")
+stage_names = {"mlps": "nerf_mlps"}
+if nia:
+    for name, ours in nia["stages_s"]:
+        theirs = ref["stages_s"].get(stage_names.get(name, name)) if ref else None
+        print(f"| forward stage: {name} | {fmt(theirs)} | {fmt(ours)} | {ratio(ours, theirs)} |")
+print(f"| GPU memory (nvidia-smi, above idle) | {mem('torch_paper')} | {mem('nia_paper')} | - |")
+if ref and ref.get("peak_gpu_mib"):
+    print(f"| PyTorch's own peak allocation | {ref['peak_gpu_mib']:.0f} MiB | - | - |")
+print()
+for name, r in [("paper", nia), ("tiny", tiny)]:
+    if r and r.get("check"):
+        c = r["check"]
+        print(f"parity ({name} network): wgpu against {c['against']}: max |difference| {c['max_abs_diff']:.2e}, relative L2 {c['rel_l2']:.2e}")
+    else:
+        print(f"parity ({name} network): not measured (see nia_{name}.err)")
+big = last_json("nia_paper4k.txt")
+if big:
+    print(f"paper network, forward only, {big['rays']} rays: {big['forward_s']:.3f} s ({big['forward_rays_per_s']:.0f} rays/s; "
+          + ", ".join(f"{k} {v:.3f}" for k, v in big["stages_s"]) + ")")
+if tiny:
+    print(f"tiny network (the quickstart's), {tiny['rays']} rays x {tiny['samples']}: forward {tiny['forward_s']:.4f} s "
+          f"({tiny['forward_rays_per_s']:.0f} rays/s), training step {fmt(tiny.get('train_step_s'), digits=4)} "
+          f"({tiny.get('train_rays_per_s') or 0:.0f} rays/s); first forward {tiny['first_forward_s']:.2f} s")
+print()
+for name, label in [("render_wgpu", "wgpu"), ("render_flex", "flex (CPU)")]:
+    path = os.path.join(out, name, "render.json")
+    if not os.path.exists(path):
+        print(f"512x512 image, {label}: not rendered")
+        continue
+    r = json.load(open(path))
+    img = r["images"][0]
+    wall = ""
+    if name == "render_wgpu" and read("render_wall.txt"):
+        t0, t1 = map(float, read("render_wall.txt").split())
+        wall = f", command wall {t1 - t0:.1f} s (process start, model load, shader compilation included)"
+    print(f"{img['width']}x{img['height']} image, {label}: render {img['seconds']:.2f} s + encoding {r['encode_seconds']:.2f} s"
+          f"{wall}; {img['point_evaluations']} network points, {img['colour_evaluations']} coloured; stages (ms) "
+          + ", ".join(f"{k} {v:.0f}" for k, v in sorted(img["stage_ms"].items())))
+print(f"GPU memory of the wgpu render: {mem('render')}")
