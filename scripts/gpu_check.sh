@@ -93,6 +93,8 @@ run() {
 
   # Each step has its own time limit, so a slow one cannot keep the rest from running.
   local steps=" ${GPU_CHECK_STEPS:-probe paper 4k tiny torch render flex} "
+  # Not in the default list: train (the training step alone) and profile (the paper forward
+  # under cubecl's profiler: compilations and GPU time per kernel family).
   step() { [[ "$steps" == *" $1 "* ]]; }
   # wgpu must find the GPU before anything is timed; if not, say why and stop.
   if step probe && ! timeout 60 $bin bench --backend wgpu --tiny --rays 8 --samples 4 --size 32 --reps 1 --no-train \
@@ -131,6 +133,15 @@ run() {
     grep -v XDG "$out/nia_paper.err" | tail -n 3 || true
   fi
 
+  if step profile; then
+    echo "== cubecl profile of the paper forward (kernel compilations, GPU time per kernel) =="
+    CUBECL_DEBUG_LOG="$out/cubecl_forward.log" CUBECL_DEBUG_OPTION=profile-medium \
+      timeout $limit $bin bench --backend wgpu "${dims[@]}" --reps 2 --no-train \
+      > "$out/nia_profile.txt" 2> "$out/nia_profile.err" || echo "profile failed: $?"
+    "$python" scripts/cubecl_profile_summary.py "$out/cubecl_forward.log" | tee "$out/profile.md" || true
+    gzip -f "$out/cubecl_forward.log" || true
+  fi
+
   if step 4k && [ $quick = 0 ]; then
     echo "== nia-rs wgpu, forward only, 4x the rays (fixed cost against per-ray cost) =="
     timeout $short $bin bench --backend wgpu --rays 4096 --samples 64 --views 3 --size 512 --reps 3 \
@@ -151,9 +162,10 @@ run() {
   fi
 
   # One ray per pixel (the paper's), the model's other [render] settings (skipping, termination,
-  # culling, carving).
+  # culling, carving). Two target views in one process: the first pays shader compilation, the
+  # second is close to steady state.
   local render=(render --model .gpu/paper300.nia --samples 64 --data data/quickstart512 --subject CoreView_4
-                --ratio $render_ratio --frame 0 --views 0,2,4 --targets 1 --supersample 1)
+                --ratio $render_ratio --frame 0 --views 0,2,4 --targets 1,3 --supersample 1)
   if step render; then
     echo "== one 512x512 unseen-subject image, paper network (wgpu) =="
     local t0 t1
@@ -164,8 +176,6 @@ run() {
     echo "$t0 $t1" > "$out/render_wall.txt"
     grep -v XDG "$out/render.txt" | tail -n 4 || true
   fi
-  # The same render a second time in one process is not available from the CLI; the first
-  # render's `render.json` splits encoding and rendering, and the wall time includes start-up.
   if step flex && [ $quick = 0 ]; then
     echo "== the same image on the CPU (flex, $(nproc) cores) =="
     timeout $short $bin "${render[@]}" --backend flex --out "$out/render_flex" > "$out/render_flex.txt" 2>&1 \

@@ -83,18 +83,20 @@ if tiny:
           f"({tiny['forward_rays_per_s']:.0f} rays/s), training step {fmt(tiny.get('train_step_s'), digits=4)} "
           f"({tiny.get('train_rays_per_s') or 0:.0f} rays/s); first forward {tiny['first_forward_s']:.2f} s")
 print()
-for name, label in [("render_wgpu", "wgpu"), ("render_flex", "flex (CPU)")]:
+for name, label in [("render_wgpu", "512x512 images, wgpu"), ("render_flex", "512x512 images, flex (CPU)")]:
     path = os.path.join(out, name, "render.json")
     if not os.path.exists(path):
-        print(f"512x512 image, {label}: not rendered")
+        print(f"{label}: not rendered")
         continue
     r = json.load(open(path))
-    img = r["images"][0]
     wall = ""
     if name == "render_wgpu" and read("render_wall.txt"):
         t0, t1 = map(float, read("render_wall.txt").split())
-        wall = f", command wall {t1 - t0:.1f} s (process start, model load, shader compilation included)"
-    print(f"{img['width']}x{img['height']} image, {label}: render {img['seconds']:.2f} s + encoding {r['encode_seconds']:.2f} s"
-          f"{wall}; {img['point_evaluations']} network points, {img['colour_evaluations']} coloured; stages (ms) "
-          + ", ".join(f"{k} {v:.0f}" for k, v in sorted(img["stage_ms"].items())))
+        wall = f"; command wall {t1 - t0:.1f} s (process start, model load, shader compilation included)"
+    print(f"{label}: encoding {r['encode_seconds']:.2f} s{wall}")
+    for k, img in enumerate(r["images"]):
+        which = "first image" if k == 0 else "next image (kernels compiled)"
+        print(f"  {which} (view {img['target_view']}), {img['width']}x{img['height']}: render {img['seconds']:.2f} s; "
+              f"{img['point_evaluations']} network points, {img['colour_evaluations']} coloured; stages (ms) "
+              + ", ".join(f"{k2} {v:.0f}" for k2, v in sorted(img["stage_ms"].items())))
 print(f"GPU memory of the wgpu render: {mem('render')}")
