@@ -32,6 +32,22 @@ pub enum DataError {
     },
     #[error("the protocol has no training frames")]
     NoTrainingFrames,
+    /// `[synth]` would generate into a root that already holds subjects but no `synth.json`
+    /// (data of the user's own, or an interrupted generation): never overwritten.
+    #[error("{}: holds subject folders ({subject}, ...) but no {DESCRIPTION_FILE}, and the config's [synth] section would generate a synthetic set over them; for data of your own (e.g. written by `nia-train prepare`) use a config without [synth] that names the subjects (data.protocol = \"subjects\" and [data.split], as configs/own_capture.toml does); to regenerate a synthetic set, delete the folder", root.display())]
+    WouldOverwrite { root: PathBuf, subject: String },
+}
+
+/// The name of a subject folder (one holding `annots.npy`) under `root`, if any.
+fn first_subject_folder(root: &std::path::Path) -> Option<String> {
+    let mut names: Vec<String> = std::fs::read_dir(root)
+        .ok()?
+        .filter_map(Result::ok)
+        .filter(|e| e.path().join("annots.npy").is_file())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names.into_iter().next()
 }
 
 /// The opened data of a training run.
@@ -60,6 +76,12 @@ impl TrainData {
         let mut generated = false;
         if let Some(spec) = &spec {
             if !data.root.join(DESCRIPTION_FILE).is_file() {
+                if let Some(subject) = first_subject_folder(&data.root) {
+                    return Err(DataError::WouldOverwrite {
+                        root: data.root.clone(),
+                        subject,
+                    });
+                }
                 let progress = &mut |event: SynthEvent| match event {
                     SynthEvent::Started { total_images } => on_image(0, total_images),
                     SynthEvent::ImageWritten { done, total, .. } => on_image(done, total),

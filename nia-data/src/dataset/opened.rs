@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::body::{BodyError, BodyModel};
 use crate::dataset::loader::{LoaderConfig, SceneSource};
-use crate::dataset::protocol::{EvalSplit, Protocol, ProtocolError};
+use crate::dataset::protocol::{EvalSplit, Protocol, ProtocolError, SubjectSplit};
 use crate::dataset::sampling::{BoxPadding, RaySamplingConfig, NHP_BODY_FRACTION, NHP_BORDER_PX};
 use crate::dataset::vis_cache::VisibilityCache;
 use crate::dataset::{DatasetConfig, DatasetError, DatasetFormat, Subject};
@@ -26,6 +26,9 @@ pub enum ProtocolName {
     Nhp,
     /// MonoCap evaluation.
     Monocap,
+    /// The subjects `[data.split]` names ([`Protocol::subjects`]): data without a split of
+    /// its own, e.g. a user's captures fitted by `nia-train prepare`.
+    Subjects,
 }
 
 /// `[data]`: where the subjects are and how to read them.
@@ -60,6 +63,9 @@ pub struct DataConfig {
     /// [`crate::dataset::smpl_jitter`]).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub smpl_jitter_m: f32,
+    /// `protocol = "subjects"`: the training and test subjects (`[data.split]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub split: Option<SubjectSplit>,
 }
 
 fn is_zero(x: &f32) -> bool {
@@ -96,6 +102,7 @@ impl DataConfig {
             body_fraction: Self::default_body_fraction(),
             loader_threads: Self::default_threads(),
             smpl_jitter_m: 0.0,
+            split: None,
         }
     }
 
@@ -163,6 +170,10 @@ impl DataConfig {
             }
             (None, ProtocolName::Nhp | ProtocolName::Synthetic) => Protocol::nhp(),
             (None, ProtocolName::Monocap) => Protocol::monocap(),
+            (None, ProtocolName::Subjects) => match &self.split {
+                Some(split) => Protocol::subjects(split),
+                None => return Err(OpenError::NoSplit),
+            },
         };
         protocol.validate()?;
         Ok(protocol)
@@ -187,6 +198,8 @@ pub enum OpenError {
         config: String,
         data: String,
     },
+    #[error("`data.protocol` is \"subjects\" but the config has no `[data.split]` (name the subject folders: `train = [...]`, `test = [...]`; see configs/own_capture.toml)")]
+    NoSplit,
     #[error("{}: not a synthetic dataset description: {message}", path.display())]
     Description { path: PathBuf, message: String },
     #[error("{}: no dataset here (expected the `{protocol}` protocol's files, e.g. {})", root.display(), root.join(example).display())]

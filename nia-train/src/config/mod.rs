@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use nia_data::dataset::smpl_jitter::MAX_SMPL_JITTER_M;
-use nia_data::dataset::{DataConfig, ProtocolName};
+use nia_data::dataset::DataConfig;
 use nia_data::synth::SynthSection;
 use nia_infer::perceptual::LpipsFiles;
 use nia_model::device::{Backend, DeviceSpec};
@@ -13,6 +13,7 @@ use nia_model::store::checkpoint;
 use nia_model::ModelConfig;
 use serde::{Deserialize, Serialize};
 
+mod data_checks;
 mod model_section;
 
 use model_section::model_from_preset;
@@ -481,22 +482,7 @@ impl TrainConfig {
         if self.data.loader_threads == 0 {
             return Err(bad("data.loader_threads", ">= 1", "0".into()));
         }
-        if self.synth.is_none() {
-            if !self.data.root.is_dir() {
-                return Err(bad(
-                    "data.root",
-                    "an existing folder (or a [synth] section to generate it)",
-                    self.data.root.display().to_string(),
-                ));
-            }
-            if self.data.protocol == ProtocolName::Synthetic {
-                return Err(bad(
-                    "data.protocol",
-                    "nhp or monocap when there is no [synth] section",
-                    "synthetic".into(),
-                ));
-            }
-        }
+        self.check_data(path)?;
         if let Some(dir) = &t.init_from {
             if !dir.join(checkpoint::MODEL_FILE).is_file() {
                 return Err(bad(
@@ -514,12 +500,6 @@ impl TrainConfig {
                     m.display().to_string(),
                 ));
             }
-        } else if self.synth.is_none() {
-            return Err(bad(
-                "data.smpl_model",
-                "the path of SMPL_NEUTRAL.pkl (needed for visibility)",
-                "nothing".into(),
-            ));
         }
         for spec in &t.devices {
             if spec.index.is_some() && !spec.backend.is_gpu() {

@@ -15,7 +15,7 @@
 //! Frames are indices into `annots['ims']` (positions, not file numbers).
 //!
 //! - this file: the definitions ([`Protocol`], [`ViewSet`], [`FrameRange`], the splits);
-//! - `presets.rs`: the NHP, synthetic and MonoCap protocols;
+//! - `presets.rs`: the NHP, synthetic, named-subjects and MonoCap protocols;
 //! - `resolve.rs`: a protocol resolved against a subject's cameras and frames
 //!   (its views, frames and evaluation images);
 //! - `checks.rs`: checks of the definition and of a subject's data against it;
@@ -31,8 +31,8 @@ mod resolve;
 
 pub use error::ProtocolError;
 pub use presets::{
-    NHP_INPUT_VIEWS, NHP_TARGET_VIEWS, NHP_TARGET_VIEWS_313_315, NHP_TEST_FRAME_STRIDE,
-    SYNTH_TRAIN_FRAME_FRACTION,
+    SubjectSplit, NHP_INPUT_VIEWS, NHP_TARGET_VIEWS, NHP_TARGET_VIEWS_313_315,
+    NHP_TEST_FRAME_STRIDE, SYNTH_TRAIN_FRAME_FRACTION,
 };
 
 /// Frames `begin, begin + interval, ...` below `begin + count` (and below the number of frames

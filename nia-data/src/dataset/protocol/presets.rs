@@ -1,8 +1,11 @@
 //! The protocols the project ships: NHP's ZJU-MoCap protocol ([`Protocol::nhp`]), the same
-//! kind for a synthetic set ([`Protocol::synthetic`]) and MonoCap's cross-dataset one
+//! kind for a synthetic set ([`Protocol::synthetic`]), for subjects a run config names
+//! ([`Protocol::subjects`]: a user's own captures) and MonoCap's cross-dataset one
 //! ([`Protocol::monocap`]).
 
 use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
 
 use super::{FrameRange, Protocol, SubjectFrames, ViewSet};
 use crate::synth::writer::subject_dir_name;
@@ -51,7 +54,70 @@ pub const NHP_TARGET_VIEWS_313_315: [usize; 6] = [3, 5, 10, 12, 18, 21];
 /// NHP evaluates every 30th frame.
 pub const NHP_TEST_FRAME_STRIDE: usize = 30;
 
+/// A split a run config names (`[data.split]` with `protocol = "subjects"`): which subject
+/// folders under the data root train and which are held out, for data that carries no split
+/// of its own (a user's captures written by `nia-train prepare`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SubjectSplit {
+    /// Training subjects (folder names under the data root).
+    pub train: Vec<String>,
+    /// Held-out test subjects (the unseen-subject evaluation).
+    #[serde(default)]
+    pub test: Vec<String>,
+    /// Test input views (camera indices); default: 3 spread evenly over the cameras.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input_views: Option<Vec<usize>>,
+    /// Training frames per training subject (the first N; the rest are its unseen poses);
+    /// default: every frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_frames: Option<usize>,
+    /// Evaluate every N-th frame of a test range.
+    #[serde(default = "one")]
+    pub test_frame_stride: usize,
+}
+
+fn one() -> usize {
+    1
+}
+
 impl Protocol {
+    /// The protocol of a [`SubjectSplit`]: its training subjects (their first `train_frames`
+    /// frames, or all), its test subjects (every frame), its input views (or 3 spread evenly)
+    /// and every other camera a target, like [`Protocol::synthetic`].
+    pub fn subjects(split: &SubjectSplit) -> Self {
+        let train_range = match split.train_frames {
+            Some(n) => FrameRange::new(0, n, 1),
+            None => FrameRange::all_from(0),
+        };
+        let each = |names: &[String], range: &FrameRange| -> Vec<SubjectFrames> {
+            names
+                .iter()
+                .map(|s| SubjectFrames::new(s.clone(), range.clone()))
+                .collect()
+        };
+        let input_views = match &split.input_views {
+            Some(views) => ViewSet::explicit(views),
+            None => ViewSet::Evenly { count: 3 },
+        };
+        Protocol {
+            name: "subjects".into(),
+            train: each(&split.train, &train_range),
+            train_num_input_views: split.input_views.as_ref().map_or(3, |v| v.len().max(1)),
+            train_target_may_be_input: true,
+            input_views,
+            target_views: ViewSet::OthersThanInputs { stride: 1 },
+            target_views_by_subject: BTreeMap::new(),
+            test_frame_stride: split.test_frame_stride,
+            unseen_subjects: each(&split.test, &FrameRange::all_from(0)),
+            seen_subjects_unseen_poses: match split.train_frames {
+                Some(n) => each(&split.train, &FrameRange::all_from(n)),
+                None => Vec::new(),
+            },
+            seen_subjects_seen_poses: each(&split.train, &train_range),
+        }
+    }
+
     /// NHP's ZJU-MoCap protocol (module docs).
     pub fn nhp() -> Self {
         let train: Vec<SubjectFrames> = NHP_TRAIN
