@@ -320,6 +320,7 @@ fn write_all(
             let fitted_kp = keypoints_3d(&sources, &posed.vertices, &posed.joints);
             for (v, ((view, camera), vf)) in capture.views.iter().zip(files).enumerate() {
                 let photo = image_io::read_rgb8(&capture.root.join(&vf.image_rel))?;
+                let mask = input::read_mask_bytes(&vf.mask, camera)?;
                 let path = staging
                     .join("fit_overlay")
                     .join(view)
@@ -327,6 +328,7 @@ fn write_all(
                 overlay::write_overlay(
                     &path,
                     photo,
+                    &mask,
                     camera,
                     vertices,
                     &model.faces,

@@ -288,4 +288,66 @@ mod tests {
         let items = s.eval_items(EvalSplit::UnseenSubjects, |_| (6, 6)).unwrap();
         assert_eq!(items.len(), 3 * 3, "frames 0, 2, 4 x 3 targets");
     }
+
+    /// configs/own_capture.toml's split on the quickstart's shape is the synthetic protocol's;
+    /// without the optional keys every frame trains and 3 views spread evenly are the inputs.
+    #[test]
+    fn named_subjects_split() {
+        let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let split = SubjectSplit {
+            train: names(&["CoreView_1", "CoreView_2", "CoreView_3"]),
+            test: names(&["CoreView_4"]),
+            input_views: Some(vec![0, 2, 4]),
+            train_frames: Some(4),
+            test_frame_stride: 1,
+        };
+        let p = Protocol::subjects(&split);
+        p.validate().unwrap();
+        let spec = SynthSpec {
+            subjects: 4,
+            frames: 6,
+            cameras: 6,
+            ..SynthSpec::default()
+        };
+        let s = Protocol::synthetic(&spec, 1);
+        let size = |_: &str| (6, 6);
+        for split in EvalSplit::ALL {
+            assert_eq!(
+                p.eval_items(split, size).unwrap(),
+                s.eval_items(split, size).unwrap()
+            );
+        }
+        assert_eq!(
+            p.train_frames("CoreView_2", 6),
+            s.train_frames("CoreView_2", 6)
+        );
+        let bare = Protocol::subjects(&SubjectSplit {
+            input_views: None,
+            train_frames: None,
+            ..split
+        });
+        bare.validate().unwrap();
+        assert_eq!(
+            bare.train_frames("CoreView_1", 6),
+            (0..6).collect::<Vec<_>>()
+        );
+        assert_eq!(bare.input_views_for(8), vec![0, 2, 5]);
+        assert!(bare.seen_subjects_unseen_poses.is_empty());
+        // A subject both trained on and held out is refused.
+        let overlap = Protocol::subjects(&SubjectSplit {
+            test: names(&["CoreView_1"]),
+            ..bare_split()
+        });
+        assert!(overlap.validate().is_err());
+    }
+
+    fn bare_split() -> SubjectSplit {
+        SubjectSplit {
+            train: vec!["CoreView_1".into()],
+            test: vec![],
+            input_views: None,
+            train_frames: None,
+            test_frame_stride: 1,
+        }
+    }
 }
