@@ -9,7 +9,7 @@ use anyhow::Context;
 use burn::prelude::Device;
 use clap::Args;
 use nia_data::dataset::protocol::{EvalItem, EvalSplit};
-use nia_data::dataset::{DataConfig, OpenedDataset};
+use nia_data::dataset::{DataConfig, OpenedDataset, ProtocolName};
 use nia_infer::eval::{evaluate_images, EvalError, EvalOptions, EvaluatedImage, ImageResult};
 use nia_infer::perceptual::LpipsFiles;
 use nia_infer::run_settings::RunSettings;
@@ -306,7 +306,23 @@ impl LoadedModel {
             let protocol = self.run.protocol_for(data)?;
             Ok(OpenedDataset::open_split(data, protocol, split)?)
         };
-        open().with_context(|| format!("opening the `{}` split", split.name()))
+        let synthetic_without_description = self.run.synth.is_some()
+            && data.protocol != ProtocolName::Subjects
+            && !data.root.join(nia_data::synth::DESCRIPTION_FILE).is_file();
+        open().with_context(|| {
+            if synthetic_without_description {
+                format!(
+                    "opening the `{}` split: the model's split is its synthetic set's, and {} \
+                     has no {} to give one; name the people to evaluate with --subjects \
+                     (e.g. --subjects CoreView_4, and --input-views)",
+                    split.name(),
+                    data.root.display(),
+                    nia_data::synth::DESCRIPTION_FILE
+                )
+            } else {
+                format!("opening the `{}` split", split.name())
+            }
+        })
     }
 }
 

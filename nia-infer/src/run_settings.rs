@@ -5,7 +5,7 @@
 use crate::perceptual::LpipsFiles;
 use nia_data::dataset::opened::OpenError;
 use nia_data::dataset::protocol::Protocol;
-use nia_data::dataset::DataConfig;
+use nia_data::dataset::{DataConfig, ProtocolName};
 use nia_data::synth::SynthSection;
 use nia_model::device::Backend;
 use nia_model::render_options::RenderOptions;
@@ -55,6 +55,10 @@ impl RunSettings {
     /// `synth.json`), so a model trained on 8 synthetic people evaluates on a set of 4 from
     /// another seed, and renders take that set's source views.
     pub fn protocol_for(&self, data: &DataConfig) -> Result<Protocol, OpenError> {
+        if data.protocol == ProtocolName::Subjects {
+            // Subjects named by the config or the command line: no synthetic split applies.
+            return data.protocol(None);
+        }
         let run_spec = self.synth.as_ref().map(|s| s.spec());
         let spec = match run_spec {
             Some(run_spec) if data.root != self.data.root => {

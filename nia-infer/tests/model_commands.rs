@@ -181,6 +181,23 @@ fn eval_on_another_synthetic_set_uses_that_sets_split() {
     let description = other.join("synth.json");
     std::fs::write(&description, "{\"generator\": \"nia-data synth\"}").unwrap();
     fails_with(&eval(&other), &["synth.json", "`spec`"]);
+    // A root without a description (one `nia-train prepare` wrote): the error says how to
+    // name the people; --subjects (and --input-views) evaluates them.
+    std::fs::remove_file(&description).unwrap();
+    fails_with(&eval(&other), &["synth.json", "--subjects"]);
+    let named = on_model(
+        "eval",
+        "--backend ndarray --no-pictures --subjects CoreView_1,CoreView_3 --input-views 0,2",
+        &["--data", s(&other)],
+        &out_dir,
+    );
+    ok(&named);
+    let metrics = json_file(&out_dir.join("metrics.json"));
+    let subjects: Vec<&String> = metrics["subjects"].as_object().unwrap().keys().collect();
+    assert_eq!(subjects, vec!["CoreView_1", "CoreView_3"]);
+    for image in metrics["images"].as_array().unwrap() {
+        assert_eq!(image["input_views"], serde_json::json!([0, 2]));
+    }
 }
 
 #[test]

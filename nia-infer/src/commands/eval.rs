@@ -10,7 +10,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use nia_data::dataset::protocol::EvalSplit;
+use nia_data::dataset::protocol::{EvalSplit, SubjectSplit};
+use nia_data::dataset::ProtocolName;
 use nia_infer::eval::{eval_items, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult};
 use nia_infer::perceptual::LpipsFiles;
 use nia_infer::pictures::{save_evaluated, ERROR_MAP_MAX};
@@ -61,6 +62,15 @@ pub struct EvalArgs {
     pub smpl: Option<PathBuf>,
     #[arg(long, value_enum, default_value = "test")]
     pub split: SplitArg,
+    /// Evaluate these subject folders of --data as held-out people (comma-separated), instead
+    /// of the split the data or the model's run config names: for a root without a split of
+    /// its own, e.g. one `nia-train prepare` wrote.
+    #[arg(long, value_delimiter = ',')]
+    pub subjects: Vec<String>,
+    /// With --subjects: the input cameras (comma-separated indices; default: 3 spread
+    /// evenly); every other camera is a target.
+    #[arg(long, value_delimiter = ',', requires = "subjects")]
+    pub input_views: Vec<usize>,
     #[arg(long, value_enum, default_value = "novel_view")]
     pub task: TaskArg,
     /// Novel pose: the frame whose images are the sources (default: the first frame of each
@@ -145,7 +155,20 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             reference_frame: args.ref_frame,
         },
     };
-    let data_config = loaded.data_config(args.data.as_deref(), args.smpl.as_deref());
+    let mut data_config = loaded.data_config(args.data.as_deref(), args.smpl.as_deref());
+    if !args.subjects.is_empty() {
+        if split != EvalSplit::UnseenSubjects {
+            anyhow::bail!("--subjects names held-out people: use it with --split test");
+        }
+        data_config.protocol = ProtocolName::Subjects;
+        data_config.split = Some(SubjectSplit {
+            train: Vec::new(),
+            test: args.subjects.clone(),
+            input_views: (!args.input_views.is_empty()).then(|| args.input_views.clone()),
+            train_frames: None,
+            test_frame_stride: 1,
+        });
+    }
     let root = data_config.root.clone();
     let data = loaded.open_split(&data_config, split)?;
     let items = eval_items(&data, split, args.limit)?;
