@@ -8,7 +8,7 @@
 use std::path::PathBuf;
 
 use nia_data::dataset::loader::{SceneRequest, TargetKind};
-use nia_data::dataset::{OpenError, OpenedDataset};
+use nia_data::dataset::{OpenError, OpenedDataset, ProtocolName};
 use nia_data::rng::Rng;
 use nia_data::synth::{self, SynthError, SynthEvent, DESCRIPTION_FILE};
 
@@ -95,7 +95,10 @@ impl TrainData {
             }
         }
         let protocol = data.protocol(spec.as_ref())?;
-        // Training subjects are required; held-out ones are opened when present.
+        // Training subjects are required; held-out ones are opened when present, unless the
+        // config names them itself ([data.split]: a missing one is a typo, not a download
+        // left out).
+        let held_out_required = data.protocol == ProtocolName::Subjects;
         let subjects: Vec<(String, bool)> = protocol
             .train
             .iter()
@@ -104,7 +107,7 @@ impl TrainData {
                 protocol
                     .unseen_subjects
                     .iter()
-                    .map(|e| (e.subject.clone(), false)),
+                    .map(|e| (e.subject.clone(), held_out_required)),
             )
             .collect();
         let train_entries = protocol.train.clone();

@@ -173,6 +173,25 @@ fn the_prepared_root_trains_and_evaluates_with_the_own_capture_config() {
         "2 frames x 2 target views of the held-out person: {stdout}"
     );
     assert!(out.join("metrics.jsonl").is_file());
+
+    // A held-out person the split names but the root lacks is a typo: refused, named.
+    let typo = nia_train()
+        .arg("--config")
+        .arg(in_workspace("configs/own_capture.toml"))
+        .arg("--set")
+        .arg(format!("data.root={}", common::slash(&root)))
+        .arg("--set")
+        .arg(format!("data.smpl_model={}", common::slash(&smpl)))
+        .args(["--set", r#"data.split.train=["CoreView_1"]"#])
+        .args(["--set", r#"data.split.test=["CoreView_9"]"#])
+        .args(["--set", "data.split.input_views=[0, 2]"])
+        .args(["--set", "data.split.train_frames=1"])
+        .args(["--set", "train.source_views=2", "--set", "train.steps=1"])
+        .arg("--out")
+        .arg(dir.join("run_typo"))
+        .output()
+        .unwrap();
+    fails_with(&typo, &["CoreView_9", "is missing", "[data.split]"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -189,7 +189,7 @@ pub enum OpenError {
     Body { path: PathBuf, source: BodyError },
     #[error("protocol: {0}")]
     Protocol(#[from] ProtocolError),
-    #[error("{}: training subject `{subject}` is missing", root.display())]
+    #[error("{}: subject `{subject}` is missing (no folder {}: a training subject, or one named by `[data.split]` or `--subjects`)", root.display(), root.join(subject).display())]
     MissingSubject { root: PathBuf, subject: String },
     #[error("{}: `{key}` is {data} in this dataset, but the config's `[synth]` says {config} (point data.root at the dataset the config describes, or fix the config)", description.display())]
     SynthMismatch {
@@ -280,16 +280,19 @@ impl OpenedDataset {
         })
     }
 
-    /// The subjects of `split` that are present under the data root (at least one).
+    /// The subjects of `split` that are present under the data root (at least one; all of
+    /// them for [`ProtocolName::Subjects`]).
     pub fn open_split(
         data: &DataConfig,
         protocol: Protocol,
         split: EvalSplit,
     ) -> Result<Self, OpenError> {
+        // Subjects the config or the command line names must be there (a typo is an error).
+        let required = data.protocol == ProtocolName::Subjects;
         let names: Vec<(String, bool)> = protocol
             .split(split)
             .iter()
-            .map(|s| (s.subject.clone(), false))
+            .map(|s| (s.subject.clone(), required))
             .collect();
         let opened = Self::open(data, protocol, &names, 1)?;
         if opened.source.subjects.is_empty() {

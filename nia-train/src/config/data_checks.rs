@@ -33,7 +33,15 @@ impl TrainConfig {
             return Err(bad(
                 "data.split",
                 "only with data.protocol = \"subjects\"",
-                format!("data.protocol = {:?}", d.protocol),
+                format!(
+                    "data.protocol = \"{}\"",
+                    match d.protocol {
+                        ProtocolName::Synthetic => "synthetic",
+                        ProtocolName::Nhp => "nhp",
+                        ProtocolName::Monocap => "monocap",
+                        ProtocolName::Subjects => "subjects",
+                    }
+                ),
             ));
         }
         if let Some(split) = &d.split {
