@@ -365,9 +365,15 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         );
     }
     println!(
-        "\nforward: {:.3} s per batch, {:.0} rays/s; training step: {}",
-        report.forward_s,
-        report.forward_rays_per_s,
+        "\nforward: {}; training step: {}",
+        if args.train_only {
+            "skipped".to_string()
+        } else {
+            format!(
+                "{:.3} s per batch, {:.0} rays/s",
+                report.forward_s, report.forward_rays_per_s
+            )
+        },
         match (
             report.train_step_s,
             report.train_rays_per_s,
