@@ -58,6 +58,28 @@ fn edt_1d(f: &mut [f32], v: &mut [usize], z: &mut [f32], out: &mut [f32]) {
     f.copy_from_slice(out);
 }
 
+/// The pixels `(x, y)` of the `w` x `h` region `inside` that border a pixel outside it (or the
+/// picture's edge), row by row.
+pub fn boundary_pixels(
+    w: usize,
+    h: usize,
+    inside: impl Fn(usize, usize) -> bool,
+) -> impl Iterator<Item = (usize, usize)> {
+    (0..h)
+        .flat_map(move |y| (0..w).map(move |x| (x, y)))
+        .filter(move |&(x, y)| {
+            inside(x, y)
+                && (x == 0
+                    || y == 0
+                    || x + 1 == w
+                    || y + 1 == h
+                    || !inside(x - 1, y)
+                    || !inside(x + 1, y)
+                    || !inside(x, y - 1)
+                    || !inside(x, y + 1))
+        })
+}
+
 impl SilhouetteTarget {
     /// From a `[H * W]` row-major mask (non-zero = person), keeping at most `boundary_samples`
     /// boundary pixels.
@@ -103,24 +125,9 @@ impl SilhouetteTarget {
         }
         let distance: Vec<f32> = d.iter().map(|&s| s.min(FAR).sqrt()).collect();
 
-        let mut all = Vec::new();
-        for y in 0..h {
-            for x in 0..w {
-                if inside(x, y) {
-                    let edge = x == 0
-                        || y == 0
-                        || x + 1 == w
-                        || y + 1 == h
-                        || !inside(x - 1, y)
-                        || !inside(x + 1, y)
-                        || !inside(x, y - 1)
-                        || !inside(x, y + 1);
-                    if edge {
-                        all.push([x as f32, y as f32]);
-                    }
-                }
-            }
-        }
+        let all: Vec<[f32; 2]> = boundary_pixels(w, h, inside)
+            .map(|(x, y)| [x as f32, y as f32])
+            .collect();
         if all.is_empty() {
             return Err(FitError::Mask("the mask is empty".into()));
         }

@@ -13,6 +13,7 @@ use image::imageops::FilterType;
 use image::{Rgb, RgbImage};
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::raster::{rasterize, EMPTY_FACE};
+use nia_model::fitting::silhouette::boundary_pixels;
 
 use super::PrepareError;
 
@@ -41,22 +42,8 @@ fn outline(
     inside: impl Fn(usize, usize) -> bool,
     c: Rgb<u8>,
 ) {
-    for y in 0..h {
-        for x in 0..w {
-            if inside(x, y) {
-                let edge = x == 0
-                    || y == 0
-                    || x + 1 == w
-                    || y + 1 == h
-                    || !inside(x - 1, y)
-                    || !inside(x + 1, y)
-                    || !inside(x, y - 1)
-                    || !inside(x, y + 1);
-                if edge {
-                    put(img, x as i64, y as i64, c);
-                }
-            }
-        }
+    for (x, y) in boundary_pixels(w, h, inside) {
+        put(img, x as i64, y as i64, c);
     }
 }
 
