@@ -89,6 +89,39 @@ fn train_only_times_the_training_step_alone() {
     assert!(v["check"].is_null());
 }
 
+/// `--ray-chunk`: the training step in chunks of 3 of the 8 rays is timed whole (no forward
+/// and backward split, null rather than NaN in the JSON) and says so.
+#[test]
+fn ray_chunks_time_the_whole_step() {
+    let args = [
+        "bench",
+        "--backend",
+        "flex",
+        "--tiny",
+        "--rays",
+        "8",
+        "--samples",
+        "4",
+        "--size",
+        "32",
+        "--reps",
+        "1",
+        "--train-only",
+        "--ray-chunk",
+        "3",
+    ];
+    let out = nia_infer(&args);
+    ok(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("in chunks of 3 rays"), "{stdout}");
+    let v = report(&args);
+    assert!(v["train_step_s"].as_f64().unwrap() > 0.0, "{v}");
+    assert!(
+        v["train_forward_s"].is_null() && v["train_backward_s"].is_null(),
+        "{v}"
+    );
+}
+
 #[test]
 fn contradictory_flags_are_refused() {
     fails_with(

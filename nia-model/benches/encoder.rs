@@ -4,7 +4,10 @@
 //! rows directly), on flex and ndarray.
 //!
 //! `CARGO_TARGET_DIR=$HOME/.cache/nia-rs/target cargo bench --all-features -p nia-model --bench encoder`
-//! (`-- host`: the host path alone, five times, for profiling)
+//! (`-- host`: the host path alone, five times, for profiling; `-- train`: the tensor path's
+//! forward and backward on flex's autodiff device, trunk and reductions apart, as in training;
+//! run it under the training binaries' heap policy, `GLIBC_TUNABLES=glibc.malloc.mmap_max=0:
+//! glibc.malloc.trim_threshold=4611686018427387904`, or page faults dominate)
 //! Plain `main` (no harness): prints milliseconds; speed is never asserted in a test.
 
 use std::time::Instant;
@@ -57,6 +60,10 @@ fn main() {
             let host_reduce = t.elapsed().as_secs_f64() * 1e3;
             println!("host rep {rep}: trunk {host_trunk:.0} ms, reduction {host_reduce:.0} ms");
         }
+        return;
+    }
+    if std::env::args().any(|a| a == "train") {
+        train();
         return;
     }
     for (name, device) in [("flex", Device::flex()), ("ndarray", Device::ndarray())] {
@@ -112,5 +119,61 @@ fn main() {
                 total.elapsed().as_secs_f64() * 1e3
             );
         }
+    }
+}
+
+/// The training step's share of the encoder: the trunk alone, then the trunk with the two
+/// reductions a scene takes (pixel and vertex features, both width `D`) and their rows, each
+/// forward and backward (a sum of every output as the loss) on flex's autodiff device.
+fn train() {
+    let device = Device::flex().autodiff();
+    let (encoder, images, weight) = setup(&device);
+    let weight = weight.require_grad();
+    for rep in 0..3 {
+        let t = Instant::now();
+        let pyramid = encoder.forward_pyramid(images.clone());
+        let loss = pyramid
+            .levels
+            .iter()
+            .map(|f| f.clone().sum())
+            .reduce(|a, b| a + b)
+            .expect("four levels");
+        let forward = t.elapsed().as_secs_f64() * 1e3;
+        drop(loss.backward());
+        let trunk = t.elapsed().as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let pyramid = encoder.forward_pyramid(images.clone());
+        let mut loss: Option<Tensor<1>> = None;
+        for _ in 0..2 {
+            let reduced = pyramid.reduce(weight.clone()).expect("reduce");
+            let rows = ViewRows::new(reduced).expect("rows");
+            let part = rows.rows().sum();
+            loss = Some(match loss {
+                None => part,
+                Some(l) => l + part,
+            });
+        }
+        let loss = loss.expect("two reductions");
+        sync(loss.clone());
+        let with_forward = t.elapsed().as_secs_f64() * 1e3;
+        drop(loss.backward());
+        let with = t.elapsed().as_secs_f64() * 1e3;
+        // One reduction alone, on a detached pyramid, forward and backward.
+        let levels = encoder
+            .forward_pyramid(images.clone())
+            .levels
+            .map(|f| f.detach().require_grad());
+        let pyramid = nia_model::encoder::FeaturePyramid { levels };
+        let t = Instant::now();
+        let reduced = pyramid.reduce(weight.clone()).expect("reduce");
+        sync(reduced.clone());
+        let red_f = t.elapsed().as_secs_f64() * 1e3;
+        drop(reduced.sum().backward());
+        let red_fb = t.elapsed().as_secs_f64() * 1e3;
+        println!(
+            "train rep {rep}: trunk forward {forward:.0} ms, trunk forward + backward {trunk:.0}; \
+             with two reductions and rows: forward {with_forward:.0}, forward + backward {with:.0}; \
+             one reduction alone: forward {red_f:.0}, forward + backward {red_fb:.0} ms"
+        );
     }
 }

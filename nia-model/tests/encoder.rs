@@ -1,12 +1,13 @@
 #![allow(deprecated)] // Device::ndarray(): burn deprecates it, the user asked for it; it is the reference CPU backend.
 
 //! The ResNet-18 pyramid encoder: output shape, and the matrix-product bilinear upsampling
-//! against burn's own `interpolate` (align_corners = false).
+//! against burn's own `interpolate` (align_corners = false), its gradient against the
+//! transposed resampling.
 
 use burn::prelude::*;
 use burn::tensor::module::interpolate;
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
-use nia_model::encoder::{upsample_bilinear, ImageEncoderConfig};
+use nia_model::encoder::{bilinear_matrix, upsample_bilinear, ImageEncoderConfig};
 
 /// Both compute the same 4-tap weighted sums in f32, in different orders.
 const UPSAMPLE_TOLERANCE: f32 = 1e-5;
@@ -33,6 +34,57 @@ fn upsampling_matches_burn_interpolate() {
             diff <= UPSAMPLE_TOLERANCE,
             "{h}x{w} -> {oh}x{ow}: max diff {diff}"
         );
+    }
+}
+
+/// The upsampling's gradient: for `L = sum(up(f) * g)`, `dL/df = A_h^T g A_w` with the dense
+/// resampling matrices of [`bilinear_matrix`], on ndarray and flex, for factors of two, odd
+/// ratios, one axis unchanged and a 1-pixel source.
+#[test]
+fn upsampling_gradient_is_the_transposed_resampling() {
+    for device in [Device::ndarray(), Device::flex()] {
+        let device = device.autodiff();
+        device.seed(7);
+        for (h, w, oh, ow) in [(4, 6, 8, 12), (3, 5, 7, 11), (5, 4, 5, 9), (1, 2, 4, 8)] {
+            let (n, c) = (2, 3);
+            let f = Tensor::<4>::random(
+                [n, c, h, w],
+                burn::tensor::Distribution::Uniform(-1.0, 1.0),
+                &device,
+            )
+            .require_grad();
+            let g = Tensor::<4>::random(
+                [n, c, oh, ow],
+                burn::tensor::Distribution::Uniform(-1.0, 1.0),
+                &device,
+            );
+            let grads = (upsample_bilinear(f.clone(), [oh, ow]) * g.clone())
+                .sum()
+                .backward();
+            let ours = f.grad(&grads).expect("f takes part in the loss");
+            let g = g.inner();
+            let inner = g.device();
+            let a_h =
+                Tensor::<2>::from_data(TensorData::new(bilinear_matrix(h, oh), [oh, h]), &inner);
+            let a_w =
+                Tensor::<2>::from_data(TensorData::new(bilinear_matrix(w, ow), [ow, w]), &inner);
+            // [n c, oh, ow] x [ow, w] -> [n c, oh, w]; then A_h^T [h, oh] x that -> [n c, h, w].
+            let gw = g
+                .reshape([n * c * oh, ow])
+                .matmul(a_w)
+                .reshape([n * c, oh, w]);
+            let expected = a_h
+                .transpose()
+                .unsqueeze_dim::<3>(0)
+                .expand([n * c, h, oh])
+                .matmul(gw)
+                .reshape([n, c, h, w]);
+            let diff = (ours - expected).abs().max().into_scalar::<f32>();
+            assert!(
+                diff <= UPSAMPLE_TOLERANCE,
+                "{h}x{w} -> {oh}x{ow}: gradient max diff {diff}"
+            );
+        }
     }
 }
 

@@ -361,3 +361,38 @@ fn two_devices_equal_one_device_adding_the_gradients_by_hand_and_resume() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `train.ray_chunk`: the step's 32 rays in chunks of 8, each with its own backward and the
+/// encoder's share through the cut, train to the weights and losses of one pass over all rays
+/// (one device; only the order of float additions differs, and the sign flips of near-zero
+/// gradients under Adam that [`MAX_DIFF`] allows).
+#[test]
+fn ray_chunks_train_like_one_pass_over_all_rays() {
+    let dir = common::scratch("multi", "chunks");
+    let whole = train(&dir, "whole", 2, "\"ndarray\"", &[]);
+    let chunked = train(
+        &dir,
+        "chunked",
+        2,
+        "\"ndarray\"",
+        &["--set", "train.ray_chunk=8"],
+    );
+    let (max, share) = differing_share(&weights(&chunked), &weights(&whole));
+    eprintln!(
+        "chunks of 8 vs one pass: largest difference {max:e}, share beyond rounding {share:e}"
+    );
+    assert!(max <= MAX_DIFF, "largest difference {max}");
+    assert!(
+        share <= MAX_DIFFERING_SHARE,
+        "{share} of the weights differ"
+    );
+    let (a, b) = (losses(&chunked), losses(&whole));
+    assert_eq!(a.len(), 2);
+    assert_eq!(a.len(), b.len());
+    for (a, b) in a.iter().zip(&b) {
+        assert!(
+            (a - b).abs() <= LOSS_REL_TOL * b.abs(),
+            "step loss {a} vs {b}"
+        );
+    }
+}

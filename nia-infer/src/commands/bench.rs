@@ -5,7 +5,7 @@
 use std::time::Instant;
 
 use anyhow::Context;
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::AdamConfig;
 use burn::prelude::*;
 use clap::Args;
 use glam::{Vec2, Vec3};
@@ -19,6 +19,7 @@ use nia_data::scene::{SceneBody, SceneInput, SourceView, RAY_BOX_PADDING_M};
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::loss::render_loss;
 use nia_model::renderer::RenderOutput;
+use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::timing::{Stage, StageTimes};
 use nia_model::ModelConfig;
 
@@ -57,6 +58,11 @@ pub struct BenchArgs {
     /// Skip the inference forward (training step only; the forward figures are then null).
     #[arg(long, conflicts_with_all = ["no_train", "check_against"])]
     pub train_only: bool,
+    /// Rays per chunk of the training step's forward and backward (0: all at once; as
+    /// `train.ray_chunk`): the step then holds one chunk's activations. In chunked steps the
+    /// forward and backward interleave, so the step is reported whole (forward figure null).
+    #[arg(long, default_value_t = 0)]
+    pub ray_chunk: usize,
     /// Also run the forward with the same weights on this backend and report how far the
     /// colours differ (`--backend wgpu --check-against flex`: the GPU path against the CPU's).
     #[arg(long, value_parser = str::parse::<Backend>)]
@@ -301,19 +307,47 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 .collect();
             let start = Instant::now();
             let scene = model.encode(&input, None, &ad, None)?;
-            let out = model.render(&scene, &rays, args.samples, Some(&jitter), None)?;
-            let loss = render_loss(out.rgb, out.rgb0, gt.clone())?;
-            // The forward's own time on asynchronous backends too.
-            ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            let forward_dt = start.elapsed().as_secs_f64();
-            let grads = GradientsParams::from_grads(loss.total.backward(), &model);
+            let chunked = args.ray_chunk > 0 && args.ray_chunk < rays.len();
+            let mut forward_dt = f64::NAN;
+            let n = rays.len() as f32;
+            let grads = chunked_gradients::<anyhow::Error, _>(
+                &model,
+                &scene,
+                &rays,
+                args.samples,
+                Some(&jitter),
+                args.ray_chunk,
+                |out, range| {
+                    let share = range.len() as f32 / n;
+                    let gt = gt.clone().slice([range.clone(), 0..3]);
+                    let loss = render_loss(out.rgb, out.rgb0, gt)?.total;
+                    if chunked {
+                        return Ok(loss.mul_scalar(share));
+                    }
+                    // The forward's own time on asynchronous backends too.
+                    ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+                    forward_dt = start.elapsed().as_secs_f64();
+                    Ok(loss)
+                },
+            )?;
             model = optim.step(5e-4, model, grads);
             ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
             let dt = start.elapsed().as_secs_f64();
+            let split = if chunked {
+                format!(
+                    "{} chunks of {} rays",
+                    rays.len().div_ceil(args.ray_chunk),
+                    args.ray_chunk
+                )
+            } else {
+                format!(
+                    "forward {forward_dt:.2} s, backward + Adam {:.2} s",
+                    dt - forward_dt
+                )
+            };
             note(format!(
-                "train rep {rep}{}: {dt:.2} s (forward {forward_dt:.2} s, backward + Adam {:.2} s)",
+                "train rep {rep}{}: {dt:.2} s ({split})",
                 if rep == 0 { " (warm-up)" } else { "" },
-                dt - forward_dt
             ));
             bar.inc(1);
             if rep == 0 {
@@ -347,8 +381,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         first_forward_s,
         first_train_step_s,
         train_step_s,
-        train_forward_s,
-        train_backward_s: train_step_s.zip(train_forward_s).map(|(s, f)| s - f),
+        // Chunked steps interleave forward and backward: no split (null, not NaN).
+        train_forward_s: train_forward_s.filter(|f| f.is_finite()),
+        train_backward_s: train_step_s
+            .zip(train_forward_s)
+            .map(|(s, f)| s - f)
+            .filter(|b| b.is_finite()),
         train_rays_per_s,
         stages_s: Stage::ALL
             .iter()
@@ -382,6 +420,10 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         ) {
             (Some(s), Some(r), Some(f), Some(b)) =>
                 format!("{s:.3} s, {r:.0} rays/s (forward {f:.3} s, backward + Adam {b:.3} s)"),
+            (Some(s), Some(r), _, _) => format!(
+                "{s:.3} s, {r:.0} rays/s (in chunks of {} rays)",
+                args.ray_chunk
+            ),
             _ => "skipped".into(),
         }
     );

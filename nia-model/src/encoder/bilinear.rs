@@ -116,6 +116,17 @@ impl ViewRows {
         self.rows.clone()
     }
 
+    /// These rows as a leaf of the autodiff graph: the same values, detached from what
+    /// computed them, gradients required; no host copy (a read with gradients takes the
+    /// tensor path). The chunked backward's cut ([`crate::scene_encoding::cut`]).
+    pub fn detached_leaf(&self) -> Self {
+        Self {
+            rows: self.rows.clone().detach().require_grad(),
+            dims: self.dims,
+            host: None,
+        }
+    }
+
     /// These rows with a host copy (read back once) for the fused read of grids without
     /// gradients; on a GPU backend the copy is a transfer, so the renderers ask for it on the
     /// CPU backends only.

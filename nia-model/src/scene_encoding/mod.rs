@@ -12,6 +12,7 @@ use nia_data::body::reposing::Reposer;
 use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::scene::{SceneError, SceneGeometry, SceneInput, VisualHull};
 
+pub mod cut;
 mod encode;
 
 use crate::body_volume::{BodyVolume, BodyVolumeGeometry, HostVolume};

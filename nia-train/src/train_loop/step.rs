@@ -1,14 +1,21 @@
 //! One training step: each device's scene through the forward pass and the loss, its
 //! gradients, and their sum, clipped by the global norm (the parent module's docs).
 
+use std::ops::Range;
+
 use burn::module::Module;
 use burn::optim::{GradientsParams, MultiGradientsParams};
 use burn::prelude::*;
 use nia_data::dataset::loader::{Scene, SceneTarget};
+use nia_data::dataset::sampling::TrainRays;
 use nia_data::rng::Rng;
 use nia_data::scene::SceneInput;
 use nia_model::ibr::c0_shuffle::C0Shuffle;
-use nia_model::loss::{colour_matched_target, distortion_loss, ibr_loss, mask_loss, render_loss};
+use nia_model::loss::{
+    colour_matched_target, distortion_loss, ibr_loss, mask_loss, render_loss, RenderLoss,
+};
+use nia_model::renderer::RenderOutput;
+use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::{ModelError, NiaModel};
 
 use super::gradients::{global_norm, scale_gradients, Merge};
@@ -169,18 +176,96 @@ fn scene_gradients(
     let jitter: Vec<f32> = (0..rays.len() * samples)
         .map(|_| jitter_rng.uniform())
         .collect();
-    let out = model
-        .render(&encoded, &rays.rays, samples, Some(&jitter), None)
-        .map_err(model_err)?;
-    let gt: Vec<f32> = rays.rgb.iter().flatten().copied().collect();
-    let gt = Tensor::<2>::from_data(TensorData::new(gt, [rays.len(), 3]), device);
-    let gt = colour_matched_target(&out.rgb, gt, config.train.colour_gain_tolerance)
-        .map_err(|e| model_err(ModelError::Shape(e)))?;
+    let n = rays.len() as f32;
+    // Each chunk's [total, mse, mse0] weighted by its share of the rays.
+    let mut sums = [0.0f64; 3];
+    let result = chunked_gradients(
+        model,
+        &encoded,
+        &rays.rays,
+        samples,
+        Some(&jitter),
+        config.train.ray_chunk,
+        |out, range| {
+            let share = range.len() as f32 / n;
+            let all = range.len() == rays.len();
+            let loss = chunk_loss(out, rays, range, config, device)?;
+            let values = Tensor::cat(
+                vec![
+                    loss.total.clone().detach(),
+                    loss.mse.detach(),
+                    loss.mse0.detach(),
+                ],
+                0,
+            )
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .unwrap_or_default();
+            let [total, mse, mse0] = match values.as_slice() {
+                [a, b, c] => [*a as f64, *b as f64, *c as f64],
+                _ => return Err(ChunkStop::Skip("the loss could not be read".into())),
+            };
+            if !total.is_finite() {
+                return Err(ChunkStop::Skip(format!("loss is {total}")));
+            }
+            for (s, v) in sums.iter_mut().zip([total, mse, mse0]) {
+                *s += v * f64::from(share);
+            }
+            Ok(if all {
+                loss.total
+            } else {
+                loss.total.mul_scalar(share)
+            })
+        },
+    );
+    let grads = match result {
+        Ok(grads) => grads,
+        Err(ChunkStop::Skip(reason)) => return Ok(SceneOutcome::Skipped(reason)),
+        Err(ChunkStop::Model(source)) => return Err(model_err(source)),
+    };
+    let [total, mse, mse0] = sums;
+    Ok(SceneOutcome::Taken(ScenePart {
+        grads,
+        loss: total,
+        mse,
+        mse0,
+        rays: rays.len(),
+    }))
+}
+
+/// Why a chunk ended the step's pass: a model error, or a loss that cannot be used.
+enum ChunkStop {
+    Model(ModelError),
+    Skip(String),
+}
+
+impl From<ModelError> for ChunkStop {
+    fn from(e: ModelError) -> Self {
+        Self::Model(e)
+    }
+}
+
+/// The loss of one chunk of a scene's rays (`range` of `rays`; all of them without chunking):
+/// the paper's terms and the switchable ones of `config.train`, each a mean over the chunk.
+fn chunk_loss(
+    out: RenderOutput,
+    rays: &TrainRays,
+    range: Range<usize>,
+    config: &TrainConfig,
+    device: &Device,
+) -> Result<RenderLoss, ChunkStop> {
+    let shape = |e| ChunkStop::Model(ModelError::Shape(e));
+    let r = range.len();
+    let gt: Vec<f32> = rays.rgb[range.clone()].iter().flatten().copied().collect();
+    let gt = Tensor::<2>::from_data(TensorData::new(gt, [r, 3]), device);
+    let gt =
+        colour_matched_target(&out.rgb, gt, config.train.colour_gain_tolerance).map_err(shape)?;
     let acc = out.acc.clone();
     let distortion = if config.train.distortion_loss_weight > 0.0 {
         Some(
             distortion_loss(out.weights.clone(), out.t.clone(), out.delta.clone())
-                .map_err(|e| model_err(ModelError::Shape(e)))?,
+                .map_err(shape)?,
         )
     } else {
         None
@@ -189,54 +274,29 @@ fn scene_gradients(
         // NiaModel::render always fills the IBR-only composite; its absence is an error, not a
         // loss term silently left out.
         let rgb_ibr = out.rgb_ibr.clone().ok_or_else(|| {
-            model_err(ModelError::Input(
+            ChunkStop::Model(ModelError::Input(
                 "train.ibr_loss_weight > 0 but the render has no IBR-only composite".into(),
             ))
         })?;
-        Some(ibr_loss(rgb_ibr, gt.clone()).map_err(|e| model_err(ModelError::Shape(e)))?)
+        Some(ibr_loss(rgb_ibr, gt.clone()).map_err(shape)?)
     } else {
         None
     };
-    let mut loss =
-        render_loss(out.rgb, out.rgb0, gt).map_err(|e| model_err(ModelError::Shape(e)))?;
+    let mut loss = render_loss(out.rgb, out.rgb0, gt).map_err(shape)?;
     if let Some(ibr) = ibr {
         loss.total = loss.total + ibr.mul_scalar(config.train.ibr_loss_weight);
     }
     if config.train.mask_loss_weight > 0.0 {
-        let on_body: Vec<f32> = rays.on_body.iter().map(|&b| b as u8 as f32).collect();
-        let on_body = Tensor::<1>::from_data(TensorData::new(on_body, [rays.len()]), device);
-        let mask = mask_loss(acc, on_body).map_err(|e| model_err(ModelError::Shape(e)))?;
+        let on_body: Vec<f32> = rays.on_body[range]
+            .iter()
+            .map(|&b| b as u8 as f32)
+            .collect();
+        let on_body = Tensor::<1>::from_data(TensorData::new(on_body, [r]), device);
+        let mask = mask_loss(acc, on_body).map_err(shape)?;
         loss.total = loss.total + mask.mul_scalar(config.train.mask_loss_weight);
     }
     if let Some(distortion) = distortion {
         loss.total = loss.total + distortion.mul_scalar(config.train.distortion_loss_weight);
     }
-    let values = Tensor::cat(
-        vec![
-            loss.total.clone().detach(),
-            loss.mse.detach(),
-            loss.mse0.detach(),
-        ],
-        0,
-    )
-    .into_data()
-    .convert::<f32>()
-    .try_to_vec::<f32>()
-    .unwrap_or_default();
-    let [total, mse, mse0] = match values.as_slice() {
-        [a, b, c] => [*a as f64, *b as f64, *c as f64],
-        _ => return Ok(SceneOutcome::Skipped("the loss could not be read".into())),
-    };
-    if !total.is_finite() {
-        return Ok(SceneOutcome::Skipped(format!("loss is {total}")));
-    }
-    let grads = loss.total.backward();
-    let grads = GradientsParams::from_grads(grads, model);
-    Ok(SceneOutcome::Taken(ScenePart {
-        grads,
-        loss: total,
-        mse,
-        mse0,
-        rays: rays.len(),
-    }))
+    Ok(loss)
 }

@@ -1,0 +1,149 @@
+//! The chunked backward (`nia_model::scene_encoding::cut`): the rays of a scene in chunks,
+//! each with its own backward, and the encoder's share through the cut, give the gradient of
+//! one backward over all rays, for every parameter (the encoder's, the body volume's and the
+//! render side's), on ndarray and flex; bad jitter is an error.
+
+mod common;
+
+use std::collections::HashMap;
+
+use burn::module::{Module, ModuleVisitor, Param, ParamId};
+use burn::optim::GradientsParams;
+use burn::prelude::*;
+use nia_model::loss::render_loss;
+use nia_model::scene_encoding::cut::chunked_gradients;
+use nia_model::{ModelConfig, ModelError, NiaModel};
+
+const SAMPLES: usize = 8;
+
+/// Every parameter's gradient, read back, by parameter id.
+struct Collect<'a> {
+    grads: &'a GradientsParams,
+    out: HashMap<ParamId, Vec<f32>>,
+}
+
+impl ModuleVisitor for Collect<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if let Some(g) = self.grads.get::<D>(param.id) {
+            self.out
+                .insert(param.id, g.into_data().try_to_vec::<f32>().unwrap());
+        }
+    }
+}
+
+fn collect(model: &NiaModel, grads: &GradientsParams) -> HashMap<ParamId, Vec<f32>> {
+    let mut c = Collect {
+        grads,
+        out: HashMap::new(),
+    };
+    model.visit(&mut c);
+    c.out
+}
+
+/// The gradient of `model`'s mean loss over 9 rays, taken in chunks of `chunk` (0: all at
+/// once).
+fn gradients(model: &NiaModel, device: &Device, chunk: usize) -> HashMap<ParamId, Vec<f32>> {
+    let input = common::scene(3, 32);
+    let scene = model.encode(&input, None, device, None).unwrap();
+    let rays = common::target_rays(&input, 3);
+    let n = rays.len();
+    assert_eq!(n, 9, "every ray of the 3 x 3 grid hits the box");
+    let jitter: Vec<f32> = (0..n * SAMPLES)
+        .map(|i| ((i * 37) % 100) as f32 / 100.0)
+        .collect();
+    let gt: Vec<f32> = (0..n * 3).map(|i| (i % 7) as f32 / 7.0).collect();
+    let gt = common::tensor(gt, [n, 3], device);
+    let grads = chunked_gradients::<ModelError, _>(
+        model,
+        &scene,
+        &rays,
+        SAMPLES,
+        Some(&jitter),
+        chunk,
+        |out, range| {
+            let share = range.len() as f32 / n as f32;
+            let gt = gt.clone().slice([range, 0..3]);
+            Ok(render_loss(out.rgb, out.rgb0, gt)
+                .map_err(ModelError::Shape)?
+                .total
+                .mul_scalar(share))
+        },
+    )
+    .unwrap();
+    collect(model, &grads)
+}
+
+#[allow(deprecated)] // Device::ndarray(): the reference CPU backend the project keeps
+fn devices() -> Vec<Device> {
+    vec![Device::ndarray().autodiff(), Device::flex().autodiff()]
+}
+
+#[test]
+fn chunked_gradients_equal_one_backward_over_all_rays() {
+    for device in devices() {
+        device.seed(11);
+        let model = ModelConfig::tiny().init(&device);
+        let whole = gradients(&model, &device, 0);
+        // The encoder's first convolution and the body volume's first layer get their
+        // gradient only through the cut; the heads' directly.
+        let through_cut = [
+            model.encoder.conv1.weight.id,
+            model.pixel_feature.reduce.weight.id,
+        ];
+        for id in through_cut {
+            let g = whole.get(&id).expect("a gradient without chunks");
+            assert!(
+                g.iter().any(|&x| x != 0.0),
+                "an all-zero reference gradient"
+            );
+        }
+        // Parameters whose whole gradient is rounding noise (1e-11 where others are 1e-2) are
+        // compared on the scale of the largest gradient.
+        let global = whole.values().flatten().fold(0.0f32, |m, x| m.max(x.abs()));
+        for chunk in [2, 4, 8] {
+            let chunked = gradients(&model, &device, chunk);
+            assert_eq!(
+                chunked.len(),
+                whole.len(),
+                "chunks of {chunk}: every parameter with a gradient has one"
+            );
+            for (id, expected) in &whole {
+                let got = &chunked[id];
+                let scale = expected
+                    .iter()
+                    .fold(0.0f32, |m, x| m.max(x.abs()))
+                    .max(1e-3 * global);
+                for (i, (g, e)) in got.iter().zip(expected).enumerate() {
+                    assert!(g.is_finite(), "chunks of {chunk}: non-finite gradient");
+                    assert!(
+                        (g - e).abs() <= 1e-4 * scale,
+                        "chunks of {chunk}: parameter {id}, entry {i}: {g} against {e} \
+                         (largest {scale})"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn chunked_backward_refuses_jitter_of_the_wrong_length() {
+    #[allow(deprecated)]
+    let device = Device::ndarray().autodiff();
+    let model = ModelConfig::tiny().init(&device);
+    let input = common::scene(3, 32);
+    let scene = model.encode(&input, None, &device, None).unwrap();
+    let rays = common::target_rays(&input, 3);
+    let jitter = vec![0.5f32; rays.len() * SAMPLES - 1];
+    let err = chunked_gradients::<ModelError, _>(
+        &model,
+        &scene,
+        &rays,
+        SAMPLES,
+        Some(&jitter),
+        2,
+        |out, _| Ok(out.rgb.sum()),
+    )
+    .unwrap_err();
+    common::assert_mentions(&err.to_string(), &["jitter", "9 rays", "8 samples"]);
+}
