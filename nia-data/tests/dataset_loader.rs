@@ -7,13 +7,15 @@ use std::time::Instant;
 
 use nia_data::body::BodyModel;
 use nia_data::dataset::loader::{
-    eval_requests, load_scene, train_requests, LoaderConfig, SceneLoader, SceneRequest,
+    eval_requests, load_scene, train_requests, BandGrid, LoaderConfig, SceneLoader, SceneRequest,
     SceneSource, SceneTarget, TargetKind,
 };
 use nia_data::dataset::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
 use nia_data::dataset::sampling::{border_band, sample_rays, BoxPadding, RaySamplingConfig};
 use nia_data::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use nia_data::dataset::{DatasetConfig, Subject};
+use nia_data::geometry::occupancy::OccupancyGrid;
+use nia_data::geometry::occupancy_memo::remembered;
 use nia_data::geometry::rays::mask_at_box;
 use nia_data::geometry::visibility::DEFAULT_DEPTH_TOL_M;
 use nia_data::rng::Rng;
@@ -476,4 +478,48 @@ fn bench_loader_scenes_per_second() {
         let _ = std::fs::remove_dir_all(out.join("cache"));
     }
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// `band_grid`: the loader builds every training scene's band grid into the shared memo, where
+/// the training step's sampler finds it (the same grid a fresh build gives); whole-image scenes
+/// and a loader without `band_grid` build none.
+#[test]
+fn the_loader_builds_training_band_grids_ahead() {
+    // Distances no other test uses: the memo holds nothing for them before this test.
+    let (threshold, cell) = (0.0437, 0.0211);
+    let source = fixture_source(None);
+    let protocol = fixture_protocol();
+    let mut requests = train_requests(&protocol, &source.subjects, 0, 11).unwrap();
+    requests.extend(unseen_subject_requests(&protocol, &source));
+    let off = LoaderConfig {
+        smpl_jitter_m: 0.05,
+        ..small_loader_config(1)
+    };
+    let on = LoaderConfig {
+        band_grid: Some(BandGrid {
+            threshold_m: threshold,
+            cell_m: cell,
+        }),
+        ..off
+    };
+    for (i, request) in requests.iter().enumerate() {
+        let scene = load_scene(&source, request, i, &off).unwrap();
+        assert!(remembered(&scene.vertices, &source.faces, threshold, cell).is_none());
+    }
+    let mut built = 0;
+    for (i, request) in requests.iter().enumerate() {
+        let scene = load_scene(&source, request, i, &on).unwrap();
+        let grid = remembered(&scene.vertices, &source.faces, threshold, cell);
+        match request.target {
+            TargetKind::Image => assert!(grid.is_none(), "scene {i}: a whole-image scene"),
+            TargetKind::Rays => {
+                let grid = grid.unwrap_or_else(|| panic!("scene {i}: no grid remembered"));
+                let fresh =
+                    OccupancyGrid::build(&scene.vertices, &source.faces, threshold, cell).unwrap();
+                assert_eq!(*grid, fresh);
+                built += 1;
+            }
+        }
+    }
+    assert!(built >= 2, "{built} training scenes");
 }

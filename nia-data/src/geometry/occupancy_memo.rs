@@ -94,6 +94,22 @@ pub fn shared_grid(
     Ok(grid)
 }
 
+/// The grid [`shared_grid`] remembers for exactly this mesh and these distances, without
+/// building one (`None` when it holds none).
+pub fn remembered(
+    vertices: &[Vec3],
+    faces: &[[u32; 3]],
+    threshold_m: f32,
+    cell_m: f32,
+) -> Option<Arc<OccupancyGrid>> {
+    let (t, c) = (threshold_m.to_bits(), cell_m.to_bits());
+    let hash = mesh_hash(vertices, faces, t, c);
+    let memo = MEMO.lock().unwrap_or_else(|e| e.into_inner());
+    memo.iter()
+        .find(|e| e.matches(hash, vertices, faces, t, c))
+        .map(|e| e.grid.clone())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

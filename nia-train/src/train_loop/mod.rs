@@ -20,13 +20,14 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use burn::optim::AdamConfig;
-use nia_data::dataset::loader::SceneLoader;
+use nia_data::dataset::loader::{BandGrid, SceneLoader};
 use nia_data::dataset::protocol::EvalSplit;
 use nia_infer::eval::{
     eval_items, evaluate_images, evaluate_items, EvalError, EvalOptions, EvalSummary, EvalTask,
 };
 use nia_infer::pictures::{comparison_grid, save_evaluated};
 use nia_model::loss::psnr_from_mse;
+use nia_model::sampler::RaySampler;
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::ModelError;
 
@@ -172,7 +173,16 @@ pub fn train(
         .flat_map(|step| (0..k).map(move |i| step * k + i))
         .map(|scene| data.request_for_step(t.seed, scene, t.source_views))
         .collect();
-    let mut loader = SceneLoader::new(data.dataset.source.clone(), requests, data.dataset.loader)?;
+    // The loader's workers build each training scene's band grid ahead of the step.
+    let mut loader_config = data.dataset.loader;
+    loader_config.band_grid = match model.ray_sampler {
+        RaySampler::Band { margin_m, cell_m } => Some(BandGrid {
+            threshold_m: margin_m,
+            cell_m,
+        }),
+        RaySampler::Stratified => None,
+    };
+    let mut loader = SceneLoader::new(data.dataset.source.clone(), requests, loader_config)?;
     let run_start = Instant::now();
     let mut summary = TrainSummary {
         steps: first_step,
