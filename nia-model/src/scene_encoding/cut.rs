@@ -9,7 +9,9 @@
 //! backward of `sum_k <root_k, g_k>` (the roots are the tensors before the cut) carries them
 //! into the encoder and the body volume. By the chain rule this is the gradient of the summed
 //! chunk losses, the same as one backward over all rays up to float rounding (a test compares
-//! them); no work is done twice.
+//! them); no work is done twice. What a chunk cannot see is per chunk: the training loss's
+//! colour gain (`colour_matched_target`) is fitted on the chunk's rays, and c0 shuffling draws
+//! the borrowed c0 from the chunk's points.
 
 use std::ops::Range;
 

@@ -155,8 +155,8 @@ pub struct TrainSection {
     /// Rays per chunk of the step's forward and backward (0: all rays at once). The per-scene
     /// encoding is computed once and each chunk's graph is freed by its own backward, so the
     /// step's memory holds one chunk's activations: the same gradient to float rounding,
-    /// except that `colour_gain_tolerance` fits its gain per chunk (see
-    /// `nia_model::scene_encoding::cut`).
+    /// except that `colour_gain_tolerance` fits its gain per chunk and `c0_shuffle` draws the
+    /// borrowed c0 from the same chunk (see `nia_model::scene_encoding::cut`).
     #[serde(default)]
     pub ray_chunk: usize,
     #[serde(default = "default_sources")]
