@@ -13,7 +13,10 @@ const BACKEND_TOL: f64 = 1e-4;
 fn report(args: &[&str]) -> serde_json::Value {
     let out = nia_infer(args);
     ok(&out);
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    last_json(&String::from_utf8_lossy(&out.stdout))
+}
+
+fn last_json(stdout: &str) -> serde_json::Value {
     let line = stdout.lines().last().expect("bench printed nothing");
     serde_json::from_str(line).unwrap_or_else(|e| panic!("not JSON ({e}): {line}"))
 }
@@ -29,6 +32,25 @@ const TOY: [&str; 10] = [
     "--reps",
     "1",
     "--no-train",
+];
+
+/// The training step alone on flex at toy sizes, without chunks.
+const TRAIN_TOY: [&str; 15] = [
+    "bench",
+    "--backend",
+    "flex",
+    "--tiny",
+    "--rays",
+    "8",
+    "--samples",
+    "4",
+    "--size",
+    "32",
+    "--reps",
+    "1",
+    "--train-only",
+    "--ray-chunk",
+    "0",
 ];
 
 #[test]
@@ -58,21 +80,7 @@ fn check_against_reports_a_small_difference_between_backends() {
 
 #[test]
 fn train_only_times_the_training_step_alone() {
-    let v = report(&[
-        "bench",
-        "--backend",
-        "flex",
-        "--tiny",
-        "--rays",
-        "8",
-        "--samples",
-        "4",
-        "--size",
-        "32",
-        "--reps",
-        "1",
-        "--train-only",
-    ]);
+    let v = report(&TRAIN_TOY);
     assert!(
         v["forward_s"].is_null() && v["first_forward_s"].is_null(),
         "{v}"
@@ -93,28 +101,13 @@ fn train_only_times_the_training_step_alone() {
 /// and backward split, null rather than NaN in the JSON) and says so.
 #[test]
 fn ray_chunks_time_the_whole_step() {
-    let args = [
-        "bench",
-        "--backend",
-        "flex",
-        "--tiny",
-        "--rays",
-        "8",
-        "--samples",
-        "4",
-        "--size",
-        "32",
-        "--reps",
-        "1",
-        "--train-only",
-        "--ray-chunk",
-        "3",
-    ];
+    let mut args = TRAIN_TOY;
+    args[14] = "3";
     let out = nia_infer(&args);
     ok(&out);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("in chunks of 3 rays"), "{stdout}");
-    let v = report(&args);
+    let v = last_json(&stdout);
     assert!(v["train_step_s"].as_f64().unwrap() > 0.0, "{v}");
     assert!(
         v["train_forward_s"].is_null() && v["train_backward_s"].is_null(),

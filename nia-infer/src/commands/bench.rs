@@ -320,13 +320,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 |out, range| {
                     let share = range.len() as f32 / n;
                     let gt = gt.clone().slice([range.clone(), 0..3]);
-                    let loss = render_loss(out.rgb, out.rgb0, gt)?.total;
-                    if chunked {
-                        return Ok(loss.mul_scalar(share));
+                    let loss = render_loss(out.rgb, out.rgb0, gt)?.total.mul_scalar(share);
+                    if !chunked {
+                        // The forward's own time on asynchronous backends too.
+                        ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+                        forward_dt = start.elapsed().as_secs_f64();
                     }
-                    // The forward's own time on asynchronous backends too.
-                    ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
-                    forward_dt = start.elapsed().as_secs_f64();
                     Ok(loss)
                 },
             )?;

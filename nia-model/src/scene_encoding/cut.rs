@@ -43,6 +43,7 @@ pub struct CutGradients {
     sites: Vec<Option<Tensor<3>>>,
 }
 
+/// `acc += g`, where an absent `acc` is zero and an absent `g` adds nothing.
 fn add<const D: usize>(acc: &mut Option<Tensor<D>>, g: Option<Tensor<D>>) {
     if let Some(g) = g {
         *acc = Some(match acc.take() {
@@ -93,19 +94,17 @@ impl CutRoots {
     /// received a gradient.
     pub fn surrogate(&self, acc: CutGradients) -> Option<Tensor<1>> {
         let mut total: Option<Tensor<1>> = None;
-        let mut push = |t: Tensor<1>| {
-            total = Some(match total.take() {
-                Some(s) => s + t,
-                None => t,
-            })
-        };
         if let Some(g) = acc.pixel_rows {
-            push((self.pixel_rows.clone() * Tensor::from_inner(g)).sum());
+            add(
+                &mut total,
+                Some((self.pixel_rows.clone() * Tensor::from_inner(g)).sum()),
+            );
         }
         for (root, g) in self.sites.iter().zip(acc.sites) {
-            if let Some(g) = g {
-                push((root.clone() * Tensor::from_inner(g)).sum());
-            }
+            add(
+                &mut total,
+                g.map(|g| (root.clone() * Tensor::from_inner(g)).sum()),
+            );
         }
         total
     }

@@ -188,7 +188,6 @@ fn scene_gradients(
         config.train.ray_chunk,
         |out, range| {
             let share = range.len() as f32 / n;
-            let all = range.len() == rays.len();
             let loss = chunk_loss(out, rays, range, config, device)?;
             let values = Tensor::cat(
                 vec![
@@ -212,11 +211,8 @@ fn scene_gradients(
             for (s, v) in sums.iter_mut().zip([total, mse, mse0]) {
                 *s += v * f64::from(share);
             }
-            Ok(if all {
-                loss.total
-            } else {
-                loss.total.mul_scalar(share)
-            })
+            // Without chunks the share is 1, and x * 1 is x exactly.
+            Ok(loss.total.mul_scalar(share))
         },
     );
     let grads = match result {
