@@ -6,7 +6,11 @@
 //! `CARGO_TARGET_DIR=$HOME/.cache/nia-rs/target cargo bench --all-features -p nia-model --bench encoder`
 //! (`-- host`: the host path alone, five times, for profiling; `-- train`: the tensor path's
 //! forward and backward on flex's autodiff device, trunk and reductions apart, as in training;
-//! run it under the training binaries' heap policy, `GLIBC_TUNABLES=glibc.malloc.mmap_max=0:
+//! `-- levels`: one reduction's parts per pyramid level under autodiff, the channel product and
+//! the upsampling apart, then the rows' layout; `-- conv`: each kind of trunk convolution under
+//! autodiff, flex's `conv2d` against the same convolution as an im2col matrix product, with the
+//! largest differences of the outputs and gradients. Run the autodiff modes under the training
+//! binaries' heap policy, `GLIBC_TUNABLES=glibc.malloc.mmap_max=0:
 //! glibc.malloc.trim_threshold=4611686018427387904`, or page faults dominate)
 //! Plain `main` (no harness): prints milliseconds; speed is never asserted in a test.
 
@@ -60,6 +64,14 @@ fn main() {
             let host_reduce = t.elapsed().as_secs_f64() * 1e3;
             println!("host rep {rep}: trunk {host_trunk:.0} ms, reduction {host_reduce:.0} ms");
         }
+        return;
+    }
+    if std::env::args().any(|a| a == "levels") {
+        levels();
+        return;
+    }
+    if std::env::args().any(|a| a == "conv") {
+        conv();
         return;
     }
     if std::env::args().any(|a| a == "train") {
@@ -175,5 +187,166 @@ fn train() {
              with two reductions and rows: forward {with_forward:.0}, forward + backward {with:.0}; \
              one reduction alone: forward {red_f:.0}, forward + backward {red_fb:.0} ms"
         );
+    }
+}
+
+/// Milliseconds since `t`.
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// One pyramid reduction's parts on flex's autodiff device, per level of a detached pyramid:
+/// the channel product `W_l^T f_l` and the upsampling of its result (two dense products), each
+/// forward and forward + backward; then the channels-last layout of a `[3, D, 256, 256]` map
+/// ([`ViewRows`]), whose time includes drawing the map.
+fn levels() {
+    let device = Device::flex().autodiff();
+    let (encoder, images, weight) = setup(&device);
+    let weight = weight.require_grad();
+    let levels = encoder
+        .forward_pyramid(images)
+        .levels
+        .map(|f| f.detach().require_grad());
+    let [_, _, h2, w2] = levels[0].dims();
+    for rep in 0..3 {
+        let mut line = format!("levels rep {rep}:");
+        let mut offset = 0;
+        for f in &levels {
+            let [n, c, h, w] = f.dims();
+            let w_l = weight
+                .clone()
+                .narrow(0, offset, c)
+                .transpose()
+                .unsqueeze::<3>();
+            offset += c;
+            let t = Instant::now();
+            let reduced = w_l
+                .matmul(f.clone().reshape([n, c, h * w]))
+                .reshape([n, D, h, w]);
+            sync(reduced.clone());
+            let product = ms(t);
+            drop(reduced.clone().sum().backward());
+            let product_back = ms(t);
+            let reduced = reduced.detach().require_grad();
+            let t = Instant::now();
+            let up = nia_model::encoder::upsample_bilinear(reduced, [h2, w2]);
+            sync(up.clone());
+            let upsample = ms(t);
+            drop(up.sum().backward());
+            let upsample_back = ms(t);
+            line += &format!(
+                " level {c}x{h}^2: product {product:.0}/{product_back:.0}, \
+                 upsampling {upsample:.0}/{upsample_back:.0};"
+            );
+        }
+        let t = Instant::now();
+        let map = Tensor::<4>::random(
+            [VIEWS, D, h2, w2],
+            burn::tensor::Distribution::Uniform(0.0, 1.0),
+            &device,
+        )
+        .require_grad();
+        let rows = ViewRows::new(map).expect("rows");
+        sync(rows.rows());
+        let layout = ms(t);
+        drop(rows.rows().sum().backward());
+        let layout_back = ms(t);
+        println!("{line} rows {layout:.0}/{layout_back:.0} (ms, forward/forward + backward)");
+    }
+}
+
+/// `x` convolved with `weight` (`[C_out, C_in, k, k]`, stride `stride`, zero padding `pad`) as
+/// one matrix product over the k^2 shifted (strided) slices of the padded input, concatenated
+/// along the channels (im2col in tensor operations, differentiable on every backend).
+///
+/// # Shapes
+/// - x: `[N, C_in, H, W]` -> `[N, C_out, H_out, W_out]`
+fn im2col_conv(x: Tensor<4>, weight: Tensor<4>, stride: usize, pad: usize) -> Tensor<4> {
+    use burn::tensor::ops::PadMode;
+    use burn::tensor::s;
+    let [n, c, h, w] = x.dims();
+    let [c_out, _, k, _] = weight.dims();
+    let h_out = (h + 2 * pad - k) / stride + 1;
+    let w_out = (w + 2 * pad - k) / stride + 1;
+    let padded = x.pad((pad, pad, pad, pad), PadMode::Constant(0.0));
+    let step = stride as isize;
+    let mut columns = Vec::with_capacity(k * k);
+    for dy in 0..k {
+        for dx in 0..k {
+            columns.push(padded.clone().slice(s![
+                ..,
+                ..,
+                dy..dy + stride * (h_out - 1) + 1;step,
+                dx..dx + stride * (w_out - 1) + 1;step
+            ]));
+        }
+    }
+    // Column channel (dy k + dx) C_in + c meets weight[o, c, dy, dx].
+    let columns = Tensor::cat(columns, 1).reshape([n, k * k * c, h_out * w_out]);
+    let matrix = weight.permute([0, 2, 3, 1]).reshape([1, c_out, k * k * c]);
+    matrix.matmul(columns).reshape([n, c_out, h_out, w_out])
+}
+
+/// The trunk's kinds of convolution at the paper's size on flex's autodiff device: flex's
+/// `conv2d` and [`im2col_conv`], each forward and forward + backward (a sum as the loss), and
+/// the largest differences of the outputs and gradients (the weight's relative to its largest).
+fn conv() {
+    use burn::nn::conv::Conv2dConfig;
+    use burn::nn::PaddingConfig2d;
+    let device = Device::flex().autodiff();
+    // (name, C_in, C_out, kernel, stride, input size)
+    let kinds = [
+        ("stem 7x7/2", 3, 64, 7, 2, SIZE),
+        ("layer1 3x3", 64, 64, 3, 1, SIZE / 4),
+        ("layer2 first 3x3/2", 64, 128, 3, 2, SIZE / 4),
+        ("layer2 3x3", 128, 128, 3, 1, SIZE / 8),
+        ("layer3 3x3", 256, 256, 3, 1, SIZE / 16),
+    ];
+    for (name, c_in, c_out, k, stride, size) in kinds {
+        let pad = k / 2;
+        let conv = Conv2dConfig::new([c_in, c_out], [k, k])
+            .with_stride([stride, stride])
+            .with_padding(PaddingConfig2d::Explicit(pad, pad, pad, pad))
+            .with_bias(false)
+            .init(&device);
+        let x = Tensor::<4>::random(
+            [VIEWS, c_in, size, size],
+            burn::tensor::Distribution::Uniform(0.0, 1.0),
+            &device,
+        )
+        .require_grad();
+        for rep in 0..3 {
+            let t = Instant::now();
+            let y = conv.forward(x.clone());
+            sync(y.clone());
+            let flex = ms(t);
+            let grads = y.clone().sum().backward();
+            let flex_back = ms(t);
+            let t = Instant::now();
+            let y2 = im2col_conv(x.clone(), conv.weight.val(), stride, pad);
+            sync(y2.clone());
+            let im2col = ms(t);
+            let grads2 = y2.clone().sum().backward();
+            let im2col_back = ms(t);
+            let max_diff = |a: Tensor<4>, b: Tensor<4>| (a - b).abs().max().into_scalar::<f32>();
+            let dy = max_diff(y.inner(), y2.inner());
+            let dx = max_diff(
+                x.grad(&grads).expect("x grad"),
+                x.grad(&grads2).expect("x grad"),
+            );
+            // The weight gradients sum 3 x H x W terms each: their difference relative to
+            // their largest magnitude.
+            let grad_w = conv.weight.val().grad(&grads).expect("weight grad");
+            let scale = grad_w.clone().abs().max().into_scalar::<f32>();
+            let dw = max_diff(
+                grad_w,
+                conv.weight.val().grad(&grads2).expect("weight grad"),
+            ) / scale;
+            println!(
+                "conv {name} rep {rep}: conv2d {flex:.0}/{flex_back:.0} ms, im2col product \
+                 {im2col:.0}/{im2col_back:.0} ms (forward/forward + backward); max |diff| \
+                 output {dy:.1e}, x grad {dx:.1e}, weight grad (relative) {dw:.1e}"
+            );
+        }
     }
 }
