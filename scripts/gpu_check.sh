@@ -15,8 +15,9 @@
 #   scripts/gpu_check.sh run --dry      # a rehearsal here on lavapipe and CPU torch, small sizes
 #                                       # (NIA_PYTHON: a python with torch; default python3)
 #
-# `prepare` builds nia-infer with the wgpu feature (the CI profile: dependencies optimised),
-# strips and compresses it, exports the paper-width model `runs/paper300` (trained with the
+# `prepare` builds nia-infer with the wgpu feature in the release profile (everything at
+# opt-level 3: the dev profile keeps the wgpu stack's host side at opt-level 1 for a shorter
+# cold build, docs/speed.md "The cold build"), strips and compresses it, exports the paper-width model `runs/paper300` (trained with the
 # command in docs/speed.md, "One 512x512 image"), packs the 512-px unseen subject of
 # data/quickstart512, and downloads the Vulkan loader .debs (the GPU machine has a driver but no
 # loader, nor the GL vendor-neutral libraries its ICD library needs). Everything lands in .gpu/ (ignored by git), about 60 MB, which the device tool
@@ -31,8 +32,10 @@ shift || true
 prepare() {
   export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$HOME/.cache/nia-rs/target}
   mkdir -p .gpu
+  # The dev build runs the export and the generator below; the carried binary is the release one.
   cargo build --quiet --workspace --all-features
-  cp "$CARGO_TARGET_DIR/debug/nia-infer" .gpu/nia-infer && strip .gpu/nia-infer
+  cargo build --quiet --release --features wgpu -p nia-infer
+  cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer && strip .gpu/nia-infer
   xz -T2 -6 -f .gpu/nia-infer
   [ -d runs/paper300 ] || { echo "runs/paper300 missing: train it first (docs/speed.md)" >&2; exit 1; }
   "$CARGO_TARGET_DIR/debug/nia-infer" export --checkpoint runs/paper300 --out .gpu/paper300.nia
