@@ -1,7 +1,9 @@
 //! The chunked backward (`nia_model::scene_encoding::cut`): the rays of a scene in chunks,
 //! each with its own backward, and the encoder's share through the cut, give the gradient of
 //! one backward over all rays, for every parameter (the encoder's, the body volume's and the
-//! render side's), on ndarray and flex; bad jitter is an error.
+//! render side's), on ndarray and flex; bad jitter is an error. Burn's gradient checkpointing
+//! (`Device::gradient_checkpointing`, `train.gradient_checkpointing`) gives the same gradient,
+//! with and without chunks.
 
 mod common;
 
@@ -119,6 +121,40 @@ fn chunked_gradients_equal_one_backward_over_all_rays() {
                         (g - e).abs() <= 1e-4 * scale,
                         "chunks of {chunk}: parameter {id}, entry {i}: {g} against {e} \
                          (largest {scale})"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn gradient_checkpointing_gives_the_same_gradient_whole_and_chunked() {
+    for device in devices() {
+        device.seed(5);
+        let model = ModelConfig::tiny().init(&device);
+        let checkpointed = device.clone().gradient_checkpointing();
+        // The same weights on the checkpointing device (a record holds values, not tensors).
+        let model_ck = ModelConfig::tiny()
+            .init(&checkpointed)
+            .load_record(model.clone().into_record());
+        for chunk in [0, 4] {
+            let plain = gradients(&model, &device, chunk);
+            let ck = gradients(&model_ck, &checkpointed, chunk);
+            assert_eq!(
+                plain.len(),
+                ck.len(),
+                "chunks of {chunk}: the same parameters"
+            );
+            let global = plain.values().flatten().fold(0.0f32, |m, x| m.max(x.abs()));
+            assert!(global > 0.0, "chunks of {chunk}: an all-zero gradient");
+            for (id, expected) in &plain {
+                for (g, e) in ck[id].iter().zip(expected) {
+                    assert!(g.is_finite(), "chunks of {chunk}: non-finite gradient");
+                    assert!(
+                        (g - e).abs() <= 1e-5 * global,
+                        "chunks of {chunk}, parameter {id}: checkpointed {g} against {e} \
+                         (largest {global})"
                     );
                 }
             }

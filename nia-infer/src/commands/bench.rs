@@ -63,6 +63,10 @@ pub struct BenchArgs {
     /// forward and backward interleave, so the step is reported whole (forward figure null).
     #[arg(long, default_value_t = 0)]
     pub ray_chunk: usize,
+    /// Train with burn's gradient checkpointing (`Device::gradient_checkpointing`: memory-bound
+    /// operations are recomputed in the backward instead of kept; as `train.checkpointing`).
+    #[arg(long)]
+    pub checkpointing: bool,
     /// Also run the forward with the same weights on this backend and report how far the
     /// colours differ (`--backend wgpu --check-against flex`: the GPU path against the CPU's).
     #[arg(long, value_parser = str::parse::<Backend>)]
@@ -293,6 +297,11 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         (None, None, None, None)
     } else {
         let ad = device.clone().autodiff();
+        let ad = if args.checkpointing {
+            ad.gradient_checkpointing()
+        } else {
+            ad
+        };
         ad.seed(0);
         let mut model = config.init(&ad);
         let mut optim = AdamConfig::new().with_epsilon(1e-8).init();

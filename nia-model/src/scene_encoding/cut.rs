@@ -97,13 +97,13 @@ impl CutRoots {
         if let Some(g) = acc.pixel_rows {
             add(
                 &mut total,
-                Some((self.pixel_rows.clone() * Tensor::from_inner(g)).sum()),
+                Some((self.pixel_rows.clone() * constant_like(&self.pixel_rows, g)).sum()),
             );
         }
         for (root, g) in self.sites.iter().zip(acc.sites) {
             add(
                 &mut total,
-                g.map(|g| (root.clone() * Tensor::from_inner(g)).sum()),
+                g.map(|g| (root.clone() * constant_like(root, g)).sum()),
             );
         }
         total
@@ -111,6 +111,17 @@ impl CutRoots {
 }
 
 /// Adds every parameter's gradient in `other` into `into`.
+/// `g` (a gradient, read without autodiff) as a constant of `root`'s graph: an autodiff
+/// tensor with `root`'s gradient-checkpointing strategy, as autodiff requires of the two
+/// operands of one operation (`Device::gradient_checkpointing`, `train.gradient_checkpointing`).
+fn constant_like<const D: usize>(root: &Tensor<D>, g: Tensor<D>) -> Tensor<D> {
+    let g = Tensor::from_inner(g);
+    match root.gradient_checkpointing_strategy() {
+        Some(strategy) => g.with_gradient_checkpointing_strategy(strategy),
+        None => g,
+    }
+}
+
 struct AddInto<'a> {
     into: &'a mut GradientsParams,
     other: GradientsParams,

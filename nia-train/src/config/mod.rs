@@ -159,6 +159,12 @@ pub struct TrainSection {
     /// borrowed c0 from the same chunk (see `nia_model::scene_encoding::cut`).
     #[serde(default)]
     pub ray_chunk: usize,
+    /// Burn's gradient checkpointing on the training devices: the backward recomputes the
+    /// memory-bound operations (element-wise, reshapes) instead of keeping their outputs, and
+    /// keeps the matrix products' and convolutions'. Less memory for more time, the same
+    /// gradient (docs/speed.md, "Memory"). Off by default.
+    #[serde(default)]
+    pub gradient_checkpointing: bool,
     #[serde(default = "default_sources")]
     pub source_views: usize,
     #[serde(default)]

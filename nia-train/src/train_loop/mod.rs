@@ -134,7 +134,12 @@ pub fn train(
     let specs = t.device_specs();
     let devices = specs
         .iter()
-        .map(|s| s.device().map(|d| d.autodiff()))
+        .map(|s| {
+            s.device().map(|d| match t.gradient_checkpointing {
+                true => d.autodiff().gradient_checkpointing(),
+                false => d.autodiff(),
+            })
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let k = devices.len() as u64;
     let device = devices[0].clone();
