@@ -30,8 +30,11 @@ use crate::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use crate::dataset::{DatasetError, Subject, ViewImage};
 use crate::geometry::occupancy_memo::shared_grid;
 use crate::geometry::rays::{mask_at_box, Aabb};
+use crate::geometry::sparse::{shared_pyramid, VoxelGridSpec};
+use crate::geometry::surface_memo::shared_surface;
 use crate::geometry::visibility::DEFAULT_DEPTH_TOL_M;
 use crate::rng::Rng;
+use crate::scene::vertices_in_smpl_frame;
 
 /// Fork of a request's seed that draws its SMPL jitter (the ray sampling uses the seed itself).
 const JITTER_FORK: u64 = 0x5a17;
@@ -96,6 +99,24 @@ pub struct LoaderConfig {
     /// body at 2 cm cells) was the largest host item of the quickstart's step. `None`: off.
     #[serde(default)]
     pub band_grid: Option<BandGrid>,
+    /// The body volume's grid: with it, the workers also build every training scene's site
+    /// pyramid (voxelised vertices, sites and rulebooks of levels `0..=levels`) into the
+    /// process-wide memo ([`crate::geometry::sparse::shared_pyramid`]), as they build its
+    /// nearest-surface index ([`crate::geometry::surface_memo::shared_surface`]) whatever this
+    /// says; the step then finds both there. `None`: no pyramid ahead.
+    #[serde(default)]
+    pub body_volume: Option<BodyVolumeGrid>,
+}
+
+/// The body volume's grid ([`LoaderConfig::body_volume`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BodyVolumeGrid {
+    /// Voxel edge, metres.
+    pub voxel_size_m: f32,
+    /// The SMPL bounds are grown by this fraction of their extent.
+    pub box_enlarge: f32,
+    /// The coarsest level (level l: 1 / 2^l of the voxels).
+    pub levels: usize,
 }
 
 /// The distances of a band sampler's occupancy grid ([`LoaderConfig::band_grid`]).
@@ -121,6 +142,7 @@ impl Default for LoaderConfig {
             visibility_depth_tol_m: DEFAULT_DEPTH_TOL_M,
             smpl_jitter_m: 0.0,
             band_grid: None,
+            body_volume: None,
         }
     }
 }
@@ -300,6 +322,20 @@ pub fn load_scene(
         // Only a warm-up: a mesh the grid cannot be built for fails again, with its error, where
         // the training step asks for the grid.
         let _ = shared_grid(&vertices, &source.faces, band.threshold_m, band.cell_m);
+    }
+    if request.target == TargetKind::Rays {
+        // Warm-ups as well: what cannot be built fails again, with its error, in the step.
+        let _ = shared_surface(&vertices, &source.faces);
+        if let Some(grid) = config.body_volume {
+            let spec = VoxelGridSpec {
+                voxel_size_m: grid.voxel_size_m,
+                box_enlarge: grid.box_enlarge,
+            };
+            let smpl = vertices_in_smpl_frame(&vertices, params.rh, params.th);
+            if let Ok(voxel_box) = spec.enclosing(&smpl) {
+                let _ = shared_pyramid(&smpl, &voxel_box, grid.levels);
+            }
+        }
     }
     Ok(Scene {
         index,

@@ -8,11 +8,14 @@
 //! - [`visibility`]: per-vertex visibility in a view by rasterisation.
 //! - [`surface`]: nearest point on a triangle mesh (BVH) with barycentric weights.
 //! - [`occupancy`]: the occupancy grid of a posed mesh (which samples can be skipped).
+//! - [`mesh_memo`]: values built from a mesh, remembered for the most recently seen meshes.
 //! - [`occupancy_memo`]: grids of recently seen meshes, shared instead of rebuilt.
+//! - [`surface_memo`]: nearest-surface indices of recently seen meshes.
 //! - [`orbit`]: a 360-degree camera path on the ring of a dataset's calibrated cameras.
 //! - [`sparse`]: voxel boxes, active sites, convolution rulebooks and trilinear corners.
 
 pub mod camera;
+pub mod mesh_memo;
 pub mod occupancy;
 pub mod occupancy_memo;
 pub mod orbit;
@@ -20,4 +23,5 @@ pub mod raster;
 pub mod rays;
 pub mod sparse;
 pub mod surface;
+pub mod surface_memo;
 pub mod visibility;

@@ -7,54 +7,19 @@
 //! each frame. [`shared_grid`] returns the grid of a mesh built before (compared exactly:
 //! every vertex coordinate's bits, every face, both distances) or builds and remembers it. The
 //! memo holds the [`MEMO_ENTRIES`] most recently used grids (about 0.2 MB each at the default
-//! cells), process-wide, behind a mutex; a build runs outside the lock.
+//! cells), process-wide ([`super::mesh_memo`]).
 
-use std::collections::VecDeque;
-use std::hash::{Hash, Hasher};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use glam::Vec3;
 
+use super::mesh_memo::MeshMemo;
 use super::occupancy::{OccupancyError, OccupancyGrid};
 
 /// Grids the memo keeps (most recently used first).
 pub const MEMO_ENTRIES: usize = 64;
 
-struct Entry {
-    hash: u64,
-    threshold_bits: u32,
-    cell_bits: u32,
-    vertices: Vec<Vec3>,
-    faces: Vec<[u32; 3]>,
-    grid: Arc<OccupancyGrid>,
-}
-
-impl Entry {
-    fn matches(&self, hash: u64, vertices: &[Vec3], faces: &[[u32; 3]], t: u32, c: u32) -> bool {
-        self.hash == hash
-            && self.threshold_bits == t
-            && self.cell_bits == c
-            && self.faces.as_slice() == faces
-            && self.vertices.len() == vertices.len()
-            && self
-                .vertices
-                .iter()
-                .zip(vertices)
-                .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits))
-    }
-}
-
-static MEMO: Mutex<VecDeque<Entry>> = Mutex::new(VecDeque::new());
-
-fn mesh_hash(vertices: &[Vec3], faces: &[[u32; 3]], t: u32, c: u32) -> u64 {
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    (t, c, vertices.len(), faces.len()).hash(&mut h);
-    for v in vertices {
-        v.to_array().map(f32::to_bits).hash(&mut h);
-    }
-    faces.hash(&mut h);
-    h.finish()
-}
+static MEMO: MeshMemo<OccupancyGrid> = MeshMemo::new(MEMO_ENTRIES);
 
 /// The occupancy grid of the mesh (`vertices` [V] world metres, `faces` [F]) at `threshold_m`
 /// and `cell_m`: the one built before for exactly this mesh and these distances, else a new
@@ -66,32 +31,10 @@ pub fn shared_grid(
     threshold_m: f32,
     cell_m: f32,
 ) -> Result<Arc<OccupancyGrid>, OccupancyError> {
-    let (t, c) = (threshold_m.to_bits(), cell_m.to_bits());
-    let hash = mesh_hash(vertices, faces, t, c);
-    {
-        let mut memo = MEMO.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(i) = memo
-            .iter()
-            .position(|e| e.matches(hash, vertices, faces, t, c))
-        {
-            let entry = memo.remove(i).expect("found above");
-            let grid = entry.grid.clone();
-            memo.push_front(entry);
-            return Ok(grid);
-        }
-    }
-    let grid = Arc::new(OccupancyGrid::build(vertices, faces, threshold_m, cell_m)?);
-    let mut memo = MEMO.lock().unwrap_or_else(|e| e.into_inner());
-    memo.push_front(Entry {
-        hash,
-        threshold_bits: t,
-        cell_bits: c,
-        vertices: vertices.to_vec(),
-        faces: faces.to_vec(),
-        grid: grid.clone(),
-    });
-    memo.truncate(MEMO_ENTRIES);
-    Ok(grid)
+    let settings = [threshold_m.to_bits(), cell_m.to_bits()];
+    MEMO.get_or_build(vertices, faces, &settings, || {
+        OccupancyGrid::build(vertices, faces, threshold_m, cell_m)
+    })
 }
 
 /// The grid [`shared_grid`] remembers for exactly this mesh and these distances, without
@@ -102,12 +45,7 @@ pub fn remembered(
     threshold_m: f32,
     cell_m: f32,
 ) -> Option<Arc<OccupancyGrid>> {
-    let (t, c) = (threshold_m.to_bits(), cell_m.to_bits());
-    let hash = mesh_hash(vertices, faces, t, c);
-    let memo = MEMO.lock().unwrap_or_else(|e| e.into_inner());
-    memo.iter()
-        .find(|e| e.matches(hash, vertices, faces, t, c))
-        .map(|e| e.grid.clone())
+    MEMO.remembered(vertices, faces, &[threshold_m.to_bits(), cell_m.to_bits()])
 }
 
 #[cfg(test)]

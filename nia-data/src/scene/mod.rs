@@ -12,6 +12,8 @@ pub use point_inputs::{
 pub use source_depth::SourceDepth;
 pub use visual_hull::{VisualHull, VisualHullError};
 
+use std::sync::Arc;
+
 use glam::{Mat3, Vec3};
 
 use crate::body::rodrigues;
@@ -20,6 +22,7 @@ use crate::geometry::camera::Camera;
 use crate::geometry::rays::Aabb;
 use crate::geometry::sparse::{SparseGridError, VoxelBox, VoxelGridSpec};
 use crate::geometry::surface::SurfaceIndex;
+use crate::geometry::surface_memo::shared_surface;
 
 /// Rays are clipped to the world box of the posed body padded by this much (NHP pads by 5 cm
 /// so loose clothing and hair stay inside).
@@ -122,6 +125,17 @@ impl SceneInput {
     }
 }
 
+/// World vertices ([V] metres) in the SMPL frame of `rh` (axis-angle) and `th` (metres):
+/// `R(rh)^T (p - th)`, [V, 3]. The body volume's vertices; the loader's workers compute them
+/// the same way to build a training scene's site pyramid ahead of its step.
+pub fn vertices_in_smpl_frame(vertices: &[Vec3], rh: Vec3, th: Vec3) -> Vec<[f32; 3]> {
+    let rt = rodrigues(rh).transpose();
+    vertices
+        .iter()
+        .map(|&p| (rt * (p - th)).to_array())
+        .collect()
+}
+
 /// Per-scene CPU geometry, built once and reused by every target view and ray chunk.
 #[derive(Debug)]
 pub struct SceneGeometry {
@@ -136,7 +150,7 @@ pub struct SceneGeometry {
     /// World box rays are clipped to.
     pub ray_box: Aabb,
     /// Nearest-surface index of the posed body (for o_n).
-    pub surface: SurfaceIndex,
+    pub surface: Arc<SurfaceIndex>,
     /// [N][V] per-vertex visibility.
     pub vertex_visibility: Vec<Vec<f32>>,
     /// [V] vertices in the SMPL frame.
@@ -229,12 +243,7 @@ impl SceneGeometry {
             }
         }
         let smpl_rotation = rodrigues(body.rh);
-        let rt = smpl_rotation.transpose();
-        let vertices_smpl: Vec<[f32; 3]> = body
-            .vertices
-            .iter()
-            .map(|&p| (rt * (p - body.th)).to_array())
-            .collect();
+        let vertices_smpl = vertices_in_smpl_frame(&body.vertices, body.rh, body.th);
         let world_box = Aabb::from_points(&body.vertices)
             .ok_or_else(|| invalid("body.vertices", "a non-empty point set", v))?;
         let voxel_box = grid.enclosing(&vertices_smpl)?;
@@ -244,7 +253,7 @@ impl SceneGeometry {
             smpl_rotation,
             smpl_translation: body.th,
             ray_box: world_box.padded(RAY_BOX_PADDING_M),
-            surface: SurfaceIndex::new(&body.vertices, &body.faces)?,
+            surface: shared_surface(&body.vertices, &body.faces)?,
             vertex_visibility: input
                 .views
                 .iter()

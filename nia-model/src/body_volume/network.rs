@@ -17,7 +17,7 @@
 use std::sync::Arc;
 
 use nia_data::geometry::sparse::{
-    voxelize, Rulebook, ScaleGeometry, TrilinearCorners, VoxelBox, Voxelization,
+    shared_pyramid, ScaleGeometry, SitePyramid, TrilinearCorners, VoxelBox,
 };
 
 use burn::prelude::*;
@@ -165,14 +165,10 @@ impl BodyVolumeNet {
 pub struct BodyVolumeGeometry {
     /// The level-0 grid.
     pub voxel_box: VoxelBox,
-    /// The vertices in the level-0 grid.
-    pub voxels: Voxelization,
-    /// [5] sites and placement of levels 0 (full) .. 4 (1/16); scale s is level s + 1.
-    pub levels: Vec<Arc<ScaleGeometry>>,
-    /// [5] submanifold rulebook of every level.
-    pub submanifold_rules: Vec<Rulebook>,
-    /// [4] strided rulebook from level l to level l + 1.
-    pub strided_rules: Vec<Rulebook>,
+    /// The host geometry of levels 0 (full) .. 4 (1/16; scale s is level s + 1): the voxelised
+    /// vertices, every level's sites and the rulebooks ([`SitePyramid`]), shared with the
+    /// loader's workers that build it ahead (also reachable as fields: `geometry.levels`).
+    pub pyramid: Arc<SitePyramid>,
     /// [5] `submanifold_rules` on the device.
     pub submanifold: Vec<RulebookTensors>,
     /// [4] `strided_rules` on the device.
@@ -181,6 +177,14 @@ pub struct BodyVolumeGeometry {
     pub vertex_site: Tensor<1, Int>,
     /// [1, P_0, 1] 1 / (vertices in the site).
     pub inverse_count: Tensor<3>,
+}
+
+impl std::ops::Deref for BodyVolumeGeometry {
+    type Target = SitePyramid;
+
+    fn deref(&self) -> &SitePyramid {
+        &self.pyramid
+    }
 }
 
 impl BodyVolumeGeometry {
@@ -203,33 +207,19 @@ impl BodyVolumeGeometry {
         method: ConvMethod,
         device: &Device,
     ) -> Result<Self, BodyVolumeError> {
-        let voxels = voxelize(vertices_smpl, voxel_box)?;
-        let mut levels = Vec::with_capacity(NUM_SCALES + 1);
-        let mut submanifold_rules = Vec::with_capacity(NUM_SCALES + 1);
-        let mut strided_rules = Vec::with_capacity(NUM_SCALES);
-        let mut sites = voxels.sites.clone();
-        for level in 0..=NUM_SCALES {
-            if level > 0 {
-                let (coarse, rules) = Rulebook::strided(&sites)?;
-                strided_rules.push(rules);
-                sites = coarse;
-            }
-            submanifold_rules.push(Rulebook::submanifold(&sites));
-            levels.push(Arc::new(ScaleGeometry::new(
-                voxel_box,
-                level as u32,
-                sites.clone(),
-            )?));
-        }
-        let submanifold = submanifold_rules
+        let pyramid = shared_pyramid(vertices_smpl, voxel_box, NUM_SCALES)?;
+        let submanifold = pyramid
+            .submanifold_rules
             .iter()
             .map(|r| RulebookTensors::with_method(r, method, device))
             .collect();
-        let strided = strided_rules
+        let strided = pyramid
+            .strided_rules
             .iter()
             .map(|r| RulebookTensors::with_method(r, method, device))
             .collect();
-        let inverse: Vec<f32> = voxels
+        let inverse: Vec<f32> = pyramid
+            .voxels
             .site_vertex_count
             .iter()
             .map(|&c| 1.0 / c as f32)
@@ -237,12 +227,9 @@ impl BodyVolumeGeometry {
         let p0 = inverse.len();
         Ok(BodyVolumeGeometry {
             voxel_box: *voxel_box,
-            vertex_site: int_tensor(&voxels.vertex_site, device),
+            vertex_site: int_tensor(&pyramid.voxels.vertex_site, device),
             inverse_count: Tensor::from_data(TensorData::new(inverse, [1, p0, 1]), device),
-            voxels,
-            levels,
-            submanifold_rules,
-            strided_rules,
+            pyramid,
             submanifold,
             strided,
         })

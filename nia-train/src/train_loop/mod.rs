@@ -20,12 +20,13 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use burn::optim::AdamConfig;
-use nia_data::dataset::loader::{BandGrid, SceneLoader};
+use nia_data::dataset::loader::{BandGrid, BodyVolumeGrid, SceneLoader};
 use nia_data::dataset::protocol::EvalSplit;
 use nia_infer::eval::{
     eval_items, evaluate_images, evaluate_items, EvalError, EvalOptions, EvalSummary, EvalTask,
 };
 use nia_infer::pictures::{comparison_grid, save_evaluated};
+use nia_model::body_volume::NUM_SCALES;
 use nia_model::loss::psnr_from_mse;
 use nia_model::sampler::RaySampler;
 use nia_model::store::checkpoint::{self, CheckpointError};
@@ -187,6 +188,15 @@ pub fn train(
         }),
         RaySampler::Stratified => None,
     };
+    // ... and its body volume's sites and rulebooks.
+    loader_config.body_volume = model.variant.uses_body().then(|| {
+        let grid = model.voxel_grid();
+        BodyVolumeGrid {
+            voxel_size_m: grid.voxel_size_m,
+            box_enlarge: grid.box_enlarge,
+            levels: NUM_SCALES,
+        }
+    });
     let mut loader = SceneLoader::new(data.dataset.source.clone(), requests, loader_config)?;
     let run_start = Instant::now();
     let mut summary = TrainSummary {

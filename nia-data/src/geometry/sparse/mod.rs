@@ -4,12 +4,15 @@
 //!   [`ScaleGeometry`], the placement of each grid level.
 //! - [`rulebook`]: active sites -> submanifold / strided convolution rulebooks, [`SiteIndex`].
 //! - [`corners`]: query points -> the 8 corner sites and trilinear weights on one level.
+//! - [`pyramid`]: every level's sites and rulebooks of one body, remembered for recent bodies.
 
 pub mod corners;
+pub mod pyramid;
 pub mod rulebook;
 pub mod voxelize;
 
 pub use corners::{TrilinearCorners, CORNERS};
+pub use pyramid::{shared_pyramid, SitePyramid};
 pub use rulebook::{kernel_offset, Rulebook, RulebookKind, SiteIndex, KERNEL_VOLUME};
 pub use voxelize::{
     strided_dim, voxelize, ScaleGeometry, VoxelBox, VoxelGridSpec, Voxelization, MAX_GRID_DIM,
