@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use nia_data::body::BodyModel;
 use nia_data::dataset::loader::{
-    eval_requests, load_scene, train_requests, BandGrid, LoaderConfig, SceneLoader, SceneRequest,
-    SceneSource, SceneTarget, TargetKind,
+    eval_requests, load_scene, train_requests, BandGrid, BodyVolumeGrid, LoaderConfig, SceneLoader,
+    SceneRequest, SceneSource, SceneTarget, TargetKind,
 };
 use nia_data::dataset::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
 use nia_data::dataset::sampling::{border_band, sample_rays, BoxPadding, RaySamplingConfig};
@@ -17,8 +17,11 @@ use nia_data::dataset::{DatasetConfig, Subject};
 use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::geometry::occupancy_memo::remembered;
 use nia_data::geometry::rays::mask_at_box;
+use nia_data::geometry::sparse::{remembered_pyramid, SitePyramid, VoxelGridSpec};
+use nia_data::geometry::surface_memo::remembered_surface;
 use nia_data::geometry::visibility::DEFAULT_DEPTH_TOL_M;
 use nia_data::rng::Rng;
+use nia_data::scene::vertices_in_smpl_frame;
 use nia_data::synth::{generate, SynthSpec};
 
 /// Stored synthetic vertices are float32 LBS of the written model.
@@ -517,6 +520,61 @@ fn the_loader_builds_training_band_grids_ahead() {
                 let fresh =
                     OccupancyGrid::build(&scene.vertices, &source.faces, threshold, cell).unwrap();
                 assert_eq!(*grid, fresh);
+                built += 1;
+            }
+        }
+    }
+    assert!(built >= 2, "{built} training scenes");
+}
+
+/// `body_volume`: the loader builds every training scene's body-volume site pyramid into the
+/// shared memo (the same pyramid a fresh build gives: every level's sites and every rulebook),
+/// and its nearest-surface index whatever the setting; whole-image scenes get neither
+/// pyramid. The vertices in the SMPL frame are the ones the scene's geometry computes.
+#[test]
+fn the_loader_builds_training_site_pyramids_and_surface_indices_ahead() {
+    // A voxel size no other test uses: the memo holds no pyramid for it before this test.
+    let grid = BodyVolumeGrid {
+        voxel_size_m: 0.0173,
+        box_enlarge: 0.025,
+        levels: 4,
+    };
+    let spec = VoxelGridSpec {
+        voxel_size_m: grid.voxel_size_m,
+        box_enlarge: grid.box_enlarge,
+    };
+    let source = fixture_source(None);
+    let protocol = fixture_protocol();
+    let mut requests = train_requests(&protocol, &source.subjects, 0, 13).unwrap();
+    requests.extend(unseen_subject_requests(&protocol, &source));
+    let config = LoaderConfig {
+        smpl_jitter_m: 0.05,
+        body_volume: Some(grid),
+        ..small_loader_config(1)
+    };
+    let mut built = 0;
+    for (i, request) in requests.iter().enumerate() {
+        let scene = load_scene(&source, request, i, &config).unwrap();
+        let smpl = vertices_in_smpl_frame(&scene.vertices, scene.params.rh, scene.params.th);
+        let voxel_box = spec.enclosing(&smpl).unwrap();
+        let pyramid = remembered_pyramid(&smpl, &voxel_box, grid.levels);
+        match request.target {
+            TargetKind::Image => assert!(pyramid.is_none(), "scene {i}: a whole-image scene"),
+            TargetKind::Rays => {
+                let pyramid = pyramid.unwrap_or_else(|| panic!("scene {i}: no pyramid"));
+                let fresh = SitePyramid::build(&smpl, &voxel_box, grid.levels).unwrap();
+                assert_eq!(pyramid.levels.len(), grid.levels + 1);
+                assert_eq!(pyramid.submanifold_rules, fresh.submanifold_rules);
+                assert_eq!(pyramid.strided_rules, fresh.strided_rules);
+                assert_eq!(pyramid.voxels.vertex_site, fresh.voxels.vertex_site);
+                for (a, b) in pyramid.levels.iter().zip(&fresh.levels) {
+                    assert_eq!(a.num_sites(), b.num_sites());
+                    assert_eq!(a.origin_m, b.origin_m);
+                }
+                assert!(
+                    remembered_surface(&scene.vertices, &source.faces).is_some(),
+                    "scene {i}: no surface index"
+                );
                 built += 1;
             }
         }

@@ -28,3 +28,9 @@ pub fn shared_surface(
 ) -> Result<Arc<SurfaceIndex>, MeshError> {
     MEMO.get_or_build(vertices, faces, &[], || SurfaceIndex::new(vertices, faces))
 }
+
+/// The index [`shared_surface`] remembers for exactly this mesh, without building one (`None`
+/// when it holds none).
+pub fn remembered_surface(vertices: &[Vec3], faces: &[[u32; 3]]) -> Option<Arc<SurfaceIndex>> {
+    MEMO.remembered(vertices, faces, &[])
+}

@@ -12,7 +12,7 @@ pub mod rulebook;
 pub mod voxelize;
 
 pub use corners::{TrilinearCorners, CORNERS};
-pub use pyramid::{shared_pyramid, SitePyramid};
+pub use pyramid::{remembered_pyramid, shared_pyramid, SitePyramid};
 pub use rulebook::{kernel_offset, Rulebook, RulebookKind, SiteIndex, KERNEL_VOLUME};
 pub use voxelize::{
     strided_dim, voxelize, ScaleGeometry, VoxelBox, VoxelGridSpec, Voxelization, MAX_GRID_DIM,

@@ -66,6 +66,20 @@ impl SitePyramid {
     }
 }
 
+/// The memo's key: the vertices as points, the box and the depth as bits.
+fn memo_key(
+    vertices_smpl: &[[f32; 3]],
+    voxel_box: &VoxelBox,
+    coarsest: usize,
+) -> (Vec<Vec3>, Vec<u32>) {
+    let points = vertices_smpl.iter().map(|&p| Vec3::from_array(p)).collect();
+    let mut settings: Vec<u32> = voxel_box.min_m.map(f32::to_bits).to_vec();
+    settings.push(voxel_box.voxel_size_m.to_bits());
+    settings.extend(voxel_box.dims.map(|d| d as u32));
+    settings.push(coarsest as u32);
+    (points, settings)
+}
+
 /// [`SitePyramid::build`], remembered: the pyramid built before for exactly these vertices,
 /// this box and this depth ([`crate::geometry::mesh_memo`], compared bit for bit), else a new
 /// one. Errors are [`SitePyramid::build`]'s (not remembered).
@@ -74,12 +88,19 @@ pub fn shared_pyramid(
     voxel_box: &VoxelBox,
     coarsest: usize,
 ) -> Result<Arc<SitePyramid>, SparseGridError> {
-    let points: Vec<Vec3> = vertices_smpl.iter().map(|&p| Vec3::from_array(p)).collect();
-    let mut settings: Vec<u32> = voxel_box.min_m.map(f32::to_bits).to_vec();
-    settings.push(voxel_box.voxel_size_m.to_bits());
-    settings.extend(voxel_box.dims.map(|d| d as u32));
-    settings.push(coarsest as u32);
+    let (points, settings) = memo_key(vertices_smpl, voxel_box, coarsest);
     MEMO.get_or_build(&points, &[], &settings, || {
         SitePyramid::build(vertices_smpl, voxel_box, coarsest)
     })
+}
+
+/// The pyramid [`shared_pyramid`] remembers for exactly these vertices, this box and this
+/// depth, without building one (`None` when it holds none).
+pub fn remembered_pyramid(
+    vertices_smpl: &[[f32; 3]],
+    voxel_box: &VoxelBox,
+    coarsest: usize,
+) -> Option<Arc<SitePyramid>> {
+    let (points, settings) = memo_key(vertices_smpl, voxel_box, coarsest);
+    MEMO.remembered(&points, &[], &settings)
 }
