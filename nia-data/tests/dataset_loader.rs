@@ -534,14 +534,12 @@ fn the_loader_builds_training_band_grids_ahead() {
 #[test]
 fn the_loader_builds_training_site_pyramids_and_surface_indices_ahead() {
     // A voxel size no other test uses: the memo holds no pyramid for it before this test.
-    let grid = BodyVolumeGrid {
-        voxel_size_m: 0.0173,
-        box_enlarge: 0.025,
+    let volume = BodyVolumeGrid {
+        grid: VoxelGridSpec {
+            voxel_size_m: 0.0173,
+            box_enlarge: 0.025,
+        },
         levels: 4,
-    };
-    let spec = VoxelGridSpec {
-        voxel_size_m: grid.voxel_size_m,
-        box_enlarge: grid.box_enlarge,
     };
     let source = fixture_source(None);
     let protocol = fixture_protocol();
@@ -549,21 +547,21 @@ fn the_loader_builds_training_site_pyramids_and_surface_indices_ahead() {
     requests.extend(unseen_subject_requests(&protocol, &source));
     let config = LoaderConfig {
         smpl_jitter_m: 0.05,
-        body_volume: Some(grid),
+        body_volume: Some(volume),
         ..small_loader_config(1)
     };
     let mut built = 0;
     for (i, request) in requests.iter().enumerate() {
         let scene = load_scene(&source, request, i, &config).unwrap();
         let smpl = vertices_in_smpl_frame(&scene.vertices, scene.params.rh, scene.params.th);
-        let voxel_box = spec.enclosing(&smpl).unwrap();
-        let pyramid = remembered_pyramid(&smpl, &voxel_box, grid.levels);
+        let voxel_box = volume.grid.enclosing(&smpl).unwrap();
+        let pyramid = remembered_pyramid(&smpl, &voxel_box, volume.levels);
         match request.target {
             TargetKind::Image => assert!(pyramid.is_none(), "scene {i}: a whole-image scene"),
             TargetKind::Rays => {
                 let pyramid = pyramid.unwrap_or_else(|| panic!("scene {i}: no pyramid"));
-                let fresh = SitePyramid::build(&smpl, &voxel_box, grid.levels).unwrap();
-                assert_eq!(pyramid.levels.len(), grid.levels + 1);
+                let fresh = SitePyramid::build(&smpl, &voxel_box, volume.levels).unwrap();
+                assert_eq!(pyramid.levels.len(), volume.levels + 1);
                 assert_eq!(pyramid.submanifold_rules, fresh.submanifold_rules);
                 assert_eq!(pyramid.strided_rules, fresh.strided_rules);
                 assert_eq!(pyramid.voxels.vertex_site, fresh.voxels.vertex_site);

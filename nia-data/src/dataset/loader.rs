@@ -111,10 +111,8 @@ pub struct LoaderConfig {
 /// The body volume's grid ([`LoaderConfig::body_volume`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct BodyVolumeGrid {
-    /// Voxel edge, metres.
-    pub voxel_size_m: f32,
-    /// The SMPL bounds are grown by this fraction of their extent.
-    pub box_enlarge: f32,
+    /// How the voxel box is made around a body.
+    pub grid: VoxelGridSpec,
     /// The coarsest level (level l: 1 / 2^l of the voxels).
     pub levels: usize,
 }
@@ -326,14 +324,10 @@ pub fn load_scene(
     if request.target == TargetKind::Rays {
         // Warm-ups as well: what cannot be built fails again, with its error, in the step.
         let _ = shared_surface(&vertices, &source.faces);
-        if let Some(grid) = config.body_volume {
-            let spec = VoxelGridSpec {
-                voxel_size_m: grid.voxel_size_m,
-                box_enlarge: grid.box_enlarge,
-            };
+        if let Some(volume) = config.body_volume {
             let smpl = vertices_in_smpl_frame(&vertices, params.rh, params.th);
-            if let Ok(voxel_box) = spec.enclosing(&smpl) {
-                let _ = shared_pyramid(&smpl, &voxel_box, grid.levels);
+            if let Ok(voxel_box) = volume.grid.enclosing(&smpl) {
+                let _ = shared_pyramid(&smpl, &voxel_box, volume.levels);
             }
         }
     }

@@ -64,7 +64,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 0)]
     pub ray_chunk: usize,
     /// Train with burn's gradient checkpointing (`Device::gradient_checkpointing`: memory-bound
-    /// operations are recomputed in the backward instead of kept; as `train.checkpointing`).
+    /// operations are recomputed in the backward instead of kept; as `train.gradient_checkpointing`).
     #[arg(long)]
     pub checkpointing: bool,
     /// Also run the forward with the same weights on this backend and report how far the

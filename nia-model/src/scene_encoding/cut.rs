@@ -110,7 +110,6 @@ impl CutRoots {
     }
 }
 
-/// Adds every parameter's gradient in `other` into `into`.
 /// `g` (a gradient, read without autodiff) as a constant of `root`'s graph: an autodiff
 /// tensor with `root`'s gradient-checkpointing strategy, as autodiff requires of the two
 /// operands of one operation (`Device::gradient_checkpointing`, `train.gradient_checkpointing`).
@@ -122,6 +121,7 @@ fn constant_like<const D: usize>(root: &Tensor<D>, g: Tensor<D>) -> Tensor<D> {
     }
 }
 
+/// Adds every parameter's gradient in `other` into `into`.
 struct AddInto<'a> {
     into: &'a mut GradientsParams,
     other: GradientsParams,

@@ -189,13 +189,9 @@ pub fn train(
         RaySampler::Stratified => None,
     };
     // ... and its body volume's sites and rulebooks.
-    loader_config.body_volume = model.variant.uses_body().then(|| {
-        let grid = model.voxel_grid();
-        BodyVolumeGrid {
-            voxel_size_m: grid.voxel_size_m,
-            box_enlarge: grid.box_enlarge,
-            levels: NUM_SCALES,
-        }
+    loader_config.body_volume = model.variant.uses_body().then(|| BodyVolumeGrid {
+        grid: model.voxel_grid(),
+        levels: NUM_SCALES,
     });
     let mut loader = SceneLoader::new(data.dataset.source.clone(), requests, loader_config)?;
     let run_start = Instant::now();

@@ -23,7 +23,7 @@ pub const MAX_GRID_DIM: usize = 1 << 20;
 
 /// How the body volume's voxel box is made around a body: the voxel edge and the growth of
 /// the SMPL bounds (the paper: 5 mm, 2.5 %).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct VoxelGridSpec {
     /// Voxel edge, metres.
     pub voxel_size_m: f32,
