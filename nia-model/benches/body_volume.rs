@@ -1,7 +1,7 @@
 //! Body-volume timings at the paper's size (6,890 vertices of the procedural SMPL-compatible
 //! body, 5 mm voxels, 3 views, 65,536 sample points): the geometry build, every rulebook's
-//! convolution with both methods, the network forward, the trilinear corners and sampling,
-//! and one autodiff forward + backward, on flex and ndarray.
+//! convolution with each method (flex: also the host kernels), the network forward, the trilinear corners and sampling,
+//! and autodiff forwards + backwards (flex: the host kernels and Im2col), on flex and ndarray.
 //!
 //! `CARGO_TARGET_DIR=$HOME/.cache/nia-rs/target cargo bench --all-features -p nia-model --bench body_volume`
 //! Plain `main` (no harness): prints milliseconds; speed is never asserted in a test.
@@ -95,7 +95,12 @@ fn main() {
                 rulebook.n_out,
                 rulebook.fill_ratio()
             );
-            for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
+            let methods: &[ConvMethod] = if name == "flex" {
+                &[ConvMethod::Im2col, ConvMethod::Pairs, ConvMethod::Host]
+            } else {
+                &[ConvMethod::Im2col, ConvMethod::Pairs]
+            };
+            for &method in methods {
                 let tensors = RulebookTensors::with_method(rulebook, method, &dev);
                 sync(conv.forward(x.clone(), &tensors).expect("conv").sum());
                 let t = Instant::now();
@@ -149,9 +154,9 @@ fn main() {
             points.len(),
         );
 
-        // One training step's worth: forward + sample + backward on the autodiff device.
+        // One training step's worth: forward + sample + backward on the autodiff device, with
+        // the default method (flex: the host kernels) and with Im2col everywhere.
         let ad = dev.clone().autodiff();
-        let geometry = BodyVolumeGeometry::build(&vertices, &vb, &ad).expect("geometry");
         let net = config.init(&ad);
         let features = tensor3(
             normals(&mut rng, VIEWS * vertices.len() * config.vertex_channels),
@@ -163,16 +168,24 @@ fn main() {
             .iter()
             .map(|c| TrilinearTensors::upload(c, &ad))
             .collect();
-        let t = Instant::now();
-        let volume = net.forward(&geometry, features.clone()).expect("forward");
-        let loss = volume.sample(&tensors).expect("sample").sum();
-        let forward_ad = ms(t);
-        let t = Instant::now();
-        let grads = loss.backward();
-        sync(features.grad(&grads).expect("feature gradient").sum());
-        println!(
-            "  autodiff: forward + sample {forward_ad:.0} ms, backward {:.0} ms",
-            ms(t)
-        );
+        for method in [ConvMethod::Auto, ConvMethod::Im2col] {
+            let geometry = BodyVolumeGeometry::build_with_method(&vertices, &vb, method, &ad)
+                .expect("geometry");
+            let mut line = format!("  autodiff, {:?}:", geometry.submanifold[0].method());
+            for _ in 0..2 {
+                let t = Instant::now();
+                let volume = net.forward(&geometry, features.clone()).expect("forward");
+                let loss = volume.sample(&tensors).expect("sample").sum();
+                let forward_ad = ms(t);
+                let t = Instant::now();
+                let grads = loss.backward();
+                sync(features.grad(&grads).expect("feature gradient").sum());
+                line += &format!(
+                    " forward + sample {forward_ad:.0} ms, backward {:.0} ms;",
+                    ms(t)
+                );
+            }
+            println!("{line}");
+        }
     }
 }

@@ -272,7 +272,7 @@ fn check_against_dense(
 
 /// `check_against_dense` (its weights seeded with `weights_seed`) on random sites of each
 /// `(dims, occupied fraction)` grid (drawn in turn from one generator seeded with `seed`), with
-/// both methods, on ndarray and flex.
+/// the two tensor methods on ndarray and flex and the host kernels on flex.
 fn conv_matches_dense(seed: u64, grids: [([usize; 3], f32); 3], strided: bool, weights_seed: u64) {
     let mut rng = Rng::new(seed);
     for (dims, fraction) in grids {
@@ -282,6 +282,13 @@ fn conv_matches_dense(seed: u64, grids: [([usize; 3], f32); 3], strided: bool, w
                 check_against_dense(&dev, &sites, strided, method, weights_seed);
             }
         }
+        check_against_dense(
+            &Device::flex(),
+            &sites,
+            strided,
+            ConvMethod::Host,
+            weights_seed,
+        );
     }
 }
 
@@ -353,8 +360,6 @@ fn conv_with(weight: Vec<f32>, dims: [usize; 3], device: &Device) -> SparseConv3
 #[test]
 fn sparse_conv_gradients_match_finite_differences() {
     let mut rng = Rng::new(21);
-    let plain = device();
-    let ad = device().autodiff();
     let sites = random_sites(&mut rng, [4, 4, 3], 0.35);
     let (n, c_in, c_out, p) = (2, 2, 3, sites.len());
     for strided in [false, true] {
@@ -363,7 +368,13 @@ fn sparse_conv_gradients_match_finite_differences() {
         } else {
             Rulebook::submanifold(&sites)
         };
-        for method in [ConvMethod::Im2col, ConvMethod::Pairs] {
+        // The tensor methods on ndarray; the host kernels (hand-written backward) on flex.
+        for (method, plain) in [
+            (ConvMethod::Im2col, device()),
+            (ConvMethod::Pairs, device()),
+            (ConvMethod::Host, Device::flex()),
+        ] {
+            let ad = plain.clone().autodiff();
             let weight = normals(&mut rng, KERNEL_VOLUME * c_in * c_out);
             let features = normals(&mut rng, n * p * c_in);
             let r = normals(&mut rng, n * rules.n_out * c_out);
@@ -373,6 +384,7 @@ fn sparse_conv_gradients_match_finite_differences() {
             // Analytic gradients on the autodiff device.
             let rules_ad =
                 RulebookTensors::with_method(&rules, method, &ad).with_outputs_per_chunk(4);
+            assert_eq!(rules_ad.method(), method);
             let conv = conv_with(weight.clone(), w_dims, &ad);
             let x = tensor3(features.clone(), f_dims, &ad).require_grad();
             let out = conv.forward(x.clone(), &rules_ad).unwrap();
@@ -937,4 +949,160 @@ fn network_forward_and_backward_are_finite() {
     let wrong = tensor3(vec![0.0; n * 3 * c_v], [n, 3, c_v], &ad);
     assert!(net.forward(&geometry, wrong).is_err());
     assert!(volume.sample(&corners[..2]).is_err());
+}
+
+/// Host kernels against the tensor path: the same products summed in another order (blocks,
+/// chunks); relative to the largest magnitude of each compared set.
+const HOST_TOL: f32 = 1e-4;
+
+/// `max |a - b| / max(1e-6, max |b|)`.
+fn relative_gap(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+    a.iter()
+        .zip(b)
+        .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()))
+        / scale
+}
+
+/// The network's scale features and the gradients of `sum_s sum(features_s * r_s)` at the
+/// vertex features and at every convolution weight, on `device` with the rulebooks run by
+/// `method`; the weights come from `net_record` so every call has the same network.
+fn network_outputs_and_gradients(
+    device: &Device,
+    method: ConvMethod,
+    vertices: &[[f32; 3]],
+    vb: &VoxelBox,
+    config: &BodyVolumeNetConfig,
+    net_record: &nia_model::body_volume::BodyVolumeNet,
+    vertex_values: &[f32],
+    views: usize,
+    seed: u64,
+) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
+    use burn::module::Module;
+    let geometry = BodyVolumeGeometry::build_with_method(vertices, vb, method, device).unwrap();
+    for rules in geometry.submanifold.iter().chain(&geometry.strided) {
+        assert_eq!(rules.method(), method);
+    }
+    let net = config
+        .init(device)
+        .load_record(net_record.clone().into_record());
+    let x = tensor3(
+        vertex_values.to_vec(),
+        [views, vertices.len(), config.vertex_channels],
+        device,
+    )
+    .require_grad();
+    let volume = net.forward(&geometry, x.clone()).unwrap();
+    let mut rng = Rng::new(seed);
+    let mut loss = None;
+    let mut outputs = Vec::new();
+    for scale in &volume.scales {
+        let dims = scale.features.dims();
+        let r = tensor3(normals(&mut rng, dims.iter().product()), dims, device);
+        outputs.push(values(scale.features.clone()));
+        let term = (scale.features.clone() * r).sum();
+        loss = Some(match loss {
+            None => term,
+            Some(l) => l + term,
+        });
+    }
+    let grads = loss.unwrap().backward();
+    let mut gradients = vec![values(x.grad(&grads).unwrap())];
+    let blocks = net.full.iter().chain(
+        net.scales
+            .iter()
+            .flat_map(|s| std::iter::once(&s.down).chain(&s.convs)),
+    );
+    for block in blocks {
+        gradients.push(values(block.conv.weight.grad(&grads).unwrap()));
+    }
+    (outputs, gradients)
+}
+
+#[test]
+fn host_kernels_match_the_tensor_path_through_the_network() {
+    let mut rng = Rng::new(81);
+    let vertices = body_like_vertices(&mut rng, 1500);
+    let vb = VoxelBox::enclosing(&vertices, 0.02, 0.03).unwrap();
+    // Widths from 8 to 32, so the blocks hold from 216 to 864 values per row.
+    let config = BodyVolumeNetConfig::new()
+        .with_vertex_channels(8)
+        .with_full_channels(8)
+        .with_full_convs(1)
+        .with_scale_channels([8, 16, 32, 32])
+        .with_scale_convs([1, 1, 2, 1]);
+    let views = 3;
+    let vertex_values = normals(&mut rng, views * vertices.len() * config.vertex_channels);
+    let record = config.init(&Device::flex());
+    let run = |device: &Device, method: ConvMethod| {
+        network_outputs_and_gradients(
+            device,
+            method,
+            &vertices,
+            &vb,
+            &config,
+            &record,
+            &vertex_values,
+            views,
+            5,
+        )
+    };
+    let ad = Device::flex().autodiff();
+    let (out_ref, grad_ref) = run(&ad, ConvMethod::Im2col);
+    let (out_host, grad_host) = run(&ad, ConvMethod::Host);
+    for (s, (a, b)) in out_host.iter().zip(&out_ref).enumerate() {
+        let gap = relative_gap(a, b);
+        assert!(gap <= HOST_TOL, "scale {s} features: relative gap {gap}");
+    }
+    assert_eq!(grad_host.len(), grad_ref.len());
+    for (i, (a, b)) in grad_host.iter().zip(&grad_ref).enumerate() {
+        assert!(a.iter().all(|v| v.is_finite()));
+        assert!(b.iter().any(|v| *v != 0.0), "gradient {i} is all zero");
+        let gap = relative_gap(a, b);
+        // 0: the vertex features; then the convolution weights in network order.
+        assert!(gap <= HOST_TOL, "gradient {i}: relative gap {gap}");
+    }
+
+    // The same numbers whatever the number of threads (fixed blocks and chunks, the chunks'
+    // sums added in order), and under gradient checkpointing.
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let (out, grad) = pool.install(|| run(&ad, ConvMethod::Host));
+        assert_eq!(out, out_host, "{threads} threads: features");
+        assert_eq!(grad, grad_host, "{threads} threads: gradients");
+    }
+    let checkpointed = Device::flex().autodiff().gradient_checkpointing();
+    let (out, grad) = run(&checkpointed, ConvMethod::Host);
+    assert_eq!(out, out_host, "checkpointing: features");
+    assert_eq!(grad, grad_host, "checkpointing: gradients");
+
+    // Inference (flex without autodiff) runs the same forward.
+    let geometry =
+        BodyVolumeGeometry::build_with_method(&vertices, &vb, ConvMethod::Host, &Device::flex())
+            .unwrap();
+    let x = tensor3(
+        vertex_values.clone(),
+        [views, vertices.len(), config.vertex_channels],
+        &Device::flex(),
+    );
+    let volume = record.forward(&geometry, x).unwrap();
+    for (scale, expected) in volume.scales.iter().zip(&out_host) {
+        assert_eq!(&values(scale.features.clone()), expected);
+    }
+    // On ndarray `Host` runs as its tensor equivalent.
+    #[allow(deprecated)]
+    let nd = Device::ndarray();
+    let rules = Rulebook::submanifold(&geometry.levels[0].sites);
+    assert_eq!(
+        RulebookTensors::with_method(&rules, ConvMethod::Host, &nd).method(),
+        ConvMethod::Im2col
+    );
+    assert_eq!(
+        RulebookTensors::new(&rules, &Device::flex()).method(),
+        ConvMethod::Host
+    );
 }

@@ -52,6 +52,11 @@ pub struct BenchArgs {
     /// Use the tiny test network instead of the paper's.
     #[arg(long)]
     pub tiny: bool,
+    /// Edge of the body volume's voxels in metres (`model.voxel_size_m`; default: the
+    /// network's own, 0.005 for the paper's and 0.02 for the tiny one; the main command uses
+    /// 0.01).
+    #[arg(long)]
+    pub voxel_size_m: Option<f32>,
     /// Skip the training step (forward only).
     #[arg(long)]
     pub no_train: bool,
@@ -204,6 +209,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         ModelConfig::tiny()
     } else {
         ModelConfig::new()
+    };
+    let config = match args.voxel_size_m {
+        Some(v) if !(v.is_finite() && v > 0.0) => {
+            anyhow::bail!("--voxel-size-m must be a positive number of metres, got {v}")
+        }
+        Some(v) => config.with_voxel_size_m(v),
+        None => config,
     };
     let (input, rays) = bench_scene(&args).context("building the benchmark scene")?;
     device.seed(0);

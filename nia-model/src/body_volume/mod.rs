@@ -6,6 +6,7 @@
 //! Pipeline, per frame (geometry: CPU, once, in [`nia_data::geometry::sparse`]: voxelisation,
 //! active sites, rulebooks, trilinear corners) and per forward (tensors, here):
 //! - [`sparse_conv`]: [`SparseConv3d`], a gather / matmul / scatter convolution on the sites.
+//! - [`host_conv`]: the same convolution on flex's buffers, forward and a hand-written backward.
 //! - [`site_norm`]: [`SiteNorm`], per-view channel normalisation over the active sites.
 //! - [`network`]: [`BodyVolumeNet`] and [`BodyVolumeGeometry`] -> [`BodyVolume`].
 //! - [`trilinear`]: the tensor-side trilinear sampling at the corners of the query points.
@@ -14,6 +15,7 @@
 
 use nia_data::geometry::sparse::SparseGridError;
 
+pub mod host_conv;
 pub mod host_read;
 pub mod network;
 pub mod site_norm;

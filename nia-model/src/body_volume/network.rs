@@ -199,7 +199,7 @@ impl BodyVolumeGeometry {
     }
 
     /// [`Self::build`] with the sparse convolution method of every rulebook chosen by the
-    /// caller (`Auto` picks by fill ratio; `Im2col` measured fastest everywhere on flex, see
+    /// caller (`Auto`: the host kernels on flex, elsewhere by fill ratio, see
     /// [`super::sparse_conv::IM2COL_MIN_FILL`]).
     pub fn build_with_method(
         vertices_smpl: &[[f32; 3]],

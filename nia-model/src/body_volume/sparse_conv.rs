@@ -11,12 +11,18 @@
 //!   one gather of the T pairs' products and one scatter-add (`select_assign(.., Add)`) into
 //!   `[N, P_out, C_out]`. The matmul costs as much as `Im2col`'s, but only T rows move through
 //!   the gather / scatter; best when few neighbours are active.
+//! - `Host` (flex, with or without autodiff): [`super::host_conv`], the `Im2col` product in
+//!   cache-sized blocks on the host, with a hand-written backward that gathers instead of
+//!   scatter-adding and keeps no columns for the backward.
 
 use burn::module::Param;
 use burn::nn::Initializer;
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
+use std::sync::Arc;
+
+use super::host_conv::{runs_on_host, sparse_conv_host, HostRules};
 use super::BodyVolumeError;
 use nia_data::geometry::sparse::{Rulebook, RulebookKind, KERNEL_VOLUME};
 
@@ -31,19 +37,22 @@ const TORCH_CONV_INIT_GAIN: f64 = 0.577_350_269_189_625_8;
 /// `Pairs` is 2-3.5x faster on the two full-resolution rulebooks (fill 0.06-0.08: 78 vs 156 ms,
 /// 102 vs 371 ms) and slower from fill ~0.2 up; on flex blocked `Im2col` is faster at every
 /// fill (40 vs 90 ms, 58 vs 97 ms there; its missing neighbours all read one cached zero
-/// row). `Auto` suits ndarray; on flex (and GPUs, where a gather + matmul avoids atomics)
-/// build with [`ConvMethod::Im2col`] (~0.14 s less per paper-size forward on flex).
+/// row). `Auto` picks by this ratio on ndarray and GPUs (where a gather + matmul avoids
+/// atomics, [`ConvMethod::Im2col`] is the better choice there), and [`ConvMethod::Host`] on flex.
 pub const IM2COL_MIN_FILL: f64 = 0.1;
 
 /// How a rulebook is run on tensors (the results are equal up to float summation order).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ConvMethod {
-    /// Pick by fill ratio ([`IM2COL_MIN_FILL`]).
+    /// `Host` on flex (with or without autodiff), elsewhere by fill ratio ([`IM2COL_MIN_FILL`]).
     Auto,
     /// Gather all 27 neighbours per output, one matmul.
     Im2col,
     /// Gather the pairs, one matmul per offset, scatter-add.
     Pairs,
+    /// The host kernels of [`super::host_conv`] (flex only: on another backend this runs as
+    /// `Im2col`, its tensor equivalent).
+    Host,
 }
 
 #[derive(Debug, Clone)]
@@ -57,6 +66,9 @@ enum RulebookIndices {
         product_row: Tensor<1, Int>,
         /// [T] output site of every pair.
         out_index: Tensor<1, Int>,
+    },
+    Host {
+        rules: Arc<HostRules>,
     },
 }
 
@@ -82,16 +94,22 @@ impl RulebookTensors {
 
     /// Uploads `rulebook` for the given method.
     pub fn with_method(rulebook: &Rulebook, method: ConvMethod, device: &Device) -> Self {
+        let host = runs_on_host(device);
         let method = match method {
+            ConvMethod::Auto if host => ConvMethod::Host,
             ConvMethod::Auto if rulebook.fill_ratio() >= IM2COL_MIN_FILL => ConvMethod::Im2col,
             ConvMethod::Auto => ConvMethod::Pairs,
+            ConvMethod::Host if !host => ConvMethod::Im2col,
             m => m,
         };
         let indices = match method {
+            ConvMethod::Host => RulebookIndices::Host {
+                rules: Arc::new(HostRules::new(rulebook)),
+            },
             ConvMethod::Im2col => RulebookIndices::Im2col {
                 neighbours: int_tensor(&rulebook.neighbour_map(), device),
             },
-            _ => {
+            ConvMethod::Auto | ConvMethod::Pairs => {
                 let mut product_row = Vec::with_capacity(rulebook.num_pairs());
                 for k in 0..KERNEL_VOLUME {
                     product_row.extend(
@@ -129,6 +147,7 @@ impl RulebookTensors {
         match self.indices {
             RulebookIndices::Im2col { .. } => ConvMethod::Im2col,
             RulebookIndices::Pairs { .. } => ConvMethod::Pairs,
+            RulebookIndices::Host { .. } => ConvMethod::Host,
         }
     }
 }
@@ -261,6 +280,7 @@ impl SparseConv3d {
         // All gathers and scatters are row operations on 2D [rows, C] tensors (the fast path
         // of the CPU backends), the N views stacked along the rows.
         let out = match &rulebook.indices {
+            RulebookIndices::Host { rules } => sparse_conv_host(features, weight, rules),
             RulebookIndices::Im2col { neighbours } => {
                 let rows = rows_with_zero_row(features); // [N * (P_in + 1), C_in]
                 let w = weight.reshape([KERNEL_VOLUME * c_in, c_out]);

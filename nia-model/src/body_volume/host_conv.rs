@@ -1,0 +1,463 @@
+//! The sparse convolution on the host, forward and backward: flex only, with and without
+//! autodiff ([`ConvMethod::Host`](super::ConvMethod::Host)).
+//!
+//! `out[n, o] = sum_k in[n, nb(o, k)] @ W[k]` ([`super::sparse_conv`]) in blocks of output
+//! rows: each block's 27 neighbours are gathered into a small buffer (a missing neighbour is a
+//! zero row) and multiplied with `W` as `[27 C_in, C_out]` by `gemm`; the buffer stays in cache
+//! and nothing else is allocated. Its backward is written by hand (burn's backend extension):
+//! - `d in[n, i] = sum_k d out[n, inv(i, k)] @ W[k]^T`, the same blocked gather and product on
+//!   the inverse neighbour map. For a fixed offset k an input site is read by at most one
+//!   output (the one at `i - k`, or its stride-2 parent), so `inv` is again one slot per
+//!   (site, offset): a gather, with no scatter-add (burn's backward of the tensor path's
+//!   gather is a single-threaded scatter-add of `27 P_out` rows);
+//! - `dW = sum_o gather(in, nb(o))^T @ d out[o]`, the forward's gather redone block by block
+//!   (the `[N P_out, 27 C_in]` columns are never kept for the backward), summed over fixed
+//!   chunks of rows and the chunks' sums added in order, so the result does not depend on the
+//!   number of threads.
+//!
+//! Equal to the tensor path up to float summation order, and the same whatever the number of
+//! threads (`nia-model/tests/body_volume.rs`).
+
+use std::sync::Arc;
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{binary, Backward, Ops, OpsKind};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex, TensorMetadata};
+use burn::prelude::*;
+use burn::tensor::DType;
+use rayon::prelude::*;
+
+use nia_data::geometry::sparse::{Rulebook, KERNEL_VOLUME};
+
+/// flex's tensor primitive.
+type FlexTensor = FloatTensor<Flex>;
+
+/// A rulebook in host memory for the host kernels: the neighbour map and its inverse.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostRules {
+    /// Input sites P_in.
+    pub n_in: usize,
+    /// Output sites P_out.
+    pub n_out: usize,
+    /// `[P_out * 27]` input site read by output o at offset k (`o * 27 + k`); `n_in` = none.
+    pub neighbours: Vec<u32>,
+    /// `[P_in * 27]` output site that reads input i at offset k (`i * 27 + k`); `n_out` = none.
+    pub inverse: Vec<u32>,
+}
+
+impl HostRules {
+    /// The maps of `rulebook`.
+    pub fn new(rulebook: &Rulebook) -> Self {
+        let (n_in, n_out) = (rulebook.n_in, rulebook.n_out);
+        let mut neighbours = vec![n_in as u32; n_out * KERNEL_VOLUME];
+        let mut inverse = vec![n_out as u32; n_in * KERNEL_VOLUME];
+        for k in 0..KERNEL_VOLUME {
+            for (i, o) in rulebook.pairs(k) {
+                neighbours[o as usize * KERNEL_VOLUME + k] = i;
+                inverse[i as usize * KERNEL_VOLUME + k] = o;
+            }
+        }
+        HostRules {
+            n_in,
+            n_out,
+            neighbours,
+            inverse,
+        }
+    }
+}
+
+/// The host sparse convolution as a backend operation (burn's backend extension): flex, and
+/// autodiff over flex with the hand-written backward of this module.
+#[backend_extension(Autodiff, Flex)]
+pub trait SparseConvBackend: Backend {
+    /// `features` `[N, P_in, C_in]`, `weight` `[27, C_in, C_out]` -> `[N, P_out, C_out]`.
+    fn sparse_conv_host(
+        features: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        rules: Arc<HostRules>,
+    ) -> FloatTensor<Self>;
+}
+
+/// The three host kernels on a concrete backend's buffers.
+pub trait SparseConvKernels: Backend {
+    /// The forward: `[N, P_in, C_in]` and `[27, C_in, C_out]` give `[N, P_out, C_out]`.
+    fn conv_forward(
+        features: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        rules: &HostRules,
+    ) -> FloatTensor<Self>;
+    /// The input gradient: `[N, P_out, C_out]` and `[27, C_in, C_out]` give `[N, P_in, C_in]`.
+    fn conv_grad_input(
+        grad: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        rules: &HostRules,
+    ) -> FloatTensor<Self>;
+    /// The weight gradient: `[N, P_in, C_in]` and `[N, P_out, C_out]` give `[27, C_in, C_out]`.
+    fn conv_grad_weight(
+        features: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        rules: &HostRules,
+    ) -> FloatTensor<Self>;
+}
+
+/// A contiguous f32 copy-free view of `t` (converted when it is not f32).
+fn contiguous_f32(t: FlexTensor) -> FlexTensor {
+    let t = if t.dtype() == DType::F32 {
+        t
+    } else {
+        FlexTensor::from_data(t.into_data().convert::<f32>())
+    };
+    if t.is_contiguous() {
+        t
+    } else {
+        t.to_contiguous()
+    }
+}
+
+/// The f32 values of a tensor from [`contiguous_f32`].
+fn values(t: &FlexTensor) -> &[f32] {
+    t.as_slice::<f32>()
+        .expect("contiguous_f32 gives a contiguous f32 tensor")
+}
+
+fn dims3(t: &FlexTensor) -> [usize; 3] {
+    t.shape().dims::<3>()
+}
+
+fn flex_tensor(values: Vec<f32>, dims: [usize; 3]) -> FlexTensor {
+    FlexTensor::from_data(TensorData::new(values, dims))
+}
+
+impl SparseConvKernels for Flex {
+    fn conv_forward(features: FlexTensor, weight: FlexTensor, rules: &HostRules) -> FlexTensor {
+        let (x, w) = (contiguous_f32(features), contiguous_f32(weight));
+        let [n, _, ci] = dims3(&x);
+        let co = dims3(&w)[2];
+        let out = blocked_gather_product(
+            values(&x),
+            rules.n_in,
+            ci,
+            &rules.neighbours,
+            rules.n_out,
+            n,
+            values(&w),
+            co,
+        );
+        flex_tensor(out, [n, rules.n_out, co])
+    }
+
+    fn conv_grad_input(grad: FlexTensor, weight: FlexTensor, rules: &HostRules) -> FlexTensor {
+        let (g, w) = (contiguous_f32(grad), contiguous_f32(weight));
+        let [n, _, co] = dims3(&g);
+        let ci = dims3(&w)[1];
+        // W'[k * C_out + c_out, c_in] = W[k, c_in, c_out]: every offset's block transposed.
+        let w = values(&w);
+        let mut wt = vec![0.0f32; w.len()];
+        for k in 0..KERNEL_VOLUME {
+            let (src, dst) = (
+                &w[k * ci * co..(k + 1) * ci * co],
+                &mut wt[k * ci * co..(k + 1) * ci * co],
+            );
+            for c_in in 0..ci {
+                for c_out in 0..co {
+                    dst[c_out * ci + c_in] = src[c_in * co + c_out];
+                }
+            }
+        }
+        let out = blocked_gather_product(
+            values(&g),
+            rules.n_out,
+            co,
+            &rules.inverse,
+            rules.n_in,
+            n,
+            &wt,
+            ci,
+        );
+        flex_tensor(out, [n, rules.n_in, ci])
+    }
+
+    fn conv_grad_weight(features: FlexTensor, grad: FlexTensor, rules: &HostRules) -> FlexTensor {
+        let (x, g) = (contiguous_f32(features), contiguous_f32(grad));
+        let [n, _, ci] = dims3(&x);
+        let co = dims3(&g)[2];
+        let out = gathered_outer_sum(values(&x), rules, n, ci, values(&g), co);
+        flex_tensor(out, [KERNEL_VOLUME, ci, co])
+    }
+}
+
+impl SparseConvBackend for Flex {
+    fn sparse_conv_host(
+        features: FlexTensor,
+        weight: FlexTensor,
+        rules: Arc<HostRules>,
+    ) -> FlexTensor {
+        <Flex as SparseConvKernels>::conv_forward(features, weight, &rules)
+    }
+}
+
+/// The backward of [`SparseConvBackend::sparse_conv_host`] under autodiff.
+#[derive(Debug)]
+struct SparseConvHostBackward;
+
+impl<B: Backend + SparseConvKernels> Backward<B, 2> for SparseConvHostBackward {
+    /// The features, the weight and the maps.
+    type State = (FloatTensor<B>, FloatTensor<B>, Arc<HostRules>);
+
+    fn backward(
+        self,
+        ops: Ops<Self::State, 2>,
+        grads: &mut Gradients,
+        _checkpointer: &mut Checkpointer,
+    ) {
+        let (features, weight, rules) = ops.state;
+        let rules_w = rules.clone();
+        binary::<B, _, _>(
+            ops.parents,
+            ops.node,
+            grads,
+            |grad| B::conv_grad_input(grad, weight, &rules),
+            |grad| B::conv_grad_weight(features, grad, &rules_w),
+        );
+    }
+}
+
+impl<B: Backend + SparseConvKernels, C: CheckpointStrategy> SparseConvBackend for Autodiff<B, C> {
+    fn sparse_conv_host(
+        features: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        rules: Arc<HostRules>,
+    ) -> FloatTensor<Self> {
+        match SparseConvHostBackward
+            .prepare::<C>([features.node(), weight.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let (x, w) = (features.into_primitive(), weight.into_primitive());
+                let out = B::conv_forward(x.clone(), w.clone(), &rules);
+                prep.finish((x, w, rules), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::conv_forward(
+                features.into_primitive(),
+                weight.into_primitive(),
+                &rules,
+            )),
+        }
+    }
+}
+
+/// Whether `device` is flex, with or without autodiff: where [`sparse_conv_host`] runs.
+pub fn runs_on_host(device: &Device) -> bool {
+    use burn_dispatch::DispatchDevice;
+    match device.as_dispatch() {
+        DispatchDevice::Flex(_) => true,
+        DispatchDevice::Autodiff(d) => matches!(d.clone().inner(), DispatchDevice::Flex(_)),
+        _ => false,
+    }
+}
+
+/// The sparse convolution by the host kernels of this module (the device must be flex, with or
+/// without autodiff: [`runs_on_host`]).
+///
+/// # Shapes
+/// - features: `[N, P_in, C_in]`
+/// - weight: `[27, C_in, C_out]`
+/// - output: `[N, P_out, C_out]`
+pub fn sparse_conv_host(
+    features: Tensor<3>,
+    weight: Tensor<3>,
+    rules: &Arc<HostRules>,
+) -> Tensor<3> {
+    Tensor::from_dispatch(<Dispatch as SparseConvBackend>::sparse_conv_host(
+        features.into_dispatch(),
+        weight.into_dispatch(),
+        rules.clone(),
+    ))
+}
+
+/// Size of a gathered block in f32 values (64 KiB): it stays in the core's cache.
+const BLOCK_VALUES: usize = 16 * 1024;
+
+/// Rows per gathered block when a row holds `width` values (8..=512).
+fn block_rows(width: usize) -> usize {
+    (BLOCK_VALUES / width.max(1)).clamp(8, 512)
+}
+
+/// `out[n, r] = sum_k table[n, map[r * 27 + k]] @ weight[k]` for every view n and row r:
+/// `table` `[N, rows_in, c]`, `map` `[rows_out * 27]` (`rows_in` = none), `weight`
+/// `[27 c, c_out]` row-major; returns `[N, rows_out, c_out]`.
+#[allow(clippy::too_many_arguments)]
+fn blocked_gather_product(
+    table: &[f32],
+    rows_in: usize,
+    c: usize,
+    map: &[u32],
+    rows_out: usize,
+    views: usize,
+    weight: &[f32],
+    c_out: usize,
+) -> Vec<f32> {
+    let k_len = KERNEL_VOLUME * c;
+    assert!(
+        table.len() == views * rows_in * c
+            && map.len() == rows_out * KERNEL_VOLUME
+            && weight.len() == k_len * c_out,
+        "host sparse convolution: {} table values for [{views}, {rows_in}, {c}], {} map \
+         entries for {rows_out} rows, {} weights for [{k_len}, {c_out}]",
+        table.len(),
+        map.len(),
+        weight.len()
+    );
+    let mut out = vec![0.0f32; views * rows_out * c_out];
+    if c_out == 0 || rows_out == 0 {
+        return out;
+    }
+    let block = block_rows(k_len);
+    out.par_chunks_mut(block * c_out).enumerate().for_each_init(
+        || vec![0.0f32; block * k_len],
+        |buf, (b, dst)| {
+            let first = b * block;
+            let len = dst.len() / c_out;
+            for (r, cols) in buf.chunks_exact_mut(k_len).take(len).enumerate() {
+                let (view, row) = ((first + r) / rows_out, (first + r) % rows_out);
+                let src = &table[view * rows_in * c..(view + 1) * rows_in * c];
+                let slots = &map[row * KERNEL_VOLUME..(row + 1) * KERNEL_VOLUME];
+                for (slot, col) in slots.iter().zip(cols.chunks_exact_mut(c)) {
+                    let i = *slot as usize;
+                    if i < rows_in {
+                        col.copy_from_slice(&src[i * c..(i + 1) * c]);
+                    } else {
+                        col.fill(0.0);
+                    }
+                }
+            }
+            let lhs = &buf[..len * k_len];
+            // SAFETY: dst is [len, c_out] row-major, lhs [len, k_len] row-major and weight
+            // [k_len, c_out] row-major; the slices hold exactly those extents (the assert
+            // above and the chunking).
+            unsafe {
+                gemm::gemm(
+                    len,
+                    c_out,
+                    k_len,
+                    dst.as_mut_ptr(),
+                    1,
+                    c_out as isize,
+                    false,
+                    lhs.as_ptr(),
+                    1,
+                    k_len as isize,
+                    weight.as_ptr(),
+                    1,
+                    c_out as isize,
+                    0.0,
+                    1.0,
+                    false,
+                    false,
+                    false,
+                    gemm::Parallelism::None,
+                );
+            }
+        },
+    );
+    out
+}
+
+/// Rows of one weight-gradient chunk: a fixed share of the rows (so the chunks, and the sum,
+/// do not depend on the number of threads), at least one block.
+fn weight_chunk_rows(total_rows: usize, block: usize) -> usize {
+    total_rows.div_ceil(16).max(block).div_ceil(block) * block
+}
+
+/// `dW[k] = sum_{n, o} x[n, nb(o, k)]^T dy[n, o]`: `x` `[N, P_in, ci]`, `dy` `[N, P_out, co]`;
+/// returns `[27 ci, co]` row-major.
+fn gathered_outer_sum(
+    x: &[f32],
+    rules: &HostRules,
+    views: usize,
+    ci: usize,
+    dy: &[f32],
+    co: usize,
+) -> Vec<f32> {
+    let (rows_in, rows_out) = (rules.n_in, rules.n_out);
+    let k_len = KERNEL_VOLUME * ci;
+    assert!(
+        x.len() == views * rows_in * ci
+            && dy.len() == views * rows_out * co
+            && rules.neighbours.len() == rows_out * KERNEL_VOLUME,
+        "host sparse convolution backward: {} input values for [{views}, {rows_in}, {ci}], \
+         {} gradient values for [{views}, {rows_out}, {co}]",
+        x.len(),
+        dy.len()
+    );
+    let total = views * rows_out;
+    let mut dw = vec![0.0f32; k_len * co];
+    if total == 0 || co == 0 || ci == 0 {
+        return dw;
+    }
+    let block = block_rows(k_len);
+    let chunk = weight_chunk_rows(total, block);
+    let partials: Vec<Vec<f32>> = (0..total.div_ceil(chunk))
+        .into_par_iter()
+        .map(|c| {
+            let mut acc = vec![0.0f32; k_len * co];
+            let mut buf = vec![0.0f32; block * k_len];
+            let end = ((c + 1) * chunk).min(total);
+            for first in (c * chunk..end).step_by(block) {
+                let len = block.min(end - first);
+                for (r, cols) in buf.chunks_exact_mut(k_len).take(len).enumerate() {
+                    let (view, row) = ((first + r) / rows_out, (first + r) % rows_out);
+                    let src = &x[view * rows_in * ci..(view + 1) * rows_in * ci];
+                    let slots = &rules.neighbours[row * KERNEL_VOLUME..(row + 1) * KERNEL_VOLUME];
+                    for (slot, col) in slots.iter().zip(cols.chunks_exact_mut(ci)) {
+                        let i = *slot as usize;
+                        if i < rows_in {
+                            col.copy_from_slice(&src[i * ci..(i + 1) * ci]);
+                        } else {
+                            col.fill(0.0);
+                        }
+                    }
+                }
+                let lhs = &buf[..len * k_len];
+                let rhs = &dy[first * co..(first + len) * co];
+                // SAFETY: acc is [k_len, co] row-major; lhs read transposed as [k_len, len]
+                // (column stride k_len, row stride 1) from [len, k_len] row-major; rhs
+                // [len, co] row-major. The slices hold those extents (assert and chunking).
+                unsafe {
+                    gemm::gemm(
+                        k_len,
+                        co,
+                        len,
+                        acc.as_mut_ptr(),
+                        1,
+                        co as isize,
+                        true,
+                        lhs.as_ptr(),
+                        k_len as isize,
+                        1,
+                        rhs.as_ptr(),
+                        1,
+                        co as isize,
+                        1.0,
+                        1.0,
+                        false,
+                        false,
+                        false,
+                        gemm::Parallelism::None,
+                    );
+                }
+            }
+            acc
+        })
+        .collect();
+    for partial in &partials {
+        for (d, p) in dw.iter_mut().zip(partial) {
+            *d += p;
+        }
+    }
+    dw
+}
