@@ -170,20 +170,39 @@ fn wgpu_matches_ndarray() {
     let mut model_gpu = model.clone().to_device(&gpu);
     let input = common::scene(3, 32);
     let rays = common::target_rays(&input, 3);
-    let run = |m: &nia_model::NiaModel, d: &Device| {
-        let scene = m.encode(&input, None, d, None).unwrap();
+    // Plain, and front to back with termination and colour culling (the renderer's two
+    // paths; on wgpu both pad their network calls to shape buckets).
+    let run = |m: &nia_model::NiaModel, d: &Device, adaptive: bool| {
+        let mut scene = m.encode(&input, None, d, None).unwrap();
+        if adaptive {
+            scene = scene
+                .with_termination(Some(1e-3))
+                .with_colour_culling(Some(0.05));
+        }
         let out = m.render(&scene, &rays, SAMPLES, None, None).unwrap();
+        // The adaptive run culls colours (the padded selection path on wgpu).
+        assert_eq!(
+            out.colour_evaluations < out.point_evaluations,
+            adaptive,
+            "{} colour evaluations of {} points",
+            out.colour_evaluations,
+            out.point_evaluations
+        );
         (
             out.rgb.into_data().try_to_vec::<f32>().unwrap(),
             out.acc.into_data().try_to_vec::<f32>().unwrap(),
         )
     };
     // Source colours per sample (the paper) and at the expected surface point.
-    for at in [SourceColoursAt::Samples, SourceColoursAt::Surface] {
+    for (at, adaptive) in [
+        (SourceColoursAt::Samples, false),
+        (SourceColoursAt::Surface, false),
+        (SourceColoursAt::Surface, true),
+    ] {
         model.source_colours_at = at;
         model_gpu.source_colours_at = at;
-        let (rgb_cpu, acc_cpu) = run(&model, &cpu);
-        let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu);
+        let (rgb_cpu, acc_cpu) = run(&model, &cpu, adaptive);
+        let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu, adaptive);
         let max_diff = rgb_cpu
             .iter()
             .zip(&rgb_gpu)
@@ -192,7 +211,7 @@ fn wgpu_matches_ndarray() {
             .fold(0.0f32, f32::max);
         assert!(
             max_diff <= BACKEND_TOLERANCE,
-            "{at:?}: ndarray vs wgpu max difference {max_diff}"
+            "{at:?} (adaptive: {adaptive}): ndarray vs wgpu max difference {max_diff}"
         );
     }
 }

@@ -5,6 +5,7 @@
 //!   quadrature;
 //! - [`termination`] and [`colour_culling`]: what an inference render may leave out behind an
 //!   opaque front or under a negligible weight;
+//! - [`shape_buckets`]: the point counts of a GPU render's network calls padded to a few shapes;
 //! - [`image`]: whole target images in chunks of rays;
 //! - [`view`]: [`view::render_view`], the one entry point every command renders through (scene
 //!   encoding with the `[render]` options, rays through the pixels, the image).
@@ -13,6 +14,7 @@ pub mod colour_culling;
 mod forward;
 pub mod image;
 pub mod quadrature;
+pub mod shape_buckets;
 pub mod termination;
 pub mod view;
 

@@ -25,6 +25,7 @@ use crate::field::PointOutput;
 use crate::model::NiaModel;
 use crate::readback::host_values;
 use crate::renderer::colour_culling::cull;
+use crate::renderer::shape_buckets::{bucket_len, pad_points, pad_to, pads_to_buckets};
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::Stopwatch;
@@ -67,6 +68,7 @@ impl NiaModel {
         };
         let segment_of = |f: usize| (f % s) * segments / s;
         let device = scene.images.device();
+        let pad = pads_to_buckets(&device);
         let n1 = scene.num_views() + 1;
         let mut tau = vec![0.0f32; rays];
         let mut spent = vec![0.0f32; rays];
@@ -80,11 +82,16 @@ impl NiaModel {
             if chosen.is_empty() {
                 continue;
             }
-            let points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
-            let dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
+            let mut points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
+            let mut dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
+            if pad {
+                (points, dirs) = pad_points(&points, &dirs);
+            }
+            // With padding, the density pass has bucket_len(chosen) points, the chosen first.
             let density = self.field_density(scene, &points, &dirs, watch)?;
-            let sigma = host_values(density.sigma.clone())
+            let mut sigma = host_values(density.sigma.clone())
                 .map_err(|e| ModelError::Input(format!("reading densities: {e}")))?;
+            sigma.truncate(chosen.len());
             let ray_of: Vec<usize> = chosen.iter().map(|&p| flat[p] / s).collect();
             let steps: Vec<f32> = chosen
                 .iter()
@@ -106,12 +113,17 @@ impl NiaModel {
             // The evaluated points first, then the culled ones with zero colour.
             let mut parts = Vec::new();
             if !colour_at.is_empty() {
+                let len = colour_at.len();
                 let pass = if culled.is_empty() {
+                    // Every chosen point, in order (padded: then the padding).
                     density.clone()
+                } else if pad {
+                    density.select(to_index(&pad_to(&colour_at, bucket_len(len))))
                 } else {
                     density.select(to_index(&colour_at))
                 };
-                parts.push(self.query_colour(scene, pass, watch)?);
+                let out = self.query_colour(scene, pass, watch)?;
+                parts.push(if pad { out.first(len) } else { out });
             }
             if !culled.is_empty() {
                 let k = culled.len();

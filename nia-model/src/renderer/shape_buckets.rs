@@ -1,0 +1,99 @@
+//! Shape buckets for the GPU backends (inference): the network calls of a render get point
+//! counts from a short fixed list instead of whatever skipping, termination and culling leave.
+//!
+//! On wgpu every new tensor shape can compile and autotune its kernels once, and a render's
+//! calls each leave another number of points after empty-space skipping and the front-to-back
+//! walk, so a first image paid for compilation call after call (docs/speed.md, "On a GPU").
+//! Padded to a bucket (the last point repeated, its outputs dropped), the calls of every image
+//! reuse a few shapes. On the CPU backends nothing compiles, so nothing is padded.
+
+use glam::Vec3;
+
+use crate::device::is_host;
+use crate::field::PointOutput;
+use burn::tensor::Device;
+
+/// The smallest bucket.
+pub const MIN_BUCKET: usize = 256;
+
+/// The smallest `m * 2^k >= n` with `m` in 4..=7 (so at most 25 % padding), at least
+/// [`MIN_BUCKET`]. `bucket_len(0) == 0`.
+pub fn bucket_len(n: usize) -> usize {
+    if n == 0 {
+        return 0;
+    }
+    let n = n.max(MIN_BUCKET);
+    // n >= 256, so 2^k with k = floor(log2 n) - 2 is at least 64.
+    let k = usize::BITS - 1 - n.leading_zeros() - 2;
+    let step = 1usize << k;
+    n.div_ceil(step) * step
+}
+
+/// Whether renders on `device` pad their network calls to buckets (the GPU backends).
+pub fn pads_to_buckets(device: &Device) -> bool {
+    !is_host(device)
+}
+
+/// `items` followed by copies of its last element up to `len` items (`items` unchanged when
+/// empty or already that long).
+pub fn pad_to<T: Copy>(items: &[T], len: usize) -> Vec<T> {
+    let mut out = items.to_vec();
+    if let Some(&last) = items.last() {
+        out.resize(len.max(items.len()), last);
+    }
+    out
+}
+
+/// Points and directions padded to their bucket: `(points, dirs)` with `bucket_len(M)` rows.
+pub fn pad_points(points: &[Vec3], dirs: &[Vec3]) -> (Vec<Vec3>, Vec<Vec3>) {
+    let len = bucket_len(points.len());
+    (pad_to(points, len), pad_to(dirs, len))
+}
+
+impl PointOutput {
+    /// The first `len` points' outputs (the rest were padding).
+    pub fn first(self, len: usize) -> PointOutput {
+        PointOutput {
+            sigma: self.sigma.narrow(0, 0, len),
+            colour: self.colour.narrow(0, 0, len),
+            c0: self.c0.narrow(0, 0, len),
+            blend_c0: self.blend_c0.map(|b| b.narrow(0, 0, len)),
+            blend_weights: self.blend_weights.narrow(0, 0, len),
+            ibr_colour: self.ibr_colour.narrow(0, 0, len),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn buckets_cover_with_at_most_a_quarter_of_padding() {
+        assert_eq!(bucket_len(0), 0);
+        assert_eq!(bucket_len(1), 256);
+        assert_eq!(bucket_len(256), 256);
+        assert_eq!(bucket_len(257), 320);
+        assert_eq!(bucket_len(1000), 1024);
+        assert_eq!(bucket_len(1025), 1280);
+        let mut buckets = std::collections::BTreeSet::new();
+        for n in 1..100_000 {
+            let b = bucket_len(n);
+            assert!(b >= n && b >= MIN_BUCKET, "{n} -> {b}");
+            assert!(
+                n < MIN_BUCKET || b * 4 <= n * 5,
+                "{n} -> {b}: over 25 % padding"
+            );
+            buckets.insert(b);
+        }
+        // Four per octave from 256 to 2^17: 38 shapes for any count up to 100,000.
+        assert!(buckets.len() <= 40, "{} buckets", buckets.len());
+    }
+
+    #[test]
+    fn padding_repeats_the_last_item() {
+        assert_eq!(pad_to(&[1, 2, 3], 5), vec![1, 2, 3, 3, 3]);
+        assert_eq!(pad_to(&[1, 2, 3], 2), vec![1, 2, 3]);
+        assert!(pad_to::<i32>(&[], 4).is_empty());
+    }
+}
