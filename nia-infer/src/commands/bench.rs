@@ -211,12 +211,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         ModelConfig::new()
     };
     let config = match args.voxel_size_m {
-        Some(v) if !(v.is_finite() && v > 0.0) => {
-            anyhow::bail!("--voxel-size-m must be a positive number of metres, got {v}")
-        }
         Some(v) => config.with_voxel_size_m(v),
         None => config,
     };
+    config
+        .check()
+        .map_err(|e| anyhow::anyhow!("--voxel-size-m: {e}"))?;
     let (input, rays) = bench_scene(&args).context("building the benchmark scene")?;
     device.seed(0);
     let model = config.init(&device);

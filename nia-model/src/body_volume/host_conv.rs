@@ -103,7 +103,7 @@ pub trait SparseConvKernels: Backend {
     ) -> FloatTensor<Self>;
 }
 
-/// A contiguous f32 copy-free view of `t` (converted when it is not f32).
+/// `t` as a contiguous f32 tensor (as it is when it already is one, else converted or copied).
 fn contiguous_f32(t: FlexTensor) -> FlexTensor {
     let t = if t.dtype() == DType::F32 {
         t
@@ -287,6 +287,36 @@ fn block_rows(width: usize) -> usize {
     (BLOCK_VALUES / width.max(1)).clamp(8, 512)
 }
 
+/// The 27 neighbours of rows `first .. first + len` (views stacked: row `v * rows_out + r`)
+/// into `buf` as `[len, 27 c]`: `table[v, map[r * 27 + k]]` (`table` `[N, rows_in, c]`), a zero
+/// row where the slot holds `rows_in` (no neighbour).
+#[allow(clippy::too_many_arguments)]
+fn gather_columns(
+    buf: &mut [f32],
+    table: &[f32],
+    rows_in: usize,
+    c: usize,
+    map: &[u32],
+    rows_out: usize,
+    first: usize,
+    len: usize,
+) {
+    let k_len = KERNEL_VOLUME * c;
+    for (r, cols) in buf.chunks_exact_mut(k_len).take(len).enumerate() {
+        let (view, row) = ((first + r) / rows_out, (first + r) % rows_out);
+        let src = &table[view * rows_in * c..(view + 1) * rows_in * c];
+        let slots = &map[row * KERNEL_VOLUME..(row + 1) * KERNEL_VOLUME];
+        for (slot, col) in slots.iter().zip(cols.chunks_exact_mut(c)) {
+            let i = *slot as usize;
+            if i < rows_in {
+                col.copy_from_slice(&src[i * c..(i + 1) * c]);
+            } else {
+                col.fill(0.0);
+            }
+        }
+    }
+}
+
 /// `out[n, r] = sum_k table[n, map[r * 27 + k]] @ weight[k]` for every view n and row r:
 /// `table` `[N, rows_in, c]`, `map` `[rows_out * 27]` (`rows_in` = none), `weight`
 /// `[27 c, c_out]` row-major; returns `[N, rows_out, c_out]`.
@@ -322,19 +352,7 @@ fn blocked_gather_product(
         |buf, (b, dst)| {
             let first = b * block;
             let len = dst.len() / c_out;
-            for (r, cols) in buf.chunks_exact_mut(k_len).take(len).enumerate() {
-                let (view, row) = ((first + r) / rows_out, (first + r) % rows_out);
-                let src = &table[view * rows_in * c..(view + 1) * rows_in * c];
-                let slots = &map[row * KERNEL_VOLUME..(row + 1) * KERNEL_VOLUME];
-                for (slot, col) in slots.iter().zip(cols.chunks_exact_mut(c)) {
-                    let i = *slot as usize;
-                    if i < rows_in {
-                        col.copy_from_slice(&src[i * c..(i + 1) * c]);
-                    } else {
-                        col.fill(0.0);
-                    }
-                }
-            }
+            gather_columns(buf, table, rows_in, c, map, rows_out, first, len);
             let lhs = &buf[..len * k_len];
             // SAFETY: dst is [len, c_out] row-major, lhs [len, k_len] row-major and weight
             // [k_len, c_out] row-major; the slices hold exactly those extents (the assert
@@ -409,19 +427,16 @@ fn gathered_outer_sum(
             let end = ((c + 1) * chunk).min(total);
             for first in (c * chunk..end).step_by(block) {
                 let len = block.min(end - first);
-                for (r, cols) in buf.chunks_exact_mut(k_len).take(len).enumerate() {
-                    let (view, row) = ((first + r) / rows_out, (first + r) % rows_out);
-                    let src = &x[view * rows_in * ci..(view + 1) * rows_in * ci];
-                    let slots = &rules.neighbours[row * KERNEL_VOLUME..(row + 1) * KERNEL_VOLUME];
-                    for (slot, col) in slots.iter().zip(cols.chunks_exact_mut(ci)) {
-                        let i = *slot as usize;
-                        if i < rows_in {
-                            col.copy_from_slice(&src[i * ci..(i + 1) * ci]);
-                        } else {
-                            col.fill(0.0);
-                        }
-                    }
-                }
+                gather_columns(
+                    &mut buf,
+                    x,
+                    rows_in,
+                    ci,
+                    &rules.neighbours,
+                    rows_out,
+                    first,
+                    len,
+                );
                 let lhs = &buf[..len * k_len];
                 let rhs = &dy[first * co..(first + len) * co];
                 // SAFETY: acc is [k_len, co] row-major; lhs read transposed as [k_len, len]

@@ -12,7 +12,7 @@ use burn::tensor::IndexingUpdateOp;
 use nia_data::geometry::rays::RayBundle;
 
 use super::quadrature::{render_rays_delta, RenderOutput};
-use super::shape_buckets::{pad_points, pads_to_buckets};
+use super::shape_buckets::pads_to_buckets;
 use crate::config::SourceColoursAt;
 use crate::error::ModelError;
 use crate::field::PointOutput;
@@ -109,16 +109,14 @@ impl NiaModel {
                 index.len() == total && index.iter().enumerate().all(|(i, &f)| i == f);
             let evaluated = index.len();
             (out, (!all_in_order).then_some(index), evaluated, coloured)
-        } else if jitter.is_none() && pads_to_buckets(&device) {
-            // Inference on a GPU backend: the call padded to its shape bucket.
-            let (points, dirs) = pad_points(&ray_samples.points, &ray_samples.dirs);
-            let out = self
-                .field_with(scene, &points, &dirs, watch)?
-                .first(ray_samples.points.len());
-            let evaluated = ray_samples.evaluated();
-            (out, ray_samples.kept.clone(), evaluated, evaluated)
         } else {
-            let out = self.field_with(scene, &ray_samples.points, &ray_samples.dirs, watch)?;
+            let (points, dirs) = (&ray_samples.points, &ray_samples.dirs);
+            // Inference on a GPU backend: the call padded to its shape bucket.
+            let out = if jitter.is_none() && pads_to_buckets(&device) {
+                self.field_in_bucket(scene, points, dirs, watch)?
+            } else {
+                self.field_with(scene, points, dirs, watch)?
+            };
             let evaluated = ray_samples.evaluated();
             (out, ray_samples.kept.clone(), evaluated, evaluated)
         };

@@ -10,7 +10,11 @@
 use glam::Vec3;
 
 use crate::device::is_host;
+use crate::error::ModelError;
 use crate::field::PointOutput;
+use crate::model::NiaModel;
+use crate::scene_encoding::SceneEncoding;
+use crate::timing::Stopwatch;
 use burn::tensor::Device;
 
 /// The smallest bucket.
@@ -48,6 +52,23 @@ pub fn pad_to<T: Copy>(items: &[T], len: usize) -> Vec<T> {
 pub fn pad_points(points: &[Vec3], dirs: &[Vec3]) -> (Vec<Vec3>, Vec<Vec3>) {
     let len = bucket_len(points.len());
     (pad_to(points, len), pad_to(dirs, len))
+}
+
+impl NiaModel {
+    /// [`NiaModel::field_with`] at `points`, padded to their bucket for the call and trimmed
+    /// back: the same outputs for the M points.
+    pub(crate) fn field_in_bucket(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let (padded_points, padded_dirs) = pad_points(points, dirs);
+        Ok(self
+            .field_with(scene, &padded_points, &padded_dirs, watch)?
+            .first(points.len()))
+    }
 }
 
 impl PointOutput {
