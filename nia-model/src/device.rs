@@ -220,3 +220,16 @@ pub fn is_host(device: &Device) -> bool {
         DispatchDevice::Flex(_) | DispatchDevice::NdArray(_)
     )
 }
+
+/// Whether `device` computes on the CPU (flex or ndarray), with or without autodiff; the others
+/// are GPU backends, where the renderers pad their network calls to shape buckets
+/// (`renderer::shape_buckets`) and gather in larger blocks.
+pub fn computes_on_cpu(device: &Device) -> bool {
+    use burn_dispatch::DispatchDevice;
+    let cpu =
+        |d: &DispatchDevice| matches!(d, DispatchDevice::Flex(_) | DispatchDevice::NdArray(_));
+    match device.as_dispatch() {
+        DispatchDevice::Autodiff(d) => cpu(&d.clone().inner()),
+        d => cpu(d),
+    }
+}

@@ -18,6 +18,7 @@
 //! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints) and the tensor
 //! helpers ([`shape`], [`softmax`], [`linear_rows`], [`readback`], [`timing`], [`device`]).
 
+pub mod blocked_rows;
 pub mod body_volume;
 pub mod config;
 pub mod device;

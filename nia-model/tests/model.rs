@@ -216,6 +216,112 @@ fn wgpu_matches_ndarray() {
     }
 }
 
+/// A training forward and backward on wgpu against ndarray: with empty-space skipping the
+/// field's points are padded to a shape bucket there and the scatter sends the padding to a
+/// spare row (`renderer::shape_buckets`), and with c0 shuffling the points draw the same
+/// donors as unpadded. The loss and the gradients of the encoder, the body volume, F_sigma and
+/// F_B agree.
+#[cfg(feature = "wgpu")]
+#[test]
+fn wgpu_training_gradients_match_ndarray() {
+    use nia_data::geometry::occupancy::OccupancyGrid;
+    use nia_model::ibr::c0_shuffle::C0Shuffle;
+    use nia_model::renderer::shape_buckets::bucket_len;
+    let Some(gpu) = common::wgpu_device() else {
+        return;
+    };
+    let cpu = Device::ndarray().autodiff();
+    cpu.seed(6);
+    let config = ModelConfig::tiny().with_source_colours_at(Some(SourceColoursAt::Surface));
+    let model = config.init(&cpu);
+    let input = common::scene(3, 32);
+    let rays = common::target_rays(&input, 3);
+    let grid = Arc::new(
+        OccupancyGrid::build(&input.body.vertices, &input.body.faces, 0.02, 0.02).unwrap(),
+    );
+    let jitter: Vec<f32> = (0..rays.len() * SAMPLES)
+        .map(|i| ((i * 37) % 100) as f32 / 100.0)
+        .collect();
+    let gt = |d: &Device| Tensor::<2>::ones([rays.len(), 3], d).mul_scalar(0.5);
+    let run = |model: &nia_model::NiaModel, d: &Device| {
+        let scene = model
+            .encode(&input, None, d, None)
+            .unwrap()
+            .with_occupancy(Some(grid.clone()))
+            .with_c0_shuffle(Some(C0Shuffle {
+                fraction: 0.5,
+                seed: 7,
+                seen_only: false,
+            }));
+        let out = model
+            .render(&scene, &rays, SAMPLES, Some(&jitter), None)
+            .unwrap();
+        let evaluated = out.point_evaluations;
+        let loss = render_loss(out.rgb, out.rgb0, gt(d)).unwrap().total;
+        let value = loss.clone().into_scalar::<f32>();
+        let grads = loss.backward();
+        let grad = |w: Tensor<2>| {
+            w.grad(&grads)
+                .unwrap()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap()
+        };
+        let grad4 = |w: Tensor<4>| {
+            w.grad(&grads)
+                .unwrap()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap()
+        };
+        let grad3 = |w: Tensor<3>| {
+            w.grad(&grads)
+                .unwrap()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap()
+        };
+        let named = vec![
+            ("encoder.conv1", grad4(model.encoder.conv1.weight.val())),
+            (
+                "body volume, first conv",
+                grad3(model.body_volume.full[0].conv.weight.val()),
+            ),
+            ("density", grad(model.density.layers[0].weight.val())),
+            (
+                "blender.token_input",
+                grad(model.blender.token_input.weight.val()),
+            ),
+        ];
+        (value, evaluated, named)
+    };
+    let (loss_cpu, evaluated, grads_cpu) = run(&model, &cpu);
+    let total = rays.len() * SAMPLES;
+    assert!(
+        evaluated > 0 && evaluated < total && bucket_len(evaluated) > evaluated,
+        "{evaluated} of {total} samples evaluated: the test needs skipping and a count to pad"
+    );
+    let gpu_ad = gpu.autodiff();
+    let (loss_gpu, evaluated_gpu, grads_gpu) = run(&model.clone().fork(&gpu_ad), &gpu_ad);
+    assert_eq!(evaluated_gpu, evaluated);
+    assert!(
+        (loss_cpu - loss_gpu).abs() <= 1e-4 * loss_cpu.abs().max(1.0),
+        "loss: ndarray {loss_cpu}, wgpu {loss_gpu}"
+    );
+    for ((name, a), (_, b)) in grads_cpu.iter().zip(&grads_gpu) {
+        let scale = a.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        let diff = a
+            .iter()
+            .zip(b)
+            .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(scale > 0.0, "{name}: zero gradient");
+        assert!(
+            diff <= 2e-3 * scale,
+            "{name}: ndarray vs wgpu gradients differ by {diff} (largest {scale})"
+        );
+    }
+}
+
 #[test]
 fn reposed_rendering_is_the_plain_path_for_the_same_pose_and_finite_for_another() {
     use nia_data::body::reposing::Reposer;

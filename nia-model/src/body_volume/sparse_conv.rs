@@ -18,12 +18,13 @@
 use burn::module::Param;
 use burn::nn::Initializer;
 use burn::prelude::*;
-use burn::tensor::IndexingUpdateOp;
 
 use std::sync::Arc;
 
 use super::host_conv::{runs_on_host, sparse_conv_host, HostRules};
 use super::BodyVolumeError;
+use crate::blocked_rows::{scatter_add_rows, select_rows};
+use crate::device::computes_on_cpu;
 use nia_data::geometry::sparse::{Rulebook, RulebookKind, KERNEL_VOLUME};
 
 /// PyTorch's (and spconv's) default convolution init: Kaiming uniform with `a = sqrt(5)`, i.e.
@@ -152,16 +153,31 @@ impl RulebookTensors {
     }
 }
 
-/// Size of one gathered block (`Im2col` columns, trilinear corners), bytes. Gathering in
+/// Size of one gathered block (`Im2col` columns, trilinear corners) on the CPU backends,
+/// bytes. Gathering in
 /// blocks this small instead of all at once keeps the allocator reusing memory instead of
 /// mapping fresh pages for every block: on flex at paper size 1.5-2x faster per `Im2col`
 /// convolution and ~4x faster trilinear sampling (64 MiB blocks gain nothing; 1-4 MiB are
 /// as fast). Results do not depend on it.
 pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
 
-/// Rows per gathered block when a row holds `floats_per_row` f32 values (at least 1).
-pub(crate) fn chunk_len(floats_per_row: usize) -> usize {
-    (GATHER_CHUNK_BYTES / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
+/// [`GATHER_CHUNK_BYTES`] on the GPU backends. There every block costs a few kernel
+/// launches (a narrow, the gather, the weighting, the product or sum): at 16 MiB the
+/// trilinear read of 4096 rays x 64 samples made 192 blocks at each 128-channel scale. The
+/// page mapping that small blocks avoid on the CPU is not a GPU allocator's cost. Results
+/// do not depend on it.
+pub const GPU_GATHER_CHUNK_BYTES: usize = 256 << 20;
+
+/// Rows per gathered block on `device` when a row holds `floats_per_row` f32 values (at
+/// least 1): blocks of [`GATHER_CHUNK_BYTES`] on the CPU backends, of
+/// [`GPU_GATHER_CHUNK_BYTES`] on the GPU ones.
+pub(crate) fn chunk_len(floats_per_row: usize, device: &Device) -> usize {
+    let bytes = if computes_on_cpu(device) {
+        GATHER_CHUNK_BYTES
+    } else {
+        GPU_GATHER_CHUNK_BYTES
+    };
+    (bytes / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
 }
 
 /// Concatenates chunk results along `dim` (no copy for a single chunk).
@@ -286,7 +302,7 @@ impl SparseConv3d {
                 let w = weight.reshape([KERNEL_VOLUME * c_in, c_out]);
                 let chunk = rulebook
                     .outputs_per_chunk
-                    .unwrap_or_else(|| chunk_len(n * KERNEL_VOLUME * c_in));
+                    .unwrap_or_else(|| chunk_len(n * KERNEL_VOLUME * c_in, &rows.device()));
                 let mut parts = Vec::with_capacity(p_out.div_ceil(chunk));
                 for start in (0..p_out).step_by(chunk) {
                     let len = chunk.min(p_out - start);
@@ -295,8 +311,7 @@ impl SparseConv3d {
                             .clone()
                             .narrow(0, start * KERNEL_VOLUME, len * KERNEL_VOLUME);
                     parts.push(
-                        rows.clone()
-                            .select(0, per_view_rows(&index, n, rulebook.n_in + 1))
+                        select_rows(rows.clone(), per_view_rows(&index, n, rulebook.n_in + 1))
                             .reshape([n * len, KERNEL_VOLUME * c_in])
                             .matmul(w.clone())
                             .reshape([n, len, c_out]),
@@ -321,17 +336,12 @@ impl SparseConv3d {
                         .reshape([n * rulebook.n_in, c_in])
                         .matmul(w_all)
                         .reshape([n * rulebook.n_in * KERNEL_VOLUME, c_out]);
-                    let gathered = products.select(
-                        0,
+                    let gathered = select_rows(
+                        products,
                         per_view_rows(product_row, n, rulebook.n_in * KERNEL_VOLUME),
                     );
-                    out.select_assign(
-                        0,
-                        per_view_rows(out_index, n, p_out),
-                        gathered,
-                        IndexingUpdateOp::Add,
-                    )
-                    .reshape([n, p_out, c_out])
+                    scatter_add_rows(out, per_view_rows(out_index, n, p_out), gathered)
+                        .reshape([n, p_out, c_out])
                 }
             }
         };

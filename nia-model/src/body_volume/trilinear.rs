@@ -17,6 +17,7 @@ use burn::prelude::*;
 
 use super::sparse_conv::{cat_parts, chunk_len, int_tensor, per_view_rows, rows_with_zero_row};
 use super::BodyVolumeError;
+use crate::blocked_rows::select_rows;
 pub use nia_data::geometry::sparse::{TrilinearCorners, CORNERS};
 
 /// [`TrilinearCorners`] on a device.
@@ -59,7 +60,8 @@ pub fn sample(
     corners: &TrilinearTensors,
 ) -> Result<Tensor<3>, BodyVolumeError> {
     let [n, _, c] = features.dims();
-    sample_in_chunks(features, corners, chunk_len(n * CORNERS * c))
+    let chunk = chunk_len(n * CORNERS * c, &features.device());
+    sample_in_chunks(features, corners, chunk)
 }
 
 /// [`sample`] gathering `points_per_chunk` points (at least 1) at a time; the result does not
@@ -97,10 +99,11 @@ pub fn sample_in_chunks(
             .index
             .clone()
             .narrow(0, start * CORNERS, len * CORNERS);
-        let values = rows
-            .clone()
-            .select(0, per_view_rows(&index, n, p_s + 1))
-            .reshape([n * len, CORNERS, c]);
+        let values = select_rows(rows.clone(), per_view_rows(&index, n, p_s + 1)).reshape([
+            n * len,
+            CORNERS,
+            c,
+        ]);
         let weight = corners
             .weight
             .clone()

@@ -24,6 +24,7 @@ use burn::prelude::*;
 use burn::tensor::ops::GridSampleOptions;
 use rayon::prelude::*;
 
+use crate::blocked_rows::select_rows;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
@@ -205,7 +206,7 @@ impl ViewRows {
                 .int()
                 .reshape([n * m]);
             let weight = (wy * wx).mask_fill(outside, 0.0).reshape([n * m, 1]);
-            self.rows.clone().select(0, index) * weight
+            select_rows(self.rows.clone(), index) * weight
         };
         let (gx, gy) = (fx.clone().neg() + 1.0, fy.clone().neg() + 1.0);
         let out = corner(0.0, 0.0, gx.clone(), gy.clone())

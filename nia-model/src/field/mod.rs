@@ -50,6 +50,9 @@ pub struct PointOutput {
 #[derive(Debug, Clone)]
 pub struct PointTensors {
     pub num_points: usize,
+    /// Points before shape-bucket padding (`renderer::shape_buckets`): the rows from here on
+    /// repeat the last point, and their outputs are dropped. `num_points` unless padded.
+    pub real_points: usize,
     /// [N, M, 2]
     pub proj_grid: Tensor<3>,
     /// [N, M, 4]
@@ -76,6 +79,7 @@ impl PointTensors {
         };
         PointTensors {
             num_points: m,
+            real_points: m,
             proj_grid: tensor3(&inputs.proj_grid, [n, m, 2]),
             view_dir_features: tensor3(&inputs.view_dir_features, [n, m, VIEW_DIR_FEATURE_DIM]),
             visibility: Tensor::from_data(

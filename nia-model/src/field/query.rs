@@ -44,7 +44,7 @@ impl NiaModel {
 
     /// The point inputs of world points (in the rendered pose) on the scene's device, reposed
     /// into the scene's pose first when the scene was encoded for another pose.
-    fn point_tensors(
+    pub(crate) fn point_tensors(
         &self,
         scene: &SceneEncoding,
         points: &[Vec3],
@@ -112,7 +112,7 @@ impl NiaModel {
         self.query_with(scene, points, &mut Stopwatch::new(times, &device))
     }
 
-    fn query_with(
+    pub(crate) fn query_with(
         &self,
         scene: &SceneEncoding,
         points: &PointTensors,
@@ -187,6 +187,7 @@ impl NiaModel {
             view_dir_features: points.view_dir_features.clone(),
             visibility: points.visibility.clone(),
             dirs: points.dirs.clone(),
+            real_points: points.real_points,
         })
     }
 
@@ -206,6 +207,7 @@ impl NiaModel {
             view_dir_features,
             visibility,
             dirs,
+            real_points,
         } = density;
         let source_colours = fetch_source_colours_from(&scene.image_rows, proj_grid)?; // [N, M, 3]
         watch.mark(Stage::Sampling);
@@ -216,7 +218,7 @@ impl NiaModel {
         let blend_c0 = scene
             .c0_shuffle
             .filter(|_| self.variant.uses_blender())
-            .map(|s| s.apply(heads.c0.clone(), visibility.clone()));
+            .map(|s| s.apply(heads.c0.clone(), visibility.clone(), real_points));
         watch.mark(Stage::Mlps);
         let blended = self.blender.colour(
             self.variant,
@@ -261,12 +263,16 @@ pub(crate) struct DensityPass {
     visibility: Tensor<2>,
     /// [M, 3]
     dirs: Tensor<2>,
+    /// Points before shape-bucket padding ([`PointTensors::real_points`]).
+    real_points: usize,
 }
 
 impl DensityPass {
-    /// The points at `index` ([K] Int, into M), in that order.
-    pub fn select(&self, index: Tensor<1, Int>) -> Self {
+    /// The points at `index` ([K] Int, into M), in that order; the first `real_points` of
+    /// them are points, the rest shape-bucket padding.
+    pub fn select(&self, index: Tensor<1, Int>, real_points: usize) -> Self {
         DensityPass {
+            real_points,
             sigma: self.sigma.clone().select(0, index.clone()),
             mean_z: self.mean_z.clone().select(0, index.clone()),
             l: self.l.clone().select(1, index.clone()),

@@ -55,13 +55,19 @@ impl C0Shuffle {
     /// The c0 that F_B blends: `c0` with the replaced rows taken from their source point,
     /// detached (no gradient reaches F_c0 through a shuffled colour). With `seen_only`, rows
     /// whose `visibility` is at most [`SEEN_VISIBILITY`] in every view keep their own c0.
+    /// Only the first `points` rows are points; rows from there on are shape-bucket padding
+    /// (`renderer::shape_buckets`), which keep their own c0 and lend it to no point, so the
+    /// points draw the same donors padded or not.
     ///
     /// # Shapes
     /// - `c0`: `[M, 3]`; `visibility` o_n: `[N, M]`; output `[M, 3]`
-    pub fn apply(&self, c0: Tensor<2>, visibility: Tensor<2>) -> Tensor<2> {
+    pub fn apply(&self, c0: Tensor<2>, visibility: Tensor<2>, points: usize) -> Tensor<2> {
         let [m, _] = c0.dims();
         let device = c0.device();
-        let (sources, replaced) = self.sources(m);
+        let points = points.min(m);
+        let (mut sources, mut replaced) = self.sources(points);
+        sources.extend(points as i64..m as i64);
+        replaced.resize(m, false);
         let index = Tensor::<1, Int>::from_data(TensorData::new(sources, [m]), &device);
         let mask: Vec<f32> = replaced.iter().map(|&r| r as u8 as f32).collect();
         let mut mask = Tensor::<2>::from_data(TensorData::new(mask, [m, 1]), &device);
@@ -102,7 +108,7 @@ mod tests {
         // Unseen by both views: without seen_only that does not matter.
         let visibility = Tensor::<2>::zeros([2, m], &device);
         let out = shuffle
-            .apply(c0, visibility)
+            .apply(c0, visibility, m)
             .into_data()
             .try_to_vec::<f32>()
             .unwrap();
@@ -164,7 +170,7 @@ mod tests {
         };
         let (sources, _) = shuffle.sources(m);
         let out = shuffle
-            .apply(c0, visibility)
+            .apply(c0, visibility, m)
             .into_data()
             .try_to_vec::<f32>()
             .unwrap();
@@ -175,5 +181,40 @@ mod tests {
             moved += (from != i) as usize;
         }
         assert!(moved > m / 2, "{moved} of the {m} points moved");
+    }
+
+    #[test]
+    fn padding_rows_keep_their_own_colour_and_the_points_draw_the_same_donors() {
+        let device = Device::ndarray();
+        let (m, padded) = (300, 384);
+        // The padding repeats the last point, as renderer::shape_buckets pads.
+        let rows: Vec<f32> = (0..padded * 3)
+            .map(|i| (i / 3).min(m - 1) as f32 * 3.0 + (i % 3) as f32)
+            .collect();
+        let shuffle = C0Shuffle {
+            fraction: 0.5,
+            seed: 5,
+            seen_only: false,
+        };
+        let values = |len: usize| rows[..len * 3].to_vec();
+        let run = |rows: usize, points: usize| {
+            let c0 = Tensor::<2>::from_data(TensorData::new(values(rows), [rows, 3]), &device);
+            shuffle
+                .apply(c0, Tensor::<2>::ones([2, rows], &device), points)
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap()
+        };
+        let plain = run(m, m);
+        let with_padding = run(padded, m);
+        assert_eq!(with_padding[..m * 3], plain[..]);
+        // Every padding row keeps its own c0, the last point's.
+        for i in m..padded {
+            assert_eq!(with_padding[3 * i], 3.0 * (m - 1) as f32, "row {i}");
+        }
+        assert!(
+            plain.iter().zip(&rows).any(|(a, b)| a != b),
+            "nothing shuffled"
+        );
     }
 }

@@ -8,11 +8,11 @@
 //! ```
 
 use burn::prelude::*;
-use burn::tensor::IndexingUpdateOp;
 use nia_data::geometry::rays::RayBundle;
 
 use super::quadrature::{render_rays_delta, RenderOutput};
 use super::shape_buckets::pads_to_buckets;
+use crate::blocked_rows::scatter_add_rows;
 use crate::config::SourceColoursAt;
 use crate::error::ModelError;
 use crate::field::PointOutput;
@@ -111,8 +111,9 @@ impl NiaModel {
             (out, (!all_in_order).then_some(index), evaluated, coloured)
         } else {
             let (points, dirs) = (&ray_samples.points, &ray_samples.dirs);
-            // Inference on a GPU backend: the call padded to its shape bucket.
-            let out = if jitter.is_none() && pads_to_buckets(&device) {
+            // On a GPU backend (training too) the call is padded to its shape bucket; the
+            // scatter drops the padding.
+            let out = if pads_to_buckets(&device) {
                 self.field_in_bucket(scene, points, dirs, watch)?
             } else {
                 self.field_with(scene, points, dirs, watch)?
@@ -217,7 +218,11 @@ fn sample(
 }
 
 /// The outputs of the evaluated points placed at their flat `[R * S]` indices `kept` (all
-/// samples in order when `None`); the others keep zero density, colour and weights.
+/// samples in order when `None`); the others keep zero density, colour and weights. `out` may
+/// have more rows than points, shape-bucket padding (`renderer::shape_buckets`): with `kept`
+/// their outputs go to a spare row after the `[R * S]`, cut off after the scatter, so the
+/// index, like the outputs, is a bucket long and the scatter's shapes repeat from call to
+/// call.
 fn scatter(
     out: PointOutput,
     kept: Option<&[usize]>,
@@ -225,7 +230,9 @@ fn scatter(
     evaluated: usize,
     colour_evaluated: usize,
 ) -> SampleFields {
+    let rows = out.sigma.dims()[0];
     let Some(kept) = kept else {
+        let out = if rows > total { out.first(total) } else { out };
         return SampleFields {
             sigma: out.sigma,
             colour: out.colour,
@@ -238,24 +245,18 @@ fn scatter(
         };
     };
     let device = out.sigma.device();
-    let index: Vec<i64> = kept.iter().map(|&i| i as i64).collect();
-    let index = Tensor::<1, Int>::from_data(TensorData::new(index, [kept.len()]), &device);
+    let mut index: Vec<i64> = kept.iter().map(|&i| i as i64).collect();
+    index.resize(rows.max(kept.len()), total as i64);
+    let spare = usize::from(index.len() > kept.len());
+    let len = index.len();
+    let index = Tensor::<1, Int>::from_data(TensorData::new(index, [len]), &device);
     let scatter2 = |values: Tensor<2>| {
         let width = values.dims()[1];
-        Tensor::<2>::zeros([total, width], &device).select_assign(
-            0,
-            index.clone(),
-            values,
-            IndexingUpdateOp::Add,
-        )
+        let zeros = Tensor::<2>::zeros([total + spare, width], &device);
+        scatter_add_rows(zeros, index.clone(), values).narrow(0, 0, total)
     };
     SampleFields {
-        sigma: Tensor::<1>::zeros([total], &device).select_assign(
-            0,
-            index.clone(),
-            out.sigma,
-            IndexingUpdateOp::Add,
-        ),
+        sigma: scatter2(out.sigma.reshape([len, 1])).reshape([total]),
         colour: scatter2(out.colour),
         c0: scatter2(out.c0),
         blend: scatter2(out.blend_weights),

@@ -9,9 +9,9 @@
 
 use glam::Vec3;
 
-use crate::device::is_host;
+use crate::device::computes_on_cpu;
 use crate::error::ModelError;
-use crate::field::PointOutput;
+use crate::field::{PointOutput, PointTensors};
 use crate::model::NiaModel;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::Stopwatch;
@@ -33,9 +33,10 @@ pub fn bucket_len(n: usize) -> usize {
     n.div_ceil(step) * step
 }
 
-/// Whether renders on `device` pad their network calls to buckets (the GPU backends).
+/// Whether renders on `device` pad their network calls to buckets (the GPU backends, with or
+/// without autodiff).
 pub fn pads_to_buckets(device: &Device) -> bool {
-    !is_host(device)
+    !computes_on_cpu(device)
 }
 
 /// `items` followed by copies of its last element up to `len` items (`items` unchanged when
@@ -55,8 +56,23 @@ pub fn pad_points(points: &[Vec3], dirs: &[Vec3]) -> (Vec<Vec3>, Vec<Vec3>) {
 }
 
 impl NiaModel {
-    /// [`NiaModel::field_with`] at `points`, padded to their bucket for the call and trimmed
-    /// back: the same outputs for the M points.
+    /// The point inputs of `points` padded to their bucket on the scene's device:
+    /// `bucket_len(M)` rows, the M points first ([`PointTensors::real_points`] = M).
+    pub(crate) fn point_tensors_in_bucket(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+    ) -> Result<PointTensors, ModelError> {
+        let (padded_points, padded_dirs) = pad_points(points, dirs);
+        let mut inputs = self.point_tensors(scene, &padded_points, &padded_dirs)?;
+        inputs.real_points = points.len();
+        Ok(inputs)
+    }
+
+    /// [`NiaModel::field_with`] at `points` padded to their bucket: `bucket_len(M)` rows of
+    /// outputs, the M points' first ([`PointOutput::first`] drops the padding; a scatter may
+    /// instead send it to a spare row and keep its index a bucket long).
     pub(crate) fn field_in_bucket(
         &self,
         scene: &SceneEncoding,
@@ -64,10 +80,8 @@ impl NiaModel {
         dirs: &[Vec3],
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointOutput, ModelError> {
-        let (padded_points, padded_dirs) = pad_points(points, dirs);
-        Ok(self
-            .field_with(scene, &padded_points, &padded_dirs, watch)?
-            .first(points.len()))
+        let inputs = self.point_tensors_in_bucket(scene, points, dirs)?;
+        self.query_with(scene, &inputs, watch)
     }
 }
 

@@ -25,7 +25,7 @@ use crate::field::PointOutput;
 use crate::model::NiaModel;
 use crate::readback::host_values;
 use crate::renderer::colour_culling::cull;
-use crate::renderer::shape_buckets::{bucket_len, pad_points, pad_to, pads_to_buckets};
+use crate::renderer::shape_buckets::{bucket_len, pad_to, pads_to_buckets};
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::Stopwatch;
@@ -82,13 +82,15 @@ impl NiaModel {
             if chosen.is_empty() {
                 continue;
             }
-            let mut points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
-            let mut dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
-            if pad {
-                (points, dirs) = pad_points(&points, &dirs);
-            }
+            let points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
+            let dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
             // With padding, the density pass has bucket_len(chosen) points, the chosen first.
-            let density = self.field_density(scene, &points, &dirs, watch)?;
+            let density = if pad {
+                let inputs = self.point_tensors_in_bucket(scene, &points, &dirs)?;
+                self.query_density(scene, &inputs, watch)?
+            } else {
+                self.field_density(scene, &points, &dirs, watch)?
+            };
             let mut sigma = host_values(density.sigma.clone())
                 .map_err(|e| ModelError::Input(format!("reading densities: {e}")))?;
             sigma.truncate(chosen.len());
@@ -118,9 +120,9 @@ impl NiaModel {
                     // Every chosen point, in order (padded: then the padding).
                     density.clone()
                 } else if pad {
-                    density.select(to_index(&pad_to(&colour_at, bucket_len(len))))
+                    density.select(to_index(&pad_to(&colour_at, bucket_len(len))), len)
                 } else {
-                    density.select(to_index(&colour_at))
+                    density.select(to_index(&colour_at), len)
                 };
                 let out = self.query_colour(scene, pass, watch)?;
                 parts.push(if pad { out.first(len) } else { out });
