@@ -10,7 +10,8 @@
 #   scripts/gpu_check.sh run [--quick]  # on the GPU machine, from the repository root
 #   GPU_CHECK_STEPS="train render" scripts/gpu_check.sh run   # some steps only (default: all of
 #                                       # probe paper 4k tiny torch render flex; train: the paper
-#                                       # network's training step alone). GPU_CHECK_LIMIT and
+#                                       # network's training step alone; autotune: the first
+#                                       # forward by CUBECL_AUTOTUNE_LEVEL). GPU_CHECK_LIMIT and
 #                                       # GPU_CHECK_RENDER_LIMIT: seconds for a bench / the render
 #   scripts/gpu_check.sh run --dry      # a rehearsal here on lavapipe and CPU torch, small sizes
 #                                       # (NIA_PYTHON: a python with torch; default python3)
@@ -96,8 +97,9 @@ run() {
 
   # Each step has its own time limit, so a slow one cannot keep the rest from running.
   local steps=" ${GPU_CHECK_STEPS:-probe paper 4k tiny torch render flex} "
-  # Not in the default list: train (the training step alone) and profile (the paper forward
-  # under cubecl's profiler: compilations and GPU time per kernel family).
+  # Not in the default list: train (the training step alone), profile (the paper forward
+  # under cubecl's profiler: compilations and GPU time per kernel family) and autotune (the
+  # first forward with CUBECL_AUTOTUNE_LEVEL=minimal against the default, fresh caches).
   step() { [[ "$steps" == *" $1 "* ]]; }
   # wgpu must find the GPU before anything is timed; if not, say why and stop.
   if step probe && ! timeout 60 $bin bench --backend wgpu --tiny --rays 8 --samples 4 --size 32 --reps 1 --no-train \
@@ -143,6 +145,22 @@ run() {
       > "$out/nia_profile.txt" 2> "$out/nia_profile.err" || echo "profile failed: $?"
     "$python" scripts/cubecl_profile_summary.py "$out/cubecl_forward.log" | tee "$out/profile.md" || true
     gzip -f "$out/cubecl_forward.log" || true
+  fi
+
+  # The first forward by cubecl's autotune level, each run in a fresh HOME (cubecl's autotune
+  # cache and the driver's shader cache empty): does `minimal` shorten the start-up, and what
+  # does it cost in steady state?
+  if step autotune; then
+    echo "== first forward by CUBECL_AUTOTUNE_LEVEL (fresh caches) =="
+    for level in default minimal; do
+      local home
+      home=$(mktemp -d)
+      local env=(HOME="$home" XDG_CACHE_HOME="$home/.cache")
+      [ $level = minimal ] && env+=(CUBECL_AUTOTUNE_LEVEL=minimal)
+      env "${env[@]}" timeout $limit $bin bench --backend wgpu "${dims[@]}" --reps 2 --no-train \
+        > "$out/autotune_$level.txt" 2> "$out/autotune_$level.err" || echo "autotune $level failed: $?"
+      rm -rf "$home"
+    done
   fi
 
   if step 4k && [ $quick = 0 ]; then

@@ -72,8 +72,17 @@ for name, r in [("paper", nia), ("tiny", tiny)]:
     if r and r.get("check"):
         c = r["check"]
         print(f"parity ({name} network): wgpu against {c['against']}: max |difference| {c['max_abs_diff']:.2e}, relative L2 {c['rel_l2']:.2e}")
+        grads = c.get("gradients") or []
+        if grads:
+            print(f"  gradients of one training forward, largest |difference| / largest |gradient|: "
+                  + ", ".join(f"{g} {'non-finite' if v is None else f'{v:.2e}'}" for g, v in grads))
     else:
         print(f"parity ({name} network): not measured (see nia_{name}.err)")
+tunes = [(level, last_json(f"autotune_{level}.txt")) for level in ("default", "minimal")]
+if any(r for _, r in tunes):
+    print("first forward in a fresh process and fresh caches, by CUBECL_AUTOTUNE_LEVEL: "
+          + "; ".join(f"{level}: first {r['first_forward_s']:.1f} s, then {r['forward_s']:.3f} s" if r
+                      else f"{level}: not measured" for level, r in tunes))
 big = last_json("nia_paper4k.txt")
 if big:
     print(f"paper network, forward only, {big['rays']} rays: {big['forward_s']:.3f} s ({big['forward_rays_per_s']:.0f} rays/s; "

@@ -68,6 +68,7 @@ fn check_against_reports_a_small_difference_between_backends() {
         "max |difference| {max}"
     );
     assert!(rel.is_finite() && rel <= BACKEND_TOL, "relative L2 {rel}");
+    assert!(check["gradients"].as_array().unwrap().is_empty());
     // The first (warm-up) forward is reported apart from the steady state.
     assert!(v["first_forward_s"].as_f64().unwrap() > 0.0);
     assert!(v["forward_s"].as_f64().unwrap() > 0.0);
@@ -76,6 +77,33 @@ fn check_against_reports_a_small_difference_between_backends() {
         "--no-train: {}",
         v["train_step_s"]
     );
+}
+
+/// With the training step, `--check-against` also compares one training forward's gradients:
+/// the encoder, the body volume, F_sigma and F_B, each within float rounding of the other
+/// backend's.
+#[test]
+fn check_against_with_training_compares_the_gradients() {
+    let mut args = vec!["bench", "--backend", "ndarray"];
+    args.extend(&TOY[..TOY.len() - 1]); // without --no-train
+    args.extend(["--check-against", "flex"]);
+    let v = report(&args);
+    let gradients = v["check"]["gradients"].as_array().unwrap();
+    let names: Vec<&str> = gradients.iter().map(|g| g[0].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "encoder.conv1",
+            "body_volume.full[0]",
+            "density",
+            "blender.token_input"
+        ]
+    );
+    for g in gradients {
+        let rel = g[1].as_f64().unwrap();
+        assert!(rel.is_finite() && rel <= 1e-3, "{g}");
+    }
+    assert!(v["train_step_s"].as_f64().unwrap() > 0.0);
 }
 
 #[test]

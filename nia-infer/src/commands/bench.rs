@@ -21,7 +21,7 @@ use nia_model::loss::render_loss;
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::timing::{Stage, StageTimes};
-use nia_model::ModelConfig;
+use nia_model::{ModelConfig, NiaModel};
 
 use crate::output::progress_bar;
 use serde::Serialize;
@@ -73,7 +73,8 @@ pub struct BenchArgs {
     #[arg(long)]
     pub checkpointing: bool,
     /// Also run the forward with the same weights on this backend and report how far the
-    /// colours differ (`--backend wgpu --check-against flex`: the GPU path against the CPU's).
+    /// colours differ (`--backend wgpu --check-against flex`: the GPU path against the CPU's);
+    /// with the training step, also one training forward's gradients.
     #[arg(long, value_parser = str::parse::<Backend>)]
     pub check_against: Option<Backend>,
 }
@@ -86,6 +87,10 @@ struct BackendCheck {
     max_abs_diff: f32,
     /// ||a - b|| / ||b|| over the colours and opacities.
     rel_l2: f32,
+    /// With the training step: per parameter, the largest |difference| of the gradients of
+    /// one training forward (the same weights, rays and jitter) over the largest |gradient| on
+    /// the other backend. Empty with `--no-train`.
+    gradients: Vec<(String, f32)>,
 }
 
 #[derive(Serialize)]
@@ -198,6 +203,92 @@ fn forward_colours(out: RenderOutput) -> anyhow::Result<Vec<f32>> {
     Ok(values)
 }
 
+/// The gradients of one training forward and backward (render loss against grey, the same
+/// weights, rays and jitter) on `device` and on `other`: per parameter, the largest
+/// |difference| over the largest |gradient| on `other`.
+fn gradient_check(
+    config: &ModelConfig,
+    input: &SceneInput,
+    rays: &RayBundle,
+    samples: usize,
+    device: &Device,
+    other: &Device,
+) -> anyhow::Result<Vec<(String, f32)>> {
+    let ad = device.clone().autodiff();
+    ad.seed(0);
+    let model = config.init(&ad);
+    let mut rng = Rng::new(5);
+    let jitter: Vec<f32> = (0..rays.len() * samples).map(|_| rng.uniform()).collect();
+    let gradients = |model: &NiaModel, d: &Device| -> anyhow::Result<Vec<(String, Vec<f32>)>> {
+        let scene = model.encode(input, None, d, None)?;
+        let out = model.render(&scene, rays, samples, Some(&jitter), None)?;
+        let gt = Tensor::<2>::ones([rays.len(), 3], d).mul_scalar(0.5);
+        let grads = render_loss(out.rgb, out.rgb0, gt)?.total.backward();
+        let read = |name: &str, g: Option<Tensor<1>>| -> anyhow::Result<(String, Vec<f32>)> {
+            let g = g.with_context(|| format!("{name} has no gradient"))?;
+            let values = g
+                .into_data()
+                .try_to_vec::<f32>()
+                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            Ok((name.to_string(), values))
+        };
+        Ok(vec![
+            read(
+                "encoder.conv1",
+                model
+                    .encoder
+                    .conv1
+                    .weight
+                    .val()
+                    .grad(&grads)
+                    .map(|g| g.flatten(0, 3)),
+            )?,
+            read(
+                "body_volume.full[0]",
+                model
+                    .body_volume
+                    .full
+                    .first()
+                    .and_then(|b| b.conv.weight.val().grad(&grads))
+                    .map(|g| g.flatten(0, 2)),
+            )?,
+            read(
+                "density",
+                model.density.layers[0]
+                    .weight
+                    .val()
+                    .grad(&grads)
+                    .map(|g| g.flatten(0, 1)),
+            )?,
+            read(
+                "blender.token_input",
+                model
+                    .blender
+                    .token_input
+                    .weight
+                    .val()
+                    .grad(&grads)
+                    .map(|g| g.flatten(0, 1)),
+            )?,
+        ])
+    };
+    let other_ad = other.clone().autodiff();
+    let ours = gradients(&model, &ad)?;
+    let theirs = gradients(&model.clone().fork(&other_ad), &other_ad)?;
+    Ok(ours
+        .into_iter()
+        .zip(theirs)
+        .map(|((name, a), (_, b))| {
+            let largest = b.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+            let diff = a
+                .iter()
+                .zip(&b)
+                .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+            (name, diff / largest.max(f32::MIN_POSITIVE))
+        })
+        .collect())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let backend = args.backend;
     let device = DeviceSpec {
@@ -296,10 +387,25 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 against.name(),
                 (diff2 / ref2.max(1e-30)).sqrt()
             ));
+            let gradients = if args.no_train {
+                Vec::new()
+            } else {
+                let gradients =
+                    gradient_check(&config, &input, &rays, args.samples, &device, &other)?;
+                for (name, rel) in &gradients {
+                    note(format!(
+                        "{name}: gradients {} against {} differ by {rel:.2e} of the largest",
+                        args.backend.name(),
+                        against.name()
+                    ));
+                }
+                gradients
+            };
             Some(BackendCheck {
                 against: against.name().to_string(),
                 max_abs_diff,
                 rel_l2: (diff2 / ref2.max(1e-30)).sqrt() as f32,
+                gradients,
             })
         }
     };
