@@ -223,7 +223,7 @@ pub fn is_host(device: &Device) -> bool {
 
 /// Whether `device` computes on the CPU (flex or ndarray), with or without autodiff; the others
 /// are GPU backends, where the renderers pad their network calls to shape buckets
-/// (`renderer::shape_buckets`) and gather in larger blocks.
+/// (`renderer::shape_buckets`) and gather and scatter-add through `blocked_rows`.
 pub fn computes_on_cpu(device: &Device) -> bool {
     use burn_dispatch::DispatchDevice;
     let cpu =

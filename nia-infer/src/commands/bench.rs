@@ -190,12 +190,14 @@ fn bench_scene(args: &BenchArgs) -> anyhow::Result<(SceneInput, RayBundle)> {
 
 /// The forward's colours and opacities as one host vector, refused if any is not finite.
 fn forward_colours(out: RenderOutput) -> anyhow::Result<Vec<f32>> {
-    let read = |data: burn::tensor::TensorData| {
-        data.try_to_vec::<f32>()
+    let read = |t: Tensor<2>, what: &str| -> anyhow::Result<Vec<f32>> {
+        t.try_into_data()
+            .map_err(|e| anyhow::anyhow!("reading the forward's {what} from the device: {e:?}"))?
+            .try_to_vec::<f32>()
             .map_err(|e| anyhow::anyhow!("{e:?}"))
     };
-    let mut values = read(out.rgb.into_data())?;
-    values.extend(read(out.acc.into_data())?);
+    let mut values = read(out.rgb, "colours")?;
+    values.extend(read(out.acc.unsqueeze_dim(1), "opacities")?);
     anyhow::ensure!(
         values.iter().all(|x| x.is_finite()),
         "non-finite colours in the benchmark forward"
@@ -227,7 +229,8 @@ fn gradient_check(
         let read = |name: &str, g: Option<Tensor<1>>| -> anyhow::Result<(String, Vec<f32>)> {
             let g = g.with_context(|| format!("{name} has no gradient"))?;
             let values = g
-                .into_data()
+                .try_into_data()
+                .map_err(|e| anyhow::anyhow!("reading the {name} gradient from the device: {e:?}"))?
                 .try_to_vec::<f32>()
                 .map_err(|e| anyhow::anyhow!("{e:?}"))?;
             Ok((name.to_string(), values))

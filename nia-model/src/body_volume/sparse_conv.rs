@@ -24,7 +24,6 @@ use std::sync::Arc;
 use super::host_conv::{runs_on_host, sparse_conv_host, HostRules};
 use super::BodyVolumeError;
 use crate::blocked_rows::{scatter_add_rows, select_rows};
-use crate::device::computes_on_cpu;
 use nia_data::geometry::sparse::{Rulebook, RulebookKind, KERNEL_VOLUME};
 
 /// PyTorch's (and spconv's) default convolution init: Kaiming uniform with `a = sqrt(5)`, i.e.
@@ -153,31 +152,18 @@ impl RulebookTensors {
     }
 }
 
-/// Size of one gathered block (`Im2col` columns, trilinear corners) on the CPU backends,
-/// bytes. Gathering in
+/// Size of one gathered block (`Im2col` columns, trilinear corners), bytes. Gathering in
 /// blocks this small instead of all at once keeps the allocator reusing memory instead of
 /// mapping fresh pages for every block: on flex at paper size 1.5-2x faster per `Im2col`
 /// convolution and ~4x faster trilinear sampling (64 MiB blocks gain nothing; 1-4 MiB are
-/// as fast). Results do not depend on it.
+/// as fast). Results do not depend on it. The GPU backends use the same size: with 256 MiB
+/// blocks there the release build's paper forward on lavapipe differed from flex by 2.6e-4
+/// instead of 7e-7 (docs/speed.md, "Training on a GPU").
 pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
 
-/// [`GATHER_CHUNK_BYTES`] on the GPU backends. There every block costs a few kernel
-/// launches (a narrow, the gather, the weighting, the product or sum): at 16 MiB the
-/// trilinear read of 4096 rays x 64 samples made 192 blocks at each 128-channel scale. The
-/// page mapping that small blocks avoid on the CPU is not a GPU allocator's cost. Results
-/// do not depend on it.
-pub const GPU_GATHER_CHUNK_BYTES: usize = 256 << 20;
-
-/// Rows per gathered block on `device` when a row holds `floats_per_row` f32 values (at
-/// least 1): blocks of [`GATHER_CHUNK_BYTES`] on the CPU backends, of
-/// [`GPU_GATHER_CHUNK_BYTES`] on the GPU ones.
-pub(crate) fn chunk_len(floats_per_row: usize, device: &Device) -> usize {
-    let bytes = if computes_on_cpu(device) {
-        GATHER_CHUNK_BYTES
-    } else {
-        GPU_GATHER_CHUNK_BYTES
-    };
-    (bytes / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
+/// Rows per gathered block when a row holds `floats_per_row` f32 values (at least 1).
+pub(crate) fn chunk_len(floats_per_row: usize) -> usize {
+    (GATHER_CHUNK_BYTES / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
 }
 
 /// Concatenates chunk results along `dim` (no copy for a single chunk).
@@ -302,7 +288,7 @@ impl SparseConv3d {
                 let w = weight.reshape([KERNEL_VOLUME * c_in, c_out]);
                 let chunk = rulebook
                     .outputs_per_chunk
-                    .unwrap_or_else(|| chunk_len(n * KERNEL_VOLUME * c_in, &rows.device()));
+                    .unwrap_or_else(|| chunk_len(n * KERNEL_VOLUME * c_in));
                 let mut parts = Vec::with_capacity(p_out.div_ceil(chunk));
                 for start in (0..p_out).step_by(chunk) {
                     let len = chunk.min(p_out - start);

@@ -60,8 +60,7 @@ pub fn sample(
     corners: &TrilinearTensors,
 ) -> Result<Tensor<3>, BodyVolumeError> {
     let [n, _, c] = features.dims();
-    let chunk = chunk_len(n * CORNERS * c, &features.device());
-    sample_in_chunks(features, corners, chunk)
+    sample_in_chunks(features, corners, chunk_len(n * CORNERS * c))
 }
 
 /// [`sample`] gathering `points_per_chunk` points (at least 1) at a time; the result does not
