@@ -51,10 +51,10 @@ fn per_element(index: Tensor<1, Int>, columns: usize) -> Tensor<2, Int> {
 /// # Shapes
 /// - `rows`: `[R, C]`; `index`: `[L]` Int in `0..R`; output `[L, C]`
 pub fn select_rows(rows: Tensor<2>, index: Tensor<1, Int>) -> Tensor<2> {
-    if computes_on_cpu(&rows.device()) || !rows.is_tracked() {
+    let [len] = index.dims();
+    if len == 0 || computes_on_cpu(&rows.device()) || !rows.is_tracked() {
         return rows.select(0, index);
     }
-    let [len] = index.dims();
     let columns = rows.dims()[1];
     let parts: Vec<Tensor<2>> = blocks(len)
         .map(|(start, block)| {
@@ -62,9 +62,6 @@ pub fn select_rows(rows: Tensor<2>, index: Tensor<1, Int>) -> Tensor<2> {
             rows.clone().gather(0, index)
         })
         .collect();
-    if parts.is_empty() {
-        return rows.select(0, index);
-    }
     Tensor::cat(parts, 0)
 }
 

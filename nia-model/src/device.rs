@@ -214,11 +214,7 @@ mod tests {
 /// Whether `device` computes in host memory (the flex and ndarray backends, not under
 /// autodiff): where the renderers read the body volume on the host ([`crate::body_volume::HostVolume`]).
 pub fn is_host(device: &Device) -> bool {
-    use burn_dispatch::DispatchDevice;
-    matches!(
-        device.as_dispatch(),
-        DispatchDevice::Flex(_) | DispatchDevice::NdArray(_)
-    )
+    !device.is_autodiff() && computes_on_cpu(device)
 }
 
 /// Whether `device` computes on the CPU (flex or ndarray), with or without autodiff; the others

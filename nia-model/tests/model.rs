@@ -216,6 +216,16 @@ fn wgpu_matches_ndarray() {
     }
 }
 
+/// The gradient of `w` in `grads`, flattened to host values.
+#[cfg(feature = "wgpu")]
+fn grad_values<const D: usize>(w: Tensor<D>, grads: &burn::tensor::Gradients) -> Vec<f32> {
+    w.grad(grads)
+        .unwrap()
+        .into_data()
+        .try_to_vec::<f32>()
+        .unwrap()
+}
+
 /// A training forward and backward on wgpu against ndarray: with empty-space skipping the
 /// field's points are padded to a shape bucket there and the scatter sends the padding to a
 /// spare row (`renderer::shape_buckets`), and with c0 shuffling the points draw the same
@@ -260,37 +270,22 @@ fn wgpu_training_gradients_match_ndarray() {
         let loss = render_loss(out.rgb, out.rgb0, gt(d)).unwrap().total;
         let value = loss.clone().into_scalar::<f32>();
         let grads = loss.backward();
-        let grad = |w: Tensor<2>| {
-            w.grad(&grads)
-                .unwrap()
-                .into_data()
-                .try_to_vec::<f32>()
-                .unwrap()
-        };
-        let grad4 = |w: Tensor<4>| {
-            w.grad(&grads)
-                .unwrap()
-                .into_data()
-                .try_to_vec::<f32>()
-                .unwrap()
-        };
-        let grad3 = |w: Tensor<3>| {
-            w.grad(&grads)
-                .unwrap()
-                .into_data()
-                .try_to_vec::<f32>()
-                .unwrap()
-        };
         let named = vec![
-            ("encoder.conv1", grad4(model.encoder.conv1.weight.val())),
+            (
+                "encoder.conv1",
+                grad_values(model.encoder.conv1.weight.val(), &grads),
+            ),
             (
                 "body volume, first conv",
-                grad3(model.body_volume.full[0].conv.weight.val()),
+                grad_values(model.body_volume.full[0].conv.weight.val(), &grads),
             ),
-            ("density", grad(model.density.layers[0].weight.val())),
+            (
+                "density",
+                grad_values(model.density.layers[0].weight.val(), &grads),
+            ),
             (
                 "blender.token_input",
-                grad(model.blender.token_input.weight.val()),
+                grad_values(model.blender.token_input.weight.val(), &grads),
             ),
         ];
         (value, evaluated, named)
