@@ -2,6 +2,8 @@
 //! `conv3d`, gradients against finite differences, trilinear sampling against a dense
 //! `grid_sample(align_corners=True)` reference, and the network end to end.
 
+mod common;
+
 use std::collections::BTreeSet;
 
 use burn::module::Param;
@@ -13,7 +15,7 @@ use nia_data::geometry::sparse::{
     VoxelBox, CORNERS, KERNEL_VOLUME,
 };
 use nia_data::rng::Rng;
-use nia_model::body_volume::trilinear::{sample, sample_in_chunks};
+use nia_model::body_volume::trilinear::{sample, sample_with, CornerRead};
 use nia_model::body_volume::{
     BodyVolumeGeometry, BodyVolumeNetConfig, ConvMethod, RulebookTensors, SiteNormConfig,
     SparseConv3d, SparseConv3dConfig, TrilinearTensors, NUM_SCALES,
@@ -507,16 +509,34 @@ fn trilinear_matches_dense_grid_sample() {
         let corner_tensors = TrilinearTensors::upload(&corners, &dev);
         let got =
             values(sample(tensor3(features.clone(), [n, p, c], &dev), &corner_tensors).unwrap());
-        // Blocks of 7 points give the same values.
+        // Blocks of 7 points give the same values; the GPU backends' read (one gather per
+        // corner) sums the same 8 products in another order.
         let blocked = values(
-            sample_in_chunks(
+            sample_with(
                 tensor3(features.clone(), [n, p, c], &dev),
                 &corner_tensors,
+                CornerRead::Stacked,
                 7,
             )
             .unwrap(),
         );
         assert_eq!(got, blocked);
+        for block in [7, points.len()] {
+            let by_corner = values(
+                sample_with(
+                    tensor3(features.clone(), [n, p, c], &dev),
+                    &corner_tensors,
+                    CornerRead::ByCorner,
+                    block,
+                )
+                .unwrap(),
+            );
+            assert_eq!(by_corner.len(), got.len());
+            for (a, b) in by_corner.iter().zip(&got) {
+                // NaN points read weight 0 on every corner in both reads.
+                assert!((a - b).abs() <= 1e-6, "by-corner read {a} vs stacked {b}");
+            }
+        }
         let sites = &scale.sites;
         let grid = densify(&features, n, c, sites);
         let per_view = c * dims.iter().product::<usize>();
@@ -545,6 +565,97 @@ fn trilinear_matches_dense_grid_sample() {
         }
         assert!(outside > 10, "the test should cover points outside the box");
     }
+}
+
+/// `(forward, d features of sum(read * cotangent))` of the trilinear read of `features` at the
+/// corners of `points`, on `device`, with `read` in blocks of `block` points.
+#[cfg(feature = "wgpu")]
+fn trilinear_with_gradient(
+    device: &Device,
+    features: &[f32],
+    dims: [usize; 3],
+    corners: &TrilinearCorners,
+    read: CornerRead,
+    block: usize,
+) -> (Vec<f32>, Vec<f32>) {
+    let ad = device.clone().autodiff();
+    let [n, _, c] = dims;
+    let x = tensor3(features.to_vec(), dims, &ad).require_grad();
+    let out = sample_with(
+        x.clone(),
+        &TrilinearTensors::upload(corners, &ad),
+        read,
+        block,
+    )
+    .unwrap();
+    let m = corners.num_points();
+    let cotangent: Vec<f32> = (0..n * m * c)
+        .map(|i| ((i % 13) as f32 - 6.0) / 6.0)
+        .collect();
+    let grads = (out.clone() * tensor3(cotangent, [n, m, c], &ad))
+        .sum()
+        .backward();
+    (values(out), values(x.grad(&grads).unwrap()))
+}
+
+/// The GPU backends' read (one gather per corner, large blocks) on wgpu against the CPU's
+/// stacked read on ndarray: the values and the gradient of the features, in several blocks
+/// and in the default one, with points outside the box and on its faces.
+#[cfg(feature = "wgpu")]
+#[test]
+fn trilinear_by_corner_on_wgpu_matches_ndarray() {
+    let Some(gpu) = common::wgpu_device() else {
+        return;
+    };
+    let cpu = device();
+    let mut rng = Rng::new(53);
+    let vb = test_box();
+    let (_, _, dims) = vb.level_placement(0);
+    let scale = ScaleGeometry::new(&vb, 0, random_sites(&mut rng, dims, 0.6)).unwrap();
+    let (n, c, p) = (3, 16, scale.num_sites());
+    let features = normals(&mut rng, n * p * c);
+    let mut points = random_points(&mut rng, &vb, 2000, 0.08);
+    points.push(vb.min_m);
+    points.push(vb.max_m());
+    let corners = TrilinearCorners::compute(&points, &scale);
+    let fdims = [n, p, c];
+    let (want, want_grad) =
+        trilinear_with_gradient(&cpu, &features, fdims, &corners, CornerRead::Stacked, 300);
+    for block in [777, points.len()] {
+        let (got, got_grad) = trilinear_with_gradient(
+            &gpu,
+            &features,
+            fdims,
+            &corners,
+            CornerRead::ByCorner,
+            block,
+        );
+        for (what, a, b) in [("values", &got, &want), ("gradient", &got_grad, &want_grad)] {
+            assert_eq!(a.len(), b.len());
+            let diff = a
+                .iter()
+                .zip(b.iter())
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max);
+            assert!(diff <= 1e-5, "{what} on wgpu, blocks of {block}: {diff}");
+        }
+    }
+    // `sample` on wgpu picks the by-corner read.
+    let got = values(
+        sample(
+            tensor3(features.clone(), fdims, &gpu),
+            &TrilinearTensors::upload(&corners, &gpu),
+        )
+        .unwrap(),
+    );
+    let diff = got
+        .iter()
+        .zip(&want)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max);
+    assert!(diff <= 1e-5, "sample on wgpu: {diff}");
+    assert_eq!(CornerRead::for_device(&gpu), CornerRead::ByCorner);
+    assert_eq!(CornerRead::for_device(&cpu), CornerRead::Stacked);
 }
 
 /// The fused host read of the body volume (inference on the CPU backends) against the tensor

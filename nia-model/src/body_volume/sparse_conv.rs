@@ -5,7 +5,7 @@
 //! [`ConvMethod`]):
 //! - `Im2col`: a gather of the 27 neighbours of every output (a missing neighbour reads an
 //!   appended zero row) into `[N, P_out, 27 C_in]` and a matmul with `W` as `[27 C_in, C_out]`,
-//!   in blocks of outputs ([`GATHER_CHUNK_BYTES`]). No scatter; its cost grows with `27 P_out`
+//!   in blocks of outputs ([`chunk_len`]). No scatter; its cost grows with `27 P_out`
 //!   whatever the number of active neighbours.
 //! - `Pairs`: one matmul of every input with all 27 offsets' weights (`[N P_in, 27 C_out]`),
 //!   one gather of the T pairs' products and one scatter-add (`select_assign(.., Add)`) into
@@ -24,6 +24,7 @@ use std::sync::Arc;
 use super::host_conv::{runs_on_host, sparse_conv_host, HostRules};
 use super::BodyVolumeError;
 use crate::blocked_rows::{scatter_add_rows, select_rows};
+use crate::device::computes_on_cpu;
 use nia_data::geometry::sparse::{Rulebook, RulebookKind, KERNEL_VOLUME};
 
 /// PyTorch's (and spconv's) default convolution init: Kaiming uniform with `a = sqrt(5)`, i.e.
@@ -82,7 +83,7 @@ pub struct RulebookTensors {
     /// Output sites P_out.
     pub n_out: usize,
     indices: RulebookIndices,
-    /// Outputs per `Im2col` block; `None` = from [`GATHER_CHUNK_BYTES`].
+    /// Outputs per `Im2col` block; `None` = from [`chunk_len`].
     outputs_per_chunk: Option<usize>,
 }
 
@@ -136,7 +137,7 @@ impl RulebookTensors {
     }
 
     /// Runs `Im2col` in blocks of `outputs` output sites (at least 1) instead of the
-    /// [`GATHER_CHUNK_BYTES`] default; the result is the same (for tests and tuning).
+    /// [`chunk_len`] default; the result is the same (for tests and tuning).
     pub fn with_outputs_per_chunk(mut self, outputs: usize) -> Self {
         self.outputs_per_chunk = Some(outputs.max(1));
         self
@@ -152,18 +153,31 @@ impl RulebookTensors {
     }
 }
 
-/// Size of one gathered block (`Im2col` columns, trilinear corners), bytes. Gathering in
-/// blocks this small instead of all at once keeps the allocator reusing memory instead of
-/// mapping fresh pages for every block: on flex at paper size 1.5-2x faster per `Im2col`
-/// convolution and ~4x faster trilinear sampling (64 MiB blocks gain nothing; 1-4 MiB are
-/// as fast). Results do not depend on it. The GPU backends use the same size: with 256 MiB
-/// blocks there the release build's paper forward on lavapipe differed from flex by 2.6e-4
-/// instead of 7e-7 (docs/speed.md, "Training on a GPU").
+/// Size of one gathered block (`Im2col` columns, trilinear corners) on the CPU backends,
+/// bytes. Gathering in blocks this small instead of all at once keeps the allocator reusing
+/// memory instead of mapping fresh pages for every block: on flex at paper size 1.5-2x faster
+/// per `Im2col` convolution and ~4x faster trilinear sampling (64 MiB blocks gain nothing;
+/// 1-4 MiB are as fast). Results do not depend on it.
 pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
 
-/// Rows per gathered block when a row holds `floats_per_row` f32 values (at least 1).
-pub(crate) fn chunk_len(floats_per_row: usize) -> usize {
-    (GATHER_CHUNK_BYTES / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
+/// Size of one gathered block on the GPU backends, bytes. There every block costs a few kernel
+/// launches and burn's per-operation work on the host, so blocks are larger; but one tensor
+/// must fit in one storage-buffer binding, and cubecl-wgpu 0.11 caps its allocations at the
+/// device's `maxStorageBufferRange` where the driver has no 64-bit indexing: 128 MiB on Mesa's
+/// lavapipe, where 256 MiB blocks read wrong values (docs/speed.md, "Training on a GPU").
+/// Half of that leaves room on every device this project has met.
+pub const GPU_GATHER_BLOCK_BYTES: usize = 64 << 20;
+
+/// Rows per gathered block on `device` when a row holds `floats_per_row` f32 values (at
+/// least 1): [`GATHER_CHUNK_BYTES`] on the CPU backends, [`GPU_GATHER_BLOCK_BYTES`] on the GPU
+/// ones.
+pub(crate) fn chunk_len(floats_per_row: usize, device: &Device) -> usize {
+    let bytes = if computes_on_cpu(device) {
+        GATHER_CHUNK_BYTES
+    } else {
+        GPU_GATHER_BLOCK_BYTES
+    };
+    (bytes / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
 }
 
 /// Concatenates chunk results along `dim` (no copy for a single chunk).
@@ -288,7 +302,7 @@ impl SparseConv3d {
                 let w = weight.reshape([KERNEL_VOLUME * c_in, c_out]);
                 let chunk = rulebook
                     .outputs_per_chunk
-                    .unwrap_or_else(|| chunk_len(n * KERNEL_VOLUME * c_in));
+                    .unwrap_or_else(|| chunk_len(n * KERNEL_VOLUME * c_in, &rows.device()));
                 let mut parts = Vec::with_capacity(p_out.div_ceil(chunk));
                 for start in (0..p_out).step_by(chunk) {
                     let len = chunk.min(p_out - start);

@@ -10,14 +10,16 @@
 //!
 //! The corners and weights are computed on the CPU
 //! ([`nia_data::geometry::sparse::TrilinearCorners`]); here they are uploaded and used:
-//! `[N, P_s, C] -> [N, M, C]`, differentiable in the features: one row gather from
-//! `[N (P_s + 1), C]` and a batched weighted sum.
+//! `[N, P_s, C] -> [N, M, C]`, differentiable in the features: row gathers from
+//! `[N (P_s + 1), C]` and a weighted sum over the corners, read as the backend suits
+//! ([`CornerRead`]).
 
 use burn::prelude::*;
 
 use super::sparse_conv::{cat_parts, chunk_len, int_tensor, per_view_rows, rows_with_zero_row};
 use super::BodyVolumeError;
 use crate::blocked_rows::select_rows;
+use crate::device::computes_on_cpu;
 pub use nia_data::geometry::sparse::{TrilinearCorners, CORNERS};
 
 /// [`TrilinearCorners`] on a device.
@@ -49,8 +51,44 @@ impl TrilinearTensors {
     }
 }
 
+/// How [`sample_with`] reads the 8 corners of a block of points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CornerRead {
+    /// One row gather of all 8 corners (`[N, len, 8, C]`), then the weighted sum over the
+    /// corners as one broadcast product summed along them. The CPU backends' read: few
+    /// operations per block, and blocks small enough for the allocator to reuse.
+    Stacked,
+    /// One row gather per corner (`[N, len, C]`), weighted and added to the sum. The GPU
+    /// backends' read: no `[N, len, 8, C]` intermediate, so a block of the same bytes holds 8
+    /// times the points, and a read is 8 gathers and one sum per block instead of a few
+    /// operations per small block (at 4096 rays x 64 samples and the paper's scales, 17
+    /// blocks instead of 720).
+    ByCorner,
+}
+
+impl CornerRead {
+    /// The read the backend of `device` uses.
+    pub fn for_device(device: &Device) -> Self {
+        if computes_on_cpu(device) {
+            CornerRead::Stacked
+        } else {
+            CornerRead::ByCorner
+        }
+    }
+
+    /// Points per block on `device` for `n` views of `c` channels: the gathered tensor of one
+    /// block fills [`chunk_len`]'s bytes.
+    fn points_per_block(self, n: usize, c: usize, device: &Device) -> usize {
+        match self {
+            CornerRead::Stacked => chunk_len(n * CORNERS * c, device),
+            CornerRead::ByCorner => chunk_len(n * c, device),
+        }
+    }
+}
+
 /// Samples every view's sparse volume at the points:
-/// `out[n, m] = sum_j weight[m, j] * features[n, index[m, j]]` (index P_s reads zero).
+/// `out[n, m] = sum_j weight[m, j] * features[n, index[m, j]]` (index P_s reads zero), with
+/// the read and block size of the features' backend ([`CornerRead::for_device`]).
 ///
 /// # Shapes
 /// - features: `[N, P_s, C]`
@@ -60,15 +98,23 @@ pub fn sample(
     corners: &TrilinearTensors,
 ) -> Result<Tensor<3>, BodyVolumeError> {
     let [n, _, c] = features.dims();
-    sample_in_chunks(features, corners, chunk_len(n * CORNERS * c))
+    let device = features.device();
+    let read = CornerRead::for_device(&device);
+    sample_with(
+        features,
+        corners,
+        read,
+        read.points_per_block(n, c, &device),
+    )
 }
 
-/// [`sample`] gathering `points_per_chunk` points (at least 1) at a time; the result does not
-/// depend on it (for tests and tuning).
-pub fn sample_in_chunks(
+/// [`sample`] reading the corners as `read` says, `points_per_block` points (at least 1) at a
+/// time; the result does not depend on either beyond rounding (for tests and tuning).
+pub fn sample_with(
     features: Tensor<3>,
     corners: &TrilinearTensors,
-    points_per_chunk: usize,
+    read: CornerRead,
+    points_per_block: usize,
 ) -> Result<Tensor<3>, BodyVolumeError> {
     let [n, p_s, c] = features.dims();
     if n == 0 || p_s != corners.num_sites {
@@ -85,31 +131,77 @@ pub fn sample_in_chunks(
     if m == 0 {
         return Ok(Tensor::zeros([n, 0, c], &features.device()));
     }
-    // Row gathers of the corners in blocks of points (`GATHER_CHUNK_BYTES`), then the 8-term
-    // weighted sum of every (view, point) as one broadcast product summed over the corners
-    // (`[N, M, 8, C] * [1, M, 8, 1]`). Not a batched [1, 8] x [8, C] matmul: that is N M tiny
-    // GEMMs forward and again backward, which cost more than the gathers in the training step.
     let rows = rows_with_zero_row(features); // [N * (P_s + 1), C]
-    let chunk = points_per_chunk.max(1);
-    let mut parts = Vec::with_capacity(m.div_ceil(chunk));
-    for start in (0..m).step_by(chunk) {
-        let len = chunk.min(m - start);
-        let index = corners
-            .index
-            .clone()
-            .narrow(0, start * CORNERS, len * CORNERS);
-        let values = select_rows(rows.clone(), per_view_rows(&index, n, p_s + 1)).reshape([
-            n * len,
-            CORNERS,
-            c,
-        ]);
-        let weight = corners
-            .weight
-            .clone()
-            .narrow(0, start, len)
-            .reshape([1, len, CORNERS, 1]);
-        let values = values.reshape([n, len, CORNERS, c]);
-        parts.push((values * weight).sum_dim(2).reshape([n, len, c]));
-    }
+    let block = points_per_block.max(1);
+    let parts = (0..m)
+        .step_by(block)
+        .map(|start| {
+            let len = block.min(m - start);
+            let index = corners
+                .index
+                .clone()
+                .narrow(0, start * CORNERS, len * CORNERS); // [len * 8]
+            let weight = corners.weight.clone().narrow(0, start, len); // [len, 8]
+            match read {
+                CornerRead::Stacked => read_stacked(&rows, index, weight, n, p_s),
+                CornerRead::ByCorner => read_by_corner(&rows, index, weight, n, p_s),
+            }
+        })
+        .collect();
     Ok(cat_parts(parts, 1))
+}
+
+/// [`CornerRead::Stacked`] for one block of `len` points. Not a batched [1, 8] x [8, C]
+/// matmul: that is N M tiny GEMMs forward and again backward, which cost more than the
+/// gathers in the training step.
+///
+/// # Shapes
+/// - `rows`: `[N * (P_s + 1), C]`; `index`: `[len * 8]`; `weight`: `[len, 8]`
+/// - output: `[N, len, C]`
+fn read_stacked(
+    rows: &Tensor<2>,
+    index: Tensor<1, Int>,
+    weight: Tensor<2>,
+    n: usize,
+    p_s: usize,
+) -> Tensor<3> {
+    let [len, _] = weight.dims();
+    let c = rows.dims()[1];
+    let values =
+        select_rows(rows.clone(), per_view_rows(&index, n, p_s + 1)).reshape([n, len, CORNERS, c]);
+    (values * weight.reshape([1, len, CORNERS, 1]))
+        .sum_dim(2)
+        .reshape([n, len, c])
+}
+
+/// [`CornerRead::ByCorner`] for one block of `len` points: the row indices of all corners
+/// and views in one tensor, then per corner one gather, weighted and summed.
+///
+/// # Shapes
+/// - `rows`: `[N * (P_s + 1), C]`; `index`: `[len * 8]`; `weight`: `[len, 8]`
+/// - output: `[N, len, C]`
+fn read_by_corner(
+    rows: &Tensor<2>,
+    index: Tensor<1, Int>,
+    weight: Tensor<2>,
+    n: usize,
+    p_s: usize,
+) -> Tensor<3> {
+    let [len, _] = weight.dims();
+    let c = rows.dims()[1];
+    // [8, N * len]: row j holds corner j of every (view, point), view-major.
+    let by_corner = index
+        .reshape([len, CORNERS])
+        .swap_dims(0, 1)
+        .reshape([CORNERS * len]);
+    let index = per_view_rows(&by_corner, n, p_s + 1)
+        .reshape([n, CORNERS, len])
+        .swap_dims(0, 1)
+        .reshape([CORNERS, n * len]);
+    let term = |j: usize| {
+        let corner_index = index.clone().narrow(0, j, 1).reshape([n * len]);
+        let w = weight.clone().narrow(1, j, 1).reshape([1, len, 1]);
+        select_rows(rows.clone(), corner_index).reshape([n, len, c]) * w
+    };
+    (1..CORNERS).fold(term(0), |sum, j| sum + term(j))
 }
