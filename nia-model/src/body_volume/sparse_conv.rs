@@ -5,7 +5,7 @@
 //! [`ConvMethod`]):
 //! - `Im2col`: a gather of the 27 neighbours of every output (a missing neighbour reads an
 //!   appended zero row) into `[N, P_out, 27 C_in]` and a matmul with `W` as `[27 C_in, C_out]`,
-//!   in blocks of outputs ([`chunk_len`]). No scatter; its cost grows with `27 P_out`
+//!   in blocks of outputs ([`im2col_block_bytes`]). No scatter; its cost grows with `27 P_out`
 //!   whatever the number of active neighbours.
 //! - `Pairs`: one matmul of every input with all 27 offsets' weights (`[N P_in, 27 C_out]`),
 //!   one gather of the T pairs' products and one scatter-add (`select_assign(.., Add)`) into
@@ -83,7 +83,7 @@ pub struct RulebookTensors {
     /// Output sites P_out.
     pub n_out: usize,
     indices: RulebookIndices,
-    /// Outputs per `Im2col` block; `None` = from [`chunk_len`].
+    /// Outputs per `Im2col` block; `None` = from [`im2col_block_bytes`].
     outputs_per_chunk: Option<usize>,
 }
 
@@ -137,7 +137,7 @@ impl RulebookTensors {
     }
 
     /// Runs `Im2col` in blocks of `outputs` output sites (at least 1) instead of the
-    /// [`chunk_len`] default; the result is the same (for tests and tuning).
+    /// [`im2col_block_bytes`] default; the result is the same (for tests and tuning).
     pub fn with_outputs_per_chunk(mut self, outputs: usize) -> Self {
         self.outputs_per_chunk = Some(outputs.max(1));
         self
@@ -153,31 +153,35 @@ impl RulebookTensors {
     }
 }
 
-/// Size of one gathered block (`Im2col` columns, trilinear corners) on the CPU backends,
+/// Size of one gathered block of `Im2col` columns (and of the CPU backends' trilinear read),
 /// bytes. Gathering in blocks this small instead of all at once keeps the allocator reusing
 /// memory instead of mapping fresh pages for every block: on flex at paper size 1.5-2x faster
 /// per `Im2col` convolution and ~4x faster trilinear sampling (64 MiB blocks gain nothing;
 /// 1-4 MiB are as fast). Results do not depend on it.
 pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
 
-/// Size of one gathered block on the GPU backends, bytes. There every block costs a few kernel
-/// launches and burn's per-operation work on the host, so blocks are larger; but one tensor
-/// must fit in one storage-buffer binding, and cubecl-wgpu 0.11 caps its allocations at the
-/// device's `maxStorageBufferRange` where the driver has no 64-bit indexing: 128 MiB on Mesa's
-/// lavapipe, where 256 MiB blocks read wrong values (docs/speed.md, "Training on a GPU").
-/// Half of that leaves room on every device this project has met.
-pub const GPU_GATHER_BLOCK_BYTES: usize = 64 << 20;
+/// Size of one gathered block of `Im2col` columns on a GPU backend when no backward runs
+/// through it, bytes: fewer blocks, fewer kernel launches (on lavapipe the paper forward's
+/// launches at 256 rays fell from 1,220 to 761). Under the 128 MiB storage-buffer binding range of Mesa's
+/// lavapipe (see [`super::trilinear::BY_CORNER_BLOCK_BYTES`]). Training keeps
+/// [`GATHER_CHUNK_BYTES`]: its tracked gathers run in blocks of
+/// [`crate::blocked_rows::MAX_SCATTER_INDICES`] rows anyway, and on lavapipe 64 MiB blocks made
+/// the training step slower (docs/speed.md, "Kernel launches").
+pub const GPU_IM2COL_BLOCK_BYTES: usize = 64 << 20;
 
-/// Rows per gathered block on `device` when a row holds `floats_per_row` f32 values (at
-/// least 1): [`GATHER_CHUNK_BYTES`] on the CPU backends, [`GPU_GATHER_BLOCK_BYTES`] on the GPU
-/// ones.
-pub(crate) fn chunk_len(floats_per_row: usize, device: &Device) -> usize {
-    let bytes = if computes_on_cpu(device) {
+/// The `Im2col` block size for gathering from `rows` (module docs).
+fn im2col_block_bytes(rows: &Tensor<2>) -> usize {
+    if computes_on_cpu(&rows.device()) || rows.is_tracked() {
         GATHER_CHUNK_BYTES
     } else {
-        GPU_GATHER_BLOCK_BYTES
-    };
-    (bytes / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
+        GPU_IM2COL_BLOCK_BYTES
+    }
+}
+
+/// Rows per gathered block of `block_bytes` when a row holds `floats_per_row` f32 values (at
+/// least 1).
+pub(crate) fn rows_per_block(block_bytes: usize, floats_per_row: usize) -> usize {
+    (block_bytes / (floats_per_row.max(1) * std::mem::size_of::<f32>())).max(1)
 }
 
 /// Concatenates chunk results along `dim` (no copy for a single chunk).
@@ -300,9 +304,9 @@ impl SparseConv3d {
             RulebookIndices::Im2col { neighbours } => {
                 let rows = rows_with_zero_row(features); // [N * (P_in + 1), C_in]
                 let w = weight.reshape([KERNEL_VOLUME * c_in, c_out]);
-                let chunk = rulebook
-                    .outputs_per_chunk
-                    .unwrap_or_else(|| chunk_len(n * KERNEL_VOLUME * c_in, &rows.device()));
+                let chunk = rulebook.outputs_per_chunk.unwrap_or_else(|| {
+                    rows_per_block(im2col_block_bytes(&rows), n * KERNEL_VOLUME * c_in)
+                });
                 let mut parts = Vec::with_capacity(p_out.div_ceil(chunk));
                 for start in (0..p_out).step_by(chunk) {
                     let len = chunk.min(p_out - start);

@@ -16,7 +16,9 @@
 
 use burn::prelude::*;
 
-use super::sparse_conv::{cat_parts, chunk_len, int_tensor, per_view_rows, rows_with_zero_row};
+use super::sparse_conv::{
+    cat_parts, int_tensor, per_view_rows, rows_per_block, rows_with_zero_row, GATHER_CHUNK_BYTES,
+};
 use super::BodyVolumeError;
 use crate::blocked_rows::select_rows;
 use crate::device::computes_on_cpu;
@@ -59,10 +61,10 @@ pub enum CornerRead {
     /// operations per block, and blocks small enough for the allocator to reuse.
     Stacked,
     /// One row gather per corner (`[N, len, C]`), weighted and added to the sum. The GPU
-    /// backends' read: no `[N, len, 8, C]` intermediate, so a block of the same bytes holds 8
-    /// times the points, and a read is 8 gathers and one sum per block instead of a few
-    /// operations per small block (at 4096 rays x 64 samples and the paper's scales, 17
-    /// blocks instead of 720).
+    /// backends' read: no `[N, len, 8, C]` intermediate, and blocks of 64 MiB, so a block
+    /// holds 32 times the points of a stacked one and a read has far fewer blocks of a few
+    /// kernel launches each (at 4096 rays x 64 samples and the paper's scales, 20 blocks
+    /// instead of 532).
     ByCorner,
 }
 
@@ -76,15 +78,24 @@ impl CornerRead {
         }
     }
 
-    /// Points per block on `device` for `n` views of `c` channels: the gathered tensor of one
-    /// block fills [`chunk_len`]'s bytes.
-    fn points_per_block(self, n: usize, c: usize, device: &Device) -> usize {
+    /// Points per block for `n` views of `c` channels: the gathered tensor of one block fills
+    /// [`GATHER_CHUNK_BYTES`] (stacked) or [`BY_CORNER_BLOCK_BYTES`] (by corner).
+    pub fn points_per_block(self, n: usize, c: usize) -> usize {
         match self {
-            CornerRead::Stacked => chunk_len(n * CORNERS * c, device),
-            CornerRead::ByCorner => chunk_len(n * c, device),
+            CornerRead::Stacked => rows_per_block(GATHER_CHUNK_BYTES, n * CORNERS * c),
+            CornerRead::ByCorner => rows_per_block(BY_CORNER_BLOCK_BYTES, n * c),
         }
     }
 }
+
+/// Size of one corner's gather in [`CornerRead::ByCorner`], bytes. On a GPU every block costs
+/// kernel launches and burn's per-operation work on the host, so blocks are larger than the
+/// CPU's; but one tensor must fit in one storage-buffer binding, and cubecl-wgpu 0.11 caps
+/// its allocations at the device's `maxStorageBufferRange` where the driver has no 64-bit
+/// indexing: 128 MiB on Mesa's lavapipe, where 256 MiB blocks read wrong values
+/// (docs/speed.md, "Training on a GPU"). Half of that leaves room on every device this project
+/// has met.
+pub const BY_CORNER_BLOCK_BYTES: usize = 64 << 20;
 
 /// Samples every view's sparse volume at the points:
 /// `out[n, m] = sum_j weight[m, j] * features[n, index[m, j]]` (index P_s reads zero), with
@@ -98,14 +109,8 @@ pub fn sample(
     corners: &TrilinearTensors,
 ) -> Result<Tensor<3>, BodyVolumeError> {
     let [n, _, c] = features.dims();
-    let device = features.device();
-    let read = CornerRead::for_device(&device);
-    sample_with(
-        features,
-        corners,
-        read,
-        read.points_per_block(n, c, &device),
-    )
+    let read = CornerRead::for_device(&features.device());
+    sample_with(features, corners, read, read.points_per_block(n, c))
 }
 
 /// [`sample`] reading the corners as `read` says, `points_per_block` points (at least 1) at a
