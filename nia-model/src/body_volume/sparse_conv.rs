@@ -5,8 +5,8 @@
 //! [`ConvMethod`]):
 //! - `Im2col`: a gather of the 27 neighbours of every output (a missing neighbour reads an
 //!   appended zero row) into `[N, P_out, 27 C_in]` and a matmul with `W` as `[27 C_in, C_out]`,
-//!   in blocks of outputs ([`im2col_block_bytes`]). No scatter; its cost grows with `27 P_out`
-//!   whatever the number of active neighbours.
+//!   in blocks of outputs ([`GATHER_CHUNK_BYTES`], [`GPU_IM2COL_BLOCK_BYTES`]). No scatter; its
+//!   cost grows with `27 P_out` whatever the number of active neighbours.
 //! - `Pairs`: one matmul of every input with all 27 offsets' weights (`[N P_in, 27 C_out]`),
 //!   one gather of the T pairs' products and one scatter-add (`select_assign(.., Add)`) into
 //!   `[N, P_out, C_out]`. The matmul costs as much as `Im2col`'s, but only T rows move through
@@ -83,7 +83,7 @@ pub struct RulebookTensors {
     /// Output sites P_out.
     pub n_out: usize,
     indices: RulebookIndices,
-    /// Outputs per `Im2col` block; `None` = from [`im2col_block_bytes`].
+    /// Outputs per `Im2col` block; `None` = from `im2col_block_bytes`.
     outputs_per_chunk: Option<usize>,
 }
 
@@ -137,7 +137,8 @@ impl RulebookTensors {
     }
 
     /// Runs `Im2col` in blocks of `outputs` output sites (at least 1) instead of the
-    /// [`im2col_block_bytes`] default; the result is the same (for tests and tuning).
+    /// default block ([`GATHER_CHUNK_BYTES`], or [`GPU_IM2COL_BLOCK_BYTES`] on a GPU backend
+    /// when no backward runs through it); the result is the same (for tests and tuning).
     pub fn with_outputs_per_chunk(mut self, outputs: usize) -> Self {
         self.outputs_per_chunk = Some(outputs.max(1));
         self
@@ -162,8 +163,8 @@ pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
 
 /// Size of one gathered block of `Im2col` columns on a GPU backend when no backward runs
 /// through it, bytes: fewer blocks, fewer kernel launches (on lavapipe the paper forward's
-/// launches at 256 rays fell from 1,220 to 761). Under the 128 MiB storage-buffer binding range of Mesa's
-/// lavapipe (see [`super::trilinear::BY_CORNER_BLOCK_BYTES`]). Training keeps
+/// launches at 256 rays fell from 1,220 to 761). Under the 128 MiB storage-buffer binding
+/// range of Mesa's lavapipe (see [`super::trilinear::BY_CORNER_BLOCK_BYTES`]). Training keeps
 /// [`GATHER_CHUNK_BYTES`]: its tracked gathers run in blocks of
 /// [`crate::blocked_rows::MAX_SCATTER_INDICES`] rows anyway, and on lavapipe 64 MiB blocks made
 /// the training step slower (docs/speed.md, "Kernel launches").
