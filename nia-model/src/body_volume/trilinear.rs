@@ -86,6 +86,53 @@ impl CornerRead {
             CornerRead::ByCorner => rows_per_block(BY_CORNER_BLOCK_BYTES, n * c),
         }
     }
+
+    /// Reads one block of `len` points. Stacked: one gather of all corners, then the weighted
+    /// sum as a broadcast product summed over the corners (not a batched [1, 8] x [8, C]
+    /// matmul: that is N M tiny GEMMs forward and again backward, which cost more than the
+    /// gathers in the training step). By corner: the row indices of all corners and views in
+    /// one tensor, then per corner one gather, weighted and summed.
+    ///
+    /// # Shapes
+    /// - `rows`: `[N * (P_s + 1), C]`; `index`: `[len * 8]`; `weight`: `[len, 8]`
+    /// - output: `[N, len, C]`
+    fn read_block(
+        self,
+        rows: &Tensor<2>,
+        index: Tensor<1, Int>,
+        weight: Tensor<2>,
+        n: usize,
+        p_s: usize,
+    ) -> Tensor<3> {
+        let [len, _] = weight.dims();
+        let c = rows.dims()[1];
+        match self {
+            CornerRead::Stacked => {
+                let values = select_rows(rows.clone(), per_view_rows(&index, n, p_s + 1))
+                    .reshape([n, len, CORNERS, c]);
+                (values * weight.reshape([1, len, CORNERS, 1]))
+                    .sum_dim(2)
+                    .reshape([n, len, c])
+            }
+            CornerRead::ByCorner => {
+                // [8, N * len]: row j holds corner j of every (view, point), view-major.
+                let by_corner = index
+                    .reshape([len, CORNERS])
+                    .swap_dims(0, 1)
+                    .reshape([CORNERS * len]);
+                let index = per_view_rows(&by_corner, n, p_s + 1)
+                    .reshape([n, CORNERS, len])
+                    .swap_dims(0, 1)
+                    .reshape([CORNERS, n * len]);
+                let term = |j: usize| {
+                    let corner_index = index.clone().narrow(0, j, 1).reshape([n * len]);
+                    let w = weight.clone().narrow(1, j, 1).reshape([1, len, 1]);
+                    select_rows(rows.clone(), corner_index).reshape([n, len, c]) * w
+                };
+                (1..CORNERS).fold(term(0), |sum, j| sum + term(j))
+            }
+        }
+    }
 }
 
 /// Size of one corner's gather in [`CornerRead::ByCorner`], bytes. On a GPU every block costs
@@ -147,66 +194,8 @@ pub fn sample_with(
                 .clone()
                 .narrow(0, start * CORNERS, len * CORNERS); // [len * 8]
             let weight = corners.weight.clone().narrow(0, start, len); // [len, 8]
-            match read {
-                CornerRead::Stacked => read_stacked(&rows, index, weight, n, p_s),
-                CornerRead::ByCorner => read_by_corner(&rows, index, weight, n, p_s),
-            }
+            read.read_block(&rows, index, weight, n, p_s)
         })
         .collect();
     Ok(cat_parts(parts, 1))
-}
-
-/// [`CornerRead::Stacked`] for one block of `len` points. Not a batched [1, 8] x [8, C]
-/// matmul: that is N M tiny GEMMs forward and again backward, which cost more than the
-/// gathers in the training step.
-///
-/// # Shapes
-/// - `rows`: `[N * (P_s + 1), C]`; `index`: `[len * 8]`; `weight`: `[len, 8]`
-/// - output: `[N, len, C]`
-fn read_stacked(
-    rows: &Tensor<2>,
-    index: Tensor<1, Int>,
-    weight: Tensor<2>,
-    n: usize,
-    p_s: usize,
-) -> Tensor<3> {
-    let [len, _] = weight.dims();
-    let c = rows.dims()[1];
-    let values =
-        select_rows(rows.clone(), per_view_rows(&index, n, p_s + 1)).reshape([n, len, CORNERS, c]);
-    (values * weight.reshape([1, len, CORNERS, 1]))
-        .sum_dim(2)
-        .reshape([n, len, c])
-}
-
-/// [`CornerRead::ByCorner`] for one block of `len` points: the row indices of all corners
-/// and views in one tensor, then per corner one gather, weighted and summed.
-///
-/// # Shapes
-/// - `rows`: `[N * (P_s + 1), C]`; `index`: `[len * 8]`; `weight`: `[len, 8]`
-/// - output: `[N, len, C]`
-fn read_by_corner(
-    rows: &Tensor<2>,
-    index: Tensor<1, Int>,
-    weight: Tensor<2>,
-    n: usize,
-    p_s: usize,
-) -> Tensor<3> {
-    let [len, _] = weight.dims();
-    let c = rows.dims()[1];
-    // [8, N * len]: row j holds corner j of every (view, point), view-major.
-    let by_corner = index
-        .reshape([len, CORNERS])
-        .swap_dims(0, 1)
-        .reshape([CORNERS * len]);
-    let index = per_view_rows(&by_corner, n, p_s + 1)
-        .reshape([n, CORNERS, len])
-        .swap_dims(0, 1)
-        .reshape([CORNERS, n * len]);
-    let term = |j: usize| {
-        let corner_index = index.clone().narrow(0, j, 1).reshape([n * len]);
-        let w = weight.clone().narrow(1, j, 1).reshape([1, len, 1]);
-        select_rows(rows.clone(), corner_index).reshape([n, len, c]) * w
-    };
-    (1..CORNERS).fold(term(0), |sum, j| sum + term(j))
 }
