@@ -11,7 +11,8 @@
 #   GPU_CHECK_STEPS="train render" scripts/gpu_check.sh run   # some steps only (default: all of
 #                                       # probe paper 4k tiny torch render flex; train: the paper
 #                                       # network's training step alone; autotune: the first
-#                                       # forward by CUBECL_AUTOTUNE_LEVEL). GPU_CHECK_LIMIT and
+#                                       # forward by CUBECL_AUTOTUNE_LEVEL; spirv: the paper setting
+#                                       # with the SPIR-V build). GPU_CHECK_LIMIT and
 #                                       # GPU_CHECK_RENDER_LIMIT: seconds for a bench / the render
 #   scripts/gpu_check.sh run --dry      # a rehearsal here on lavapipe and CPU torch, small sizes
 #                                       # (NIA_PYTHON: a python with torch; default python3)
@@ -38,6 +39,15 @@ prepare() {
   cargo build --quiet --release --features wgpu -p nia-infer
   cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer && strip .gpu/nia-infer
   xz -T2 -6 -f .gpu/nia-infer
+  # The same binary with cubecl's SPIR-V compiler for Vulkan (burn's `vulkan` feature) in place
+  # of WGSL through naga, for the `spirv` step. Not a feature of ours: Mesa 22.3's lavapipe, which
+  # CI tests wgpu on, crashes compiling its kernels (docs/speed.md, "The shader compiler"). The
+  # extra feature adds crates to Cargo.lock; the checked-in lock file is put back after.
+  cargo build --quiet --release --features wgpu,burn/vulkan -p nia-infer
+  git checkout -- Cargo.lock
+  cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer-spirv && strip .gpu/nia-infer-spirv
+  xz -T2 -6 -f .gpu/nia-infer-spirv
+  cargo build --quiet --release --features wgpu -p nia-infer   # the uplifted binary back to WGSL
   [ -d runs/paper300 ] || { echo "runs/paper300 missing: train it first (docs/speed.md)" >&2; exit 1; }
   "$CARGO_TARGET_DIR/debug/nia-infer" export --checkpoint runs/paper300 --out .gpu/paper300.nia
   [ -d data/quickstart512 ] || "$CARGO_TARGET_DIR/debug/nia-train" synth --out data/quickstart512 \
@@ -50,6 +60,9 @@ prepare() {
   # shellcheck disable=SC2086
   apt-get $o update >/dev/null && (cd .gpu/debs && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2 >/dev/null)
   du -sh .gpu
+  local mib
+  mib=$(du -sm .gpu | cut -f1)
+  [ "$mib" -lt 64 ] || echo "warning: .gpu is $mib MiB, over the device tool's 64 MiB carry; leave out .gpu/nia-infer-spirv.xz" >&2
 }
 
 # Peak of `nvidia-smi --query-gpu=memory.used` (MiB) while a command runs, polled every 100 ms;
@@ -87,6 +100,8 @@ run() {
   [ -f $egl ] && export __EGL_VENDOR_LIBRARY_FILENAMES=$egl
   local bin=/tmp/nia-infer
   xz -dc .gpu/nia-infer.xz > $bin && chmod +x $bin
+  local bin_spirv=/tmp/nia-infer-spirv
+  [ -f .gpu/nia-infer-spirv.xz ] && xz -dc .gpu/nia-infer-spirv.xz > $bin_spirv && chmod +x $bin_spirv
   tar -xJf .gpu/bundle.tar.xz
   if command -v nvidia-smi >/dev/null; then
     nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$out/card.txt"
@@ -99,7 +114,8 @@ run() {
   local steps=" ${GPU_CHECK_STEPS:-probe paper 4k tiny torch render flex} "
   # Not in the default list: train (the training step alone), profile (the paper forward
   # under cubecl's profiler: compilations and GPU time per kernel family) and autotune (the
-  # first forward with CUBECL_AUTOTUNE_LEVEL=minimal against the default, fresh caches).
+  # first forward with CUBECL_AUTOTUNE_LEVEL=minimal against the default, fresh caches) and
+  # spirv (the paper setting with the SPIR-V build, against `paper`'s WGSL build).
   step() { [[ "$steps" == *" $1 "* ]]; }
   # wgpu must find the GPU before anything is timed; if not, say why and stop.
   if step probe && ! timeout 60 $bin bench --backend wgpu --tiny --rays 8 --samples 4 --size 32 --reps 1 --no-train \
@@ -130,6 +146,19 @@ run() {
     with_memory nia_paper timeout $limit $bin bench --backend wgpu "${dims[@]}" --reps $reps \
       --train-only > "$out/nia_paper.txt" 2> "$out/nia_paper.err" || echo "bench failed: $?"
     grep -v XDG "$out/nia_paper.err" | tail -n 3 || true
+  fi
+  # The shader compiler: the SPIR-V build on the same dimensions, with its parity against flex
+  # (cubecl's SPIR-V path has never run under nia-rs on a GPU), forward and training step.
+  if step spirv; then
+    echo "== nia-rs wgpu, paper dimensions, SPIR-V build (cubecl's Vulkan compiler) =="
+    if [ -x "$bin_spirv" ]; then
+      with_memory nia_paper_spirv timeout $limit $bin_spirv bench --backend wgpu "${dims[@]}" \
+        --reps $reps --check-against flex > "$out/nia_paper_spirv.txt" 2> "$out/nia_paper_spirv.err" \
+        || echo "spirv bench failed: $?"
+      grep -v XDG "$out/nia_paper_spirv.err" | tail -n 3 || true
+    else
+      echo "no .gpu/nia-infer-spirv.xz: rerun prepare"
+    fi
   fi
   if step paper; then
     echo "== nia-rs wgpu, paper dimensions, against flex (CPU) =="

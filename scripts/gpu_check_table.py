@@ -67,8 +67,22 @@ if nia:
 print(f"| GPU memory (nvidia-smi, above idle) | {mem('torch_paper')} | {mem('nia_paper')} | - |")
 if ref and ref.get("peak_gpu_mib"):
     print(f"| PyTorch's own peak allocation | {ref['peak_gpu_mib']:.0f} MiB | - | - |")
+spirv = last_json("nia_paper_spirv.txt")
+if spirv:
+    # The shader compiler: the same dimensions with the SPIR-V build.
+    print()
+    print("| paper network, nia-rs wgpu | WGSL (`paper`) | SPIR-V build (`spirv`) | SPIR-V / WGSL |")
+    print("|---|---:|---:|---:|")
+    for label, key in rows:
+        a, b = spirv.get(key), (nia.get(key) if nia else None)
+        print(f"| {label} | {fmt(b)} | {fmt(a)} | {ratio(a, b)} |")
+    theirs_by_stage = dict(nia["stages_s"]) if nia else {}
+    for name, ours in spirv["stages_s"]:
+        print(f"| forward stage: {name} | {fmt(theirs_by_stage.get(name))} | {fmt(ours)} | {ratio(ours, theirs_by_stage.get(name))} |")
+    print(f"| GPU memory (nvidia-smi, above idle) | {mem('nia_paper')} | {mem('nia_paper_spirv')} | - |")
 print()
-for name, r in [("paper", nia), ("tiny", tiny)]:
+for name, r, err in [("paper", nia, "nia_paper.err"), ("tiny", tiny, "nia_tiny.err"),
+                     ("paper, SPIR-V build", spirv, "nia_paper_spirv.err")]:
     if r and r.get("check"):
         c = r["check"]
         print(f"parity ({name} network): wgpu against {c['against']}: max |difference| {c['max_abs_diff']:.2e}, relative L2 {c['rel_l2']:.2e}")
@@ -77,7 +91,7 @@ for name, r in [("paper", nia), ("tiny", tiny)]:
             print(f"  gradients of one training forward, largest |difference| / largest |gradient|: "
                   + ", ".join(f"{g} {'non-finite' if v is None else f'{v:.2e}'}" for g, v in grads))
     else:
-        print(f"parity ({name} network): not measured (see nia_{name}.err)")
+        print(f"parity ({name} network): not measured (see {err})")
 tunes = [(level, last_json(f"autotune_{level}.txt")) for level in ("default", "minimal")]
 if any(r for _, r in tunes):
     print("first forward in a fresh process and fresh caches, by CUBECL_AUTOTUNE_LEVEL: "
