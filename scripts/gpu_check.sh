@@ -41,8 +41,9 @@ prepare() {
   xz -T2 -6 -f .gpu/nia-infer
   # The same binary with cubecl's SPIR-V compiler for Vulkan (burn's `vulkan` feature) in place
   # of WGSL through naga, for the `spirv` step. Not a feature of ours: Mesa 22.3's lavapipe, which
-  # CI tests wgpu on, crashes compiling its kernels (docs/speed.md, "The shader compiler"). The
-  # extra feature adds crates to Cargo.lock; the checked-in lock file is put back after.
+  # CI tests wgpu on, crashes creating its first float-atomic kernel (docs/speed.md, "Where a
+  # first forward's time goes, and the shader compiler"). The extra feature adds crates to
+  # Cargo.lock; the checked-in lock file is put back after.
   cargo build --quiet --release --features wgpu,burn/vulkan -p nia-infer
   git checkout -- Cargo.lock
   cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer-spirv && strip .gpu/nia-infer-spirv
@@ -148,13 +149,18 @@ run() {
     grep -v XDG "$out/nia_paper.err" | tail -n 3 || true
   fi
   # The shader compiler: the SPIR-V build on the same dimensions, with its parity against flex
-  # (cubecl's SPIR-V path has never run under nia-rs on a GPU), forward and training step.
+  # (cubecl's SPIR-V path has never run under nia-rs on a GPU), forward and training step. In a
+  # fresh HOME (cubecl's autotune cache and the driver's shader cache empty), so its first
+  # forward pays the whole start-up, as `paper`'s does on a fresh machine.
   if step spirv; then
     echo "== nia-rs wgpu, paper dimensions, SPIR-V build (cubecl's Vulkan compiler) =="
     if [ -x "$bin_spirv" ]; then
-      with_memory nia_paper_spirv timeout $limit $bin_spirv bench --backend wgpu "${dims[@]}" \
-        --reps $reps --check-against flex > "$out/nia_paper_spirv.txt" 2> "$out/nia_paper_spirv.err" \
-        || echo "spirv bench failed: $?"
+      local spirv_home
+      spirv_home=$(mktemp -d)
+      HOME="$spirv_home" XDG_CACHE_HOME="$spirv_home/.cache" with_memory nia_paper_spirv \
+        timeout $limit $bin_spirv bench --backend wgpu "${dims[@]}" --reps $reps --check-against flex \
+        > "$out/nia_paper_spirv.txt" 2> "$out/nia_paper_spirv.err" || echo "spirv bench failed: $?"
+      rm -rf "$spirv_home"
       grep -v XDG "$out/nia_paper_spirv.err" | tail -n 3 || true
     else
       echo "no .gpu/nia-infer-spirv.xz: rerun prepare"
