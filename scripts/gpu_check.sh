@@ -66,6 +66,16 @@ prepare() {
   [ "$mib" -lt 64 ] || echo "warning: .gpu is $mib MiB, over the device tool's 64 MiB carry; leave out .gpu/nia-infer-spirv.xz" >&2
 }
 
+# Runs a command with HOME in a new empty folder, so that cubecl's autotune cache and the
+# driver's shader cache start empty and its first call pays the whole start-up.
+in_fresh_home() {
+  local home rc=0
+  home=$(mktemp -d)
+  HOME="$home" XDG_CACHE_HOME="$home/.cache" "$@" || rc=$?
+  rm -rf "$home"
+  return $rc
+}
+
 # Peak of `nvidia-smi --query-gpu=memory.used` (MiB) while a command runs, polled every 100 ms;
 # the baseline before it starts is printed too, so the command's own share is the difference.
 with_memory() {
@@ -150,17 +160,14 @@ run() {
   fi
   # The shader compiler: the SPIR-V build on the same dimensions, with its parity against flex
   # (cubecl's SPIR-V path has never run under nia-rs on a GPU), forward and training step. In a
-  # fresh HOME (cubecl's autotune cache and the driver's shader cache empty), so its first
-  # forward pays the whole start-up, as `paper`'s does on a fresh machine.
+  # fresh HOME, so its first forward pays the whole start-up, as `paper`'s does on a fresh
+  # machine.
   if step spirv; then
     echo "== nia-rs wgpu, paper dimensions, SPIR-V build (cubecl's Vulkan compiler) =="
     if [ -x "$bin_spirv" ]; then
-      local spirv_home
-      spirv_home=$(mktemp -d)
-      HOME="$spirv_home" XDG_CACHE_HOME="$spirv_home/.cache" with_memory nia_paper_spirv \
-        timeout $limit $bin_spirv bench --backend wgpu "${dims[@]}" --reps $reps --check-against flex \
-        > "$out/nia_paper_spirv.txt" 2> "$out/nia_paper_spirv.err" || echo "spirv bench failed: $?"
-      rm -rf "$spirv_home"
+      in_fresh_home with_memory nia_paper_spirv timeout $limit $bin_spirv bench --backend wgpu \
+        "${dims[@]}" --reps $reps --check-against flex > "$out/nia_paper_spirv.txt" \
+        2> "$out/nia_paper_spirv.err" || echo "spirv bench failed: $?"
       grep -v XDG "$out/nia_paper_spirv.err" | tail -n 3 || true
     else
       echo "no .gpu/nia-infer-spirv.xz: rerun prepare"
@@ -188,13 +195,10 @@ run() {
   if step autotune; then
     echo "== first forward by CUBECL_AUTOTUNE_LEVEL (fresh caches) =="
     for level in default minimal; do
-      local home
-      home=$(mktemp -d)
-      local env=(HOME="$home" XDG_CACHE_HOME="$home/.cache")
+      local env=()
       [ $level = minimal ] && env+=(CUBECL_AUTOTUNE_LEVEL=minimal)
-      env "${env[@]}" timeout $limit $bin bench --backend wgpu "${dims[@]}" --reps 2 --no-train \
-        > "$out/autotune_$level.txt" 2> "$out/autotune_$level.err" || echo "autotune $level failed: $?"
-      rm -rf "$home"
+      in_fresh_home env "${env[@]}" timeout $limit $bin bench --backend wgpu "${dims[@]}" --reps 2 \
+        --no-train > "$out/autotune_$level.txt" 2> "$out/autotune_$level.err" || echo "autotune $level failed: $?"
     done
   fi
 

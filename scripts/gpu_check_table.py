@@ -76,9 +76,10 @@ if spirv:
     for label, key in rows:
         a, b = spirv.get(key), (nia.get(key) if nia else None)
         print(f"| {label} | {fmt(b)} | {fmt(a)} | {ratio(a, b)} |")
-    theirs_by_stage = dict(nia["stages_s"]) if nia else {}
-    for name, ours in spirv["stages_s"]:
-        print(f"| forward stage: {name} | {fmt(theirs_by_stage.get(name))} | {fmt(ours)} | {ratio(ours, theirs_by_stage.get(name))} |")
+    wgsl_stages = dict(nia["stages_s"]) if nia else {}
+    for name, spirv_s in spirv["stages_s"]:
+        wgsl_s = wgsl_stages.get(name)
+        print(f"| forward stage: {name} | {fmt(wgsl_s)} | {fmt(spirv_s)} | {ratio(spirv_s, wgsl_s)} |")
     print(f"| GPU memory (nvidia-smi, above idle) | {mem('nia_paper')} | {mem('nia_paper_spirv')} | - |")
 print()
 for name, r, err in [("paper", nia, "nia_paper.err"), ("tiny", tiny, "nia_tiny.err"),
