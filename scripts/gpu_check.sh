@@ -7,12 +7,15 @@
 # go to ./gpu_check_out, packed into $OUT/gpu_check.tar.gz where $OUT is set (the device tool).
 #
 #   scripts/gpu_check.sh prepare        # here, once: fills .gpu/ (binary, model, data, Vulkan loader)
+#   GPU_CHECK_BASELINE=956b182 scripts/gpu_check.sh prepare   # also that commit's binary (`baseline`)
 #   scripts/gpu_check.sh run [--quick]  # on the GPU machine, from the repository root
 #   GPU_CHECK_STEPS="train render" scripts/gpu_check.sh run   # some steps only (default: all of
 #                                       # probe paper 4k tiny torch render flex; train: the paper
 #                                       # network's training step alone; autotune: the first
 #                                       # forward by CUBECL_AUTOTUNE_LEVEL; spirv: the paper setting
-#                                       # with the SPIR-V build). GPU_CHECK_LIMIT and
+#                                       # with the SPIR-V build; baseline: the 4096-ray forward
+#                                       # and the render with an older commit's binary, for a
+#                                       # before/after in one run). GPU_CHECK_LIMIT and
 #                                       # GPU_CHECK_RENDER_LIMIT: seconds for a bench / the render
 #   scripts/gpu_check.sh run --dry      # a rehearsal here on lavapipe and CPU torch, small sizes
 #                                       # (NIA_PYTHON: a python with torch; default python3)
@@ -48,6 +51,16 @@ prepare() {
   git checkout -- Cargo.lock
   cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer-spirv && strip .gpu/nia-infer-spirv
   xz -T2 -6 -f .gpu/nia-infer-spirv
+  # An older commit's binary for the `baseline` step (the same kernels' cost before a change, in
+  # the same device run). Only our crates differ, so this rebuilds those alone.
+  if [ -n "${GPU_CHECK_BASELINE:-}" ]; then
+    local tree=/tmp/nia-baseline-$GPU_CHECK_BASELINE
+    [ -d "$tree" ] || git worktree add --detach "$tree" "$GPU_CHECK_BASELINE"
+    (cd "$tree" && cargo build --quiet --release --features wgpu -p nia-infer)
+    cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer-baseline && strip .gpu/nia-infer-baseline
+    xz -T2 -6 -f .gpu/nia-infer-baseline
+    git -C "$tree" rev-parse --short HEAD > .gpu/baseline.txt
+  fi
   cargo build --quiet --release --features wgpu -p nia-infer   # the uplifted binary back to WGSL
   [ -d runs/paper300 ] || { echo "runs/paper300 missing: train it first (docs/speed.md)" >&2; exit 1; }
   "$CARGO_TARGET_DIR/debug/nia-infer" export --checkpoint runs/paper300 --out .gpu/paper300.nia
@@ -113,6 +126,9 @@ run() {
   xz -dc .gpu/nia-infer.xz > $bin && chmod +x $bin
   local bin_spirv=/tmp/nia-infer-spirv
   [ -f .gpu/nia-infer-spirv.xz ] && xz -dc .gpu/nia-infer-spirv.xz > $bin_spirv && chmod +x $bin_spirv
+  local bin_base=/tmp/nia-infer-baseline
+  [ -f .gpu/nia-infer-baseline.xz ] && xz -dc .gpu/nia-infer-baseline.xz > $bin_base && chmod +x $bin_base \
+    && cp .gpu/baseline.txt "$out/baseline.txt"
   tar -xJf .gpu/bundle.tar.xz
   if command -v nvidia-smi >/dev/null; then
     nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$out/card.txt"
@@ -127,7 +143,9 @@ run() {
   # under cubecl's profiler: compilations and GPU time per kernel family) and autotune (the
   # first forward with CUBECL_AUTOTUNE_LEVEL=minimal against the default, fresh caches) and
   # spirv (the paper setting with the SPIR-V build, against `paper`'s WGSL build).
-  step() { [[ "$steps" == *" $1 "* ]]; }
+  # Every step check first packs what the steps before it wrote, so a run stopped at the device
+  # tool's time limit still brings those back.
+  step() { pack; [[ "$steps" == *" $1 "* ]]; }
   # wgpu must find the GPU before anything is timed; if not, say why and stop.
   if step probe && ! timeout 60 $bin bench --backend wgpu --tiny --rays 8 --samples 4 --size 32 --reps 1 --no-train \
       > "$out/probe.txt" 2> "$out/probe.err"; then
@@ -146,9 +164,11 @@ run() {
   [ $quick = 1 ] && reps=2 limit=90 short=45
   local dims=(--rays 1024 --samples 64 --views 3 --size 512)
   local tiny=(--rays 256 --samples 32 --size 128)
+  local big=(--rays 4096 --samples 64 --views 3 --size 512)
   local render_ratio=1.0
   if [ $dry = 1 ]; then
     dims=(--rays 32 --samples 8 --views 3 --size 64) tiny=(--rays 16 --samples 8 --size 64)
+    big=(--rays 64 --samples 8 --views 3 --size 64)
     render_ratio=0.125 limit=900 short=900 render_limit=900 reps=1
   fi
 
@@ -204,7 +224,7 @@ run() {
 
   if step 4k && [ $quick = 0 ]; then
     echo "== nia-rs wgpu, forward only, 4x the rays (fixed cost against per-ray cost) =="
-    timeout $short $bin bench --backend wgpu --rays 4096 --samples 64 --views 3 --size 512 --reps 3 \
+    timeout $limit $bin bench --backend wgpu "${big[@]}" --reps 3 \
       --no-train > "$out/nia_paper4k.txt" 2> "$out/nia_paper4k.err" || echo "4k bench failed: $?"
   fi
 
@@ -222,19 +242,39 @@ run() {
   fi
 
   # One ray per pixel (the paper's), the model's other [render] settings (skipping, termination,
-  # culling, carving). Two target views in one process: the first pays shader compilation, the
-  # second is close to steady state.
+  # culling, carving). Two target views in one process, in a fresh HOME: the first pays the whole
+  # start-up (shader compilation, autotuning) as on a new machine, the second is close to steady
+  # state.
   local render=(render --model .gpu/paper300.nia --samples 64 --data data/quickstart512 --subject CoreView_4
                 --ratio $render_ratio --frame 0 --views 0,2,4 --targets 1,3 --supersample 1)
   if step render; then
     echo "== one 512x512 unseen-subject image, paper network (wgpu) =="
     local t0 t1
     t0=$(date +%s.%N)
-    with_memory render timeout $render_limit $bin "${render[@]}" --backend wgpu --out "$out/render_wgpu" \
-      > "$out/render.txt" 2>&1 || echo "render failed: $?"
+    in_fresh_home with_memory render timeout $render_limit $bin "${render[@]}" --backend wgpu \
+      --out "$out/render_wgpu" > "$out/render.txt" 2>&1 || echo "render failed: $?"
     t1=$(date +%s.%N)
     echo "$t0 $t1" > "$out/render_wall.txt"
     grep -v XDG "$out/render.txt" | tail -n 4 || true
+  fi
+  # The older commit's binary (prepare with GPU_CHECK_BASELINE) on the 4096-ray forward's stages
+  # and on the same render in a fresh HOME: before and after on the same card in one run.
+  if step baseline; then
+    if [ -x "$bin_base" ]; then
+      echo "== baseline binary (commit $(cat "$out/baseline.txt")): 4096-ray forward, then the render =="
+      timeout $limit $bin_base bench --backend wgpu "${big[@]}" --reps 3 --no-train \
+        > "$out/nia_paper4k_baseline.txt" 2> "$out/nia_paper4k_baseline.err" || echo "baseline 4k bench failed: $?"
+      pack
+      local t0 t1
+      t0=$(date +%s.%N)
+      in_fresh_home timeout $render_limit $bin_base "${render[@]}" --backend wgpu \
+        --out "$out/render_baseline" > "$out/render_baseline.txt" 2>&1 || echo "baseline render failed: $?"
+      t1=$(date +%s.%N)
+      echo "$t0 $t1" > "$out/render_baseline_wall.txt"
+      grep -v XDG "$out/render_baseline.txt" | tail -n 4 || true
+    else
+      echo "no .gpu/nia-infer-baseline.xz: prepare with GPU_CHECK_BASELINE=<commit>"
+    fi
   fi
   if step flex && [ $quick = 0 ]; then
     echo "== the same image on the CPU (flex, $(nproc) cores) =="
@@ -242,9 +282,12 @@ run() {
       || echo "flex render failed: $?"
   fi
   "$python" scripts/gpu_check_table.py "$out" | tee "$out/table.md"
-  if [ -n "${OUT:-}" ]; then
-    tar -czf "$OUT/gpu_check.tar.gz" -C "$out" .
-  fi
+  pack
+}
+
+# Packs ./gpu_check_out into $OUT/gpu_check.tar.gz when the device tool set $OUT.
+pack() {
+  [ -z "${OUT:-}" ] || tar -czf "$OUT/gpu_check.tar.gz" -C "$out" .
 }
 
 case "$mode" in

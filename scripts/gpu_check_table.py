@@ -57,6 +57,10 @@ for label, key in rows:
     a = nia.get(key) if nia else None
     b = ref.get(key) if ref else None
     print(f"| {label} | {fmt(b)} | {fmt(a)} | {ratio(a, b)} |")
+if nia and nia.get("forward_reps_s") is not None:
+    # The figures above are medians (as the reference's); every timed repetition, in order:
+    print(f"| timed repetitions (s) | - | forward {', '.join(f'{t:.3f}' for t in nia['forward_reps_s'])}; "
+          f"training step {', '.join(f'{t:.3f}' for t in nia['train_reps_s'])} | - |")
 if nia and nia.get("train_forward_s") is not None:
     print(f"| training step: forward / backward + Adam | - | {nia['train_forward_s']:.3f} / {nia['train_backward_s']:.3f} s | - |")
 stage_names = {"mlps": "nerf_mlps"}
@@ -102,20 +106,38 @@ big = last_json("nia_paper4k.txt")
 if big:
     print(f"paper network, forward only, {big['rays']} rays: {big['forward_s']:.3f} s ({big['forward_rays_per_s']:.0f} rays/s; "
           + ", ".join(f"{k} {v:.3f}" for k, v in big["stages_s"]) + ")")
+base_big = last_json("nia_paper4k_baseline.txt")
+if base_big:
+    # Before and after on the same card in one run: the baseline step's older binary.
+    base = read("baseline.txt").strip()
+    now = big or {}
+    print()
+    print(f"| paper network forward, 4096 rays x 64 samples | commit {base} | this build | after / before |")
+    print("|---|---:|---:|---:|")
+    now_stages = dict(now.get("stages_s", []))
+    for name, before in base_big["stages_s"]:
+        after = now_stages.get(name)
+        print(f"| {name} | {fmt(before)} | {fmt(after)} | {ratio(after, before)} |")
+    for label, key in [("forward", "forward_s"), ("first forward of the process", "first_forward_s")]:
+        print(f"| {label} | {fmt(base_big.get(key))} | {fmt(now.get(key))} | {ratio(now.get(key), base_big.get(key))} |")
 if tiny:
     print(f"tiny network (the quickstart's), {tiny['rays']} rays x {tiny['samples']}: forward {tiny['forward_s']:.4f} s "
           f"({tiny['forward_rays_per_s']:.0f} rays/s), training step {fmt(tiny.get('train_step_s'), digits=4)} "
           f"({tiny.get('train_rays_per_s') or 0:.0f} rays/s); first forward {tiny['first_forward_s']:.2f} s")
 print()
-for name, label in [("render_wgpu", "512x512 images, wgpu"), ("render_flex", "512x512 images, flex (CPU)")]:
+base = read("baseline.txt").strip()
+for name, label, wall_file in [("render_wgpu", "512x512 images, wgpu", "render_wall.txt"),
+                               ("render_baseline", f"512x512 images, wgpu, commit {base}", "render_baseline_wall.txt"),
+                               ("render_flex", "512x512 images, flex (CPU)", None)]:
     path = os.path.join(out, name, "render.json")
     if not os.path.exists(path):
-        print(f"{label}: not rendered")
+        if name != "render_baseline" or base:
+            print(f"{label}: not rendered")
         continue
     r = json.load(open(path))
     wall = ""
-    if name == "render_wgpu" and read("render_wall.txt"):
-        t0, t1 = map(float, read("render_wall.txt").split())
+    if wall_file and read(wall_file):
+        t0, t1 = map(float, read(wall_file).split())
         wall = f"; command wall {t1 - t0:.1f} s (process start, model load, shader compilation included)"
     print(f"{label}: encoding {r['encode_seconds']:.2f} s{wall}")
     for k, img in enumerate(r["images"]):

@@ -143,6 +143,42 @@ fn ray_chunks_time_the_whole_step() {
     );
 }
 
+/// The steady figures are medians of the timed repetitions, which the JSON lists: one
+/// repetition that meets a new kernel on a GPU (seconds against a fraction of one) leaves the
+/// median where the others are, as the PyTorch references report theirs.
+#[test]
+fn steady_figures_are_medians_of_the_listed_repetitions() {
+    let mut args = vec!["bench", "--backend", "flex"];
+    args.extend(&TOY[..TOY.len() - 1]); // with the training step
+    let reps = args.iter().position(|a| *a == "--reps").unwrap() + 1;
+    args[reps] = "3";
+    let v = report(&args);
+    for (figure, list) in [
+        ("forward_s", "forward_reps_s"),
+        ("train_step_s", "train_reps_s"),
+    ] {
+        let mut times: Vec<f64> = v[list]
+            .as_array()
+            .unwrap_or_else(|| panic!("{list} missing: {v}"))
+            .iter()
+            .map(|t| t.as_f64().unwrap())
+            .collect();
+        assert_eq!(times.len(), 3, "{list}: {v}");
+        assert!(
+            times.iter().all(|t| t.is_finite() && *t > 0.0),
+            "{list}: {v}"
+        );
+        times.sort_by(f64::total_cmp);
+        assert_eq!(
+            v[figure].as_f64().unwrap(),
+            times[1],
+            "{figure} is not the median: {v}"
+        );
+    }
+    let stages = v["stages_s"].as_array().unwrap();
+    assert!(stages.iter().all(|s| s[1].as_f64().unwrap() >= 0.0), "{v}");
+}
+
 #[test]
 fn contradictory_flags_are_refused() {
     fails_with(
@@ -157,4 +193,6 @@ fn contradictory_flags_are_refused() {
         &nia_infer(&["bench", "--check-against", "cuda"]),
         &["unknown backend `cuda`", "ndarray, flex or wgpu"],
     );
+    // No timed repetition leaves no median to report.
+    fails_with(&nia_infer(&["bench", "--reps", "0"]), &["--reps", "0"]);
 }

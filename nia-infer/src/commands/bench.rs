@@ -46,9 +46,9 @@ pub struct BenchArgs {
     /// Source image size (square).
     #[arg(long, default_value_t = 512)]
     pub size: u32,
-    /// Timed repetitions (after one warm-up).
-    #[arg(long, default_value_t = 2)]
-    pub reps: usize,
+    /// Timed repetitions (after one warm-up); the report gives their median.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u64).range(1..))]
+    pub reps: u64,
     /// Use the tiny test network instead of the paper's.
     #[arg(long)]
     pub tiny: bool,
@@ -102,6 +102,7 @@ struct Report {
     samples: usize,
     views: usize,
     size: u32,
+    /// The median of the timed forwards ([`Report::forward_reps_s`]).
     forward_s: f64,
     forward_rays_per_s: f64,
     /// The warm-up forward: the time to a first result, shader compilation and autotuning
@@ -109,14 +110,28 @@ struct Report {
     first_forward_s: f64,
     /// The warm-up training step, likewise.
     first_train_step_s: Option<f64>,
+    /// The median of the timed training steps ([`Report::train_reps_s`]).
     train_step_s: Option<f64>,
     /// Of the training step: the forward on the autodiff device (graph recording included).
     train_forward_s: Option<f64>,
     /// Of the training step: backward and the Adam update.
     train_backward_s: Option<f64>,
     train_rays_per_s: Option<f64>,
+    /// Per stage, the median over the timed forwards.
     stages_s: Vec<(String, f64)>,
+    /// Seconds of each timed forward after the warm-up, in order.
+    forward_reps_s: Vec<f64>,
+    /// Seconds of each timed training step after the warm-up, in order.
+    train_reps_s: Vec<f64>,
     check: Option<BackendCheck>,
+}
+
+/// The median of `values` as the PyTorch references take it (`sorted(xs)[len(xs) // 2]`: the
+/// upper of the middle two for an even count); NaN when empty.
+fn median(values: &[f64]) -> f64 {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// The benchmark scene and `rays` rays of a target camera that hit the ray box.
@@ -321,7 +336,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     } else {
         2
     };
-    let bar = progress_bar((passes * (args.reps + 1)) as u64, "bench");
+    let bar = progress_bar(passes * (args.reps + 1), "bench");
     // Per-repetition times: above the bar, or on stderr without a terminal (stdout carries the
     // table and the JSON line).
     let note = |line: String| {
@@ -333,8 +348,10 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     };
 
     // Forward (inference device), per stage.
-    let mut stages = StageTimes::default();
-    let mut forward_s = 0.0;
+    // Each timed repetition's seconds and stage times; the report takes their medians, as the
+    // PyTorch references do, so one repetition that meets a new kernel does not set the figure.
+    let mut forward_reps_s = Vec::new();
+    let mut stage_reps = Vec::new();
     let mut first_forward_s = 0.0;
     let mut colours = Vec::new();
     let forward_reps = if args.train_only { 0 } else { args.reps + 1 };
@@ -348,8 +365,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             first_forward_s = start.elapsed().as_secs_f64();
             colours = rgb;
         } else {
-            forward_s += start.elapsed().as_secs_f64();
-            stages.merge(&times);
+            forward_reps_s.push(start.elapsed().as_secs_f64());
+            stage_reps.push(times);
         }
         note(format!(
             "forward rep {rep}{}: {:.2} s",
@@ -358,8 +375,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         ));
         bar.inc(1);
     }
-    let reps = args.reps.max(1) as f64;
-    forward_s /= reps;
+    let mut forward_s = median(&forward_reps_s);
     if args.train_only {
         // Serialised as null.
         forward_s = f64::NAN;
@@ -414,6 +430,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     };
 
     // Training step (autodiff device): forward, loss, backward, Adam.
+    // (step, its forward) seconds of each timed training repetition.
+    let mut train_reps_s: Vec<(f64, f64)> = Vec::new();
     let (train_step_s, train_forward_s, train_rays_per_s, first_train_step_s) = if args.no_train {
         (None, None, None, None)
     } else {
@@ -427,8 +445,6 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         let mut model = config.init(&ad);
         let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
         let gt = Tensor::<2>::ones([rays.len(), 3], &ad).mul_scalar(0.5);
-        let mut total = 0.0;
-        let mut total_forward = 0.0;
         let mut first = 0.0;
         let mut rng = Rng::new(3);
         for rep in 0..=args.reps {
@@ -482,14 +498,15 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             if rep == 0 {
                 first = dt;
             } else {
-                total += dt;
-                total_forward += forward_dt;
+                train_reps_s.push((dt, forward_dt));
             }
         }
-        let step = total / reps;
+        let step = median(&train_reps_s.iter().map(|r| r.0).collect::<Vec<_>>());
         (
             Some(step),
-            Some(total_forward / reps),
+            Some(median(
+                &train_reps_s.iter().map(|r| r.1).collect::<Vec<_>>(),
+            )),
             Some(rays.len() as f64 / step),
             Some(first),
         )
@@ -512,6 +529,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         train_step_s,
         // Chunked steps interleave forward and backward: no split (null, not NaN).
         train_forward_s: train_forward_s.filter(|f| f.is_finite()),
+        // The median step less the median forward, so that the two parts add up to the step.
         train_backward_s: train_step_s
             .zip(train_forward_s)
             .map(|(s, f)| s - f)
@@ -519,8 +537,14 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         train_rays_per_s,
         stages_s: Stage::ALL
             .iter()
-            .map(|s| (s.name().to_string(), stages.get(*s).as_secs_f64() / reps))
+            .map(|s| {
+                let per_rep: Vec<f64> =
+                    stage_reps.iter().map(|t| t.get(*s).as_secs_f64()).collect();
+                (s.name().to_string(), median(&per_rep))
+            })
             .collect(),
+        forward_reps_s,
+        train_reps_s: train_reps_s.iter().map(|r| r.0).collect(),
         check,
     };
     println!("| stage | seconds | share |\n|---|---|---|");
