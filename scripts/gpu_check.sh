@@ -15,7 +15,8 @@
 #                                       # forward by CUBECL_AUTOTUNE_LEVEL; spirv: the paper setting
 #                                       # with the SPIR-V build; baseline: the 4096-ray forward
 #                                       # and the render with an older commit's binary, for a
-#                                       # before/after in one run). GPU_CHECK_LIMIT and
+#                                       # before/after in one run; chunks: the render with 4096
+#                                       # rays per network call). GPU_CHECK_LIMIT and
 #                                       # GPU_CHECK_RENDER_LIMIT: seconds for a bench / the render
 #   scripts/gpu_check.sh run --dry      # a rehearsal here on lavapipe and CPU torch, small sizes
 #                                       # (NIA_PYTHON: a python with torch; default python3)
@@ -270,6 +271,15 @@ run() {
     t1=$(date +%s.%N)
     echo "$t0 $t1" > "$out/render_wall.txt"
     grep -v XDG "$out/render.txt" | tail -n 4 || true
+  fi
+  # The same render with 4096 rays per network call instead of the model's 1024: on the H200 a
+  # next image ran at 5,500 rays/s, the 4096-ray bench forward at 10,500. Fewer, larger calls
+  # may pay on a GPU; the CPU keeps 1024. After `render`, in the same HOME as the other steps.
+  if step chunks; then
+    echo "== the same render, 4096 rays per network call =="
+    timeout $render_limit $bin "${render[@]}" --backend wgpu --chunk 4096 --out "$out/render_chunk4096" \
+      > "$out/render_chunk4096.txt" 2>&1 || echo "chunk 4096 render failed: $?"
+    grep -v XDG "$out/render_chunk4096.txt" | grep "^view" || true
   fi
   # The older commit's binary (prepare with GPU_CHECK_BASELINE) on the 4096-ray forward's stages
   # and on the same render in a fresh HOME: before and after on the same card in one run.

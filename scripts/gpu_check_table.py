@@ -128,10 +128,11 @@ print()
 base = read("baseline.txt").strip()
 for name, label, wall_file in [("render_wgpu", "512x512 images, wgpu", "render_wall.txt"),
                                ("render_baseline", f"512x512 images, wgpu, commit {base}", "render_baseline_wall.txt"),
+                               ("render_chunk4096", "512x512 images, wgpu, 4096 rays per call", None),
                                ("render_flex", "512x512 images, flex (CPU)", None)]:
     path = os.path.join(out, name, "render.json")
     if not os.path.exists(path):
-        if name != "render_baseline" or base:
+        if name not in ("render_baseline", "render_chunk4096") or (name == "render_baseline" and base):
             print(f"{label}: not rendered")
         continue
     r = json.load(open(path))
