@@ -39,14 +39,19 @@ cd "$(dirname "$0")/.."
 mode=${1:-}
 shift || true
 
+# The release nia-infer just built, stripped and compressed into .gpu/NAME.xz.
+carry_binary() {
+  cp "$CARGO_TARGET_DIR/release/nia-infer" ".gpu/$1" && strip ".gpu/$1"
+  xz -T2 -6 -f ".gpu/$1"
+}
+
 prepare() {
   export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$HOME/.cache/nia-rs/target}
   mkdir -p .gpu
   # The dev build runs the export and the generator below; the carried binary is the release one.
   cargo build --quiet --workspace --all-features
   cargo build --quiet --release --features wgpu -p nia-infer
-  cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer && strip .gpu/nia-infer
-  xz -T2 -6 -f .gpu/nia-infer
+  carry_binary nia-infer
   # The same binary with cubecl's SPIR-V compiler for Vulkan (burn's `vulkan` feature) in place
   # of WGSL through naga, for the `spirv` step. Not a feature of ours: Mesa 22.3's lavapipe, which
   # CI tests wgpu on, crashes creating its first float-atomic kernel (docs/speed.md, "Where a
@@ -54,16 +59,14 @@ prepare() {
   # Cargo.lock; the checked-in lock file is put back after.
   cargo build --quiet --release --features wgpu,burn/vulkan -p nia-infer
   git checkout -- Cargo.lock
-  cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer-spirv && strip .gpu/nia-infer-spirv
-  xz -T2 -6 -f .gpu/nia-infer-spirv
+  carry_binary nia-infer-spirv
   # An older commit's binary for the `baseline` step (the same kernels' cost before a change, in
   # the same device run). Only our crates differ, so this rebuilds those alone.
   if [ -n "${GPU_CHECK_BASELINE:-}" ]; then
     local tree=/tmp/nia-baseline-$GPU_CHECK_BASELINE
     [ -d "$tree" ] || git worktree add --detach "$tree" "$GPU_CHECK_BASELINE"
     (cd "$tree" && cargo build --quiet --release --features wgpu -p nia-infer)
-    cp "$CARGO_TARGET_DIR/release/nia-infer" .gpu/nia-infer-baseline && strip .gpu/nia-infer-baseline
-    xz -T2 -6 -f .gpu/nia-infer-baseline
+    carry_binary nia-infer-baseline
     git -C "$tree" rev-parse --short HEAD > .gpu/baseline.txt
   fi
   cargo build --quiet --release --features wgpu -p nia-infer   # the uplifted binary back to WGSL
@@ -262,15 +265,19 @@ run() {
   # state.
   local render=(render --model .gpu/paper300.nia --samples 64 --data data/quickstart512 --subject CoreView_4
                 --ratio $render_ratio --frame 0 --views 0,2,4 --targets 1,3 --supersample 1)
+  # The render by BIN in a fresh HOME into $out/NAME/, its output in NAME.txt, the command's
+  # start and end in NAME_wall.txt, GPU memory in mem_NAME.csv.
+  fresh_render() {
+    local name=$1 bin=$2 t0
+    t0=$(date +%s.%N)
+    in_fresh_home with_memory "$name" timeout $render_limit "$bin" "${render[@]}" --backend wgpu \
+      --out "$out/$name" > "$out/$name.txt" 2>&1 || echo "$name failed: $?"
+    echo "$t0 $(date +%s.%N)" > "$out/${name}_wall.txt"
+    grep -v XDG "$out/$name.txt" | tail -n 4 || true
+  }
   if step render; then
     echo "== one 512x512 unseen-subject image, paper network (wgpu) =="
-    local t0 t1
-    t0=$(date +%s.%N)
-    in_fresh_home with_memory render timeout $render_limit $bin "${render[@]}" --backend wgpu \
-      --out "$out/render_wgpu" > "$out/render.txt" 2>&1 || echo "render failed: $?"
-    t1=$(date +%s.%N)
-    echo "$t0 $t1" > "$out/render_wall.txt"
-    grep -v XDG "$out/render.txt" | tail -n 4 || true
+    fresh_render render_wgpu $bin
   fi
   # The same render with 4096 rays per network call instead of the model's 1024: on the H200 a
   # next image ran at 5,500 rays/s, the 4096-ray bench forward at 10,500. Fewer, larger calls
@@ -289,13 +296,7 @@ run() {
       timeout $limit $bin_base bench --backend wgpu "${big[@]}" --reps 3 --no-train \
         > "$out/nia_paper4k_baseline.txt" 2> "$out/nia_paper4k_baseline.err" || echo "baseline 4k bench failed: $?"
       pack
-      local t0 t1
-      t0=$(date +%s.%N)
-      in_fresh_home timeout $render_limit $bin_base "${render[@]}" --backend wgpu \
-        --out "$out/render_baseline" > "$out/render_baseline.txt" 2>&1 || echo "baseline render failed: $?"
-      t1=$(date +%s.%N)
-      echo "$t0 $t1" > "$out/render_baseline_wall.txt"
-      grep -v XDG "$out/render_baseline.txt" | tail -n 4 || true
+      fresh_render render_baseline $bin_base
     else
       echo "no .gpu/nia-infer-baseline.xz: prepare with GPU_CHECK_BASELINE=<commit>"
     fi

@@ -41,6 +41,7 @@ def mem(name):
 
 
 card = read("card.txt").strip()
+base = read("baseline.txt").strip()  # the baseline step's older commit, if prepared
 nia, tiny, ref = last_json("nia_paper.txt"), last_json("nia_tiny.txt"), last_json("torch_paper.json")
 print(f"\ncard: {card}")
 if ref:
@@ -109,7 +110,6 @@ if big:
 base_big = last_json("nia_paper4k_baseline.txt")
 if base_big:
     # Before and after on the same card in one run: the baseline step's older binary.
-    base = read("baseline.txt").strip()
     now = big or {}
     print()
     print(f"| paper network forward, 4096 rays x 64 samples | commit {base} | this build | after / before |")
@@ -125,20 +125,20 @@ if tiny:
           f"({tiny['forward_rays_per_s']:.0f} rays/s), training step {fmt(tiny.get('train_step_s'), digits=4)} "
           f"({tiny.get('train_rays_per_s') or 0:.0f} rays/s); first forward {tiny['first_forward_s']:.2f} s")
 print()
-base = read("baseline.txt").strip()
-for name, label, wall_file in [("render_wgpu", "512x512 images, wgpu", "render_wall.txt"),
-                               ("render_baseline", f"512x512 images, wgpu, commit {base}", "render_baseline_wall.txt"),
-                               ("render_chunk4096", "512x512 images, wgpu, 4096 rays per call", None),
-                               ("render_flex", "512x512 images, flex (CPU)", None)]:
+# (folder, label, whether a missing one is worth a line: the optional steps' only when prepared)
+for name, label, expected in [("render_wgpu", "512x512 images, wgpu", True),
+                              ("render_baseline", f"512x512 images, wgpu, commit {base}", bool(base)),
+                              ("render_chunk4096", "512x512 images, wgpu, 4096 rays per call", False),
+                              ("render_flex", "512x512 images, flex (CPU)", True)]:
     path = os.path.join(out, name, "render.json")
     if not os.path.exists(path):
-        if name not in ("render_baseline", "render_chunk4096") or (name == "render_baseline" and base):
+        if expected:
             print(f"{label}: not rendered")
         continue
     r = json.load(open(path))
     wall = ""
-    if wall_file and read(wall_file):
-        t0, t1 = map(float, read(wall_file).split())
+    if read(f"{name}_wall.txt"):
+        t0, t1 = map(float, read(f"{name}_wall.txt").split())
         wall = f"; command wall {t1 - t0:.1f} s (process start, model load, shader compilation included)"
     print(f"{label}: encoding {r['encode_seconds']:.2f} s{wall}")
     for k, img in enumerate(r["images"]):
@@ -146,4 +146,4 @@ for name, label, wall_file in [("render_wgpu", "512x512 images, wgpu", "render_w
         print(f"  {which} (view {img['target_view']}), {img['width']}x{img['height']}: render {img['seconds']:.2f} s; "
               f"{img['point_evaluations']} network points, {img['colour_evaluations']} coloured; stages (ms) "
               + ", ".join(f"{k2} {v:.0f}" for k2, v in sorted(img["stage_ms"].items())))
-print(f"GPU memory of the wgpu render: {mem('render')}")
+print(f"GPU memory of the wgpu render: {mem('render_wgpu')}")
