@@ -15,8 +15,8 @@
 #                                       # forward by CUBECL_AUTOTUNE_LEVEL; spirv: the paper setting
 #                                       # with the SPIR-V build; baseline: the 4096-ray forward
 #                                       # and the render with an older commit's binary, for a
-#                                       # before/after in one run; chunks: the render with 4096
-#                                       # rays per network call). GPU_CHECK_LIMIT and
+#                                       # before/after in one run; chunks: the render with 1024
+#                                       # rays per network call, the CPU's, against the default). GPU_CHECK_LIMIT and
 #                                       # GPU_CHECK_RENDER_LIMIT: seconds for a bench / the render
 #   scripts/gpu_check.sh run --dry      # a rehearsal here on lavapipe and CPU torch, small sizes
 #                                       # (NIA_PYTHON: a python with torch; default python3)
@@ -279,14 +279,19 @@ run() {
     echo "== one 512x512 unseen-subject image, paper network (wgpu) =="
     fresh_render render_wgpu $bin
   fi
-  # The same render with 4096 rays per network call instead of the model's 1024: on the H200 a
-  # next image ran at 5,500 rays/s, the 4096-ray bench forward at 10,500. Fewer, larger calls
-  # may pay on a GPU; the CPU keeps 1024. After `render`, in the same HOME as the other steps.
+  # Fewer, larger network calls (docs/speed.md, "Fewer, larger calls"): on a GPU a render's
+  # chunk now defaults to 8192 rays of 64 samples (nia_model::renderer::call_size) where it was
+  # 1024. After `render`, in the same HOME as the other steps, so that both renders find most
+  # kernels compiled: the old chunk, then the default once more. Their second images compare
+  # the steady state.
   if step chunks; then
-    echo "== the same render, 4096 rays per network call =="
-    timeout $render_limit $bin "${render[@]}" --backend wgpu --chunk 4096 --out "$out/render_chunk4096" \
-      > "$out/render_chunk4096.txt" 2>&1 || echo "chunk 4096 render failed: $?"
-    grep -v XDG "$out/render_chunk4096.txt" | grep "^view" || true
+    echo "== the same render with 1024 rays per network call, then the default again =="
+    for c in 1024 default; do
+      local flag=(); [ $c = default ] || flag=(--chunk $c)
+      timeout $render_limit $bin "${render[@]}" --backend wgpu "${flag[@]}" --out "$out/render_chunk_$c" \
+        > "$out/render_chunk_$c.txt" 2>&1 || echo "chunk $c render failed: $?"
+      grep -v XDG "$out/render_chunk_$c.txt" | grep "^view" || true
+    done
   fi
   # The older commit's binary (prepare with GPU_CHECK_BASELINE) on the 4096-ray forward's stages
   # and on the same render in a fresh HOME: before and after on the same card in one run.

@@ -16,6 +16,7 @@ use nia_infer::run_settings::RunSettings;
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::lpips::{Lpips, LpipsNet};
 use nia_model::render_options::{RenderOptions, DEFAULT_OCCUPANCY_CELL_M};
+use nia_model::renderer::call_size::rays_per_call;
 use nia_model::sampler::{RaySampler, DEFAULT_BAND_MARGIN_M};
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
@@ -37,8 +38,10 @@ pub struct ModelArgs {
     #[arg(long)]
     pub samples: Option<usize>,
     /// Rays per network call; bounds memory (about chunk x samples points in flight).
-    #[arg(long, default_value_t = 1024)]
-    pub chunk: usize,
+    /// Default: 1024 on the CPU; on a GPU as many as keep a call within 65,536 points
+    /// (8192 rays of 64 samples with early termination), fewer calls for the GPU to wait on.
+    #[arg(long)]
+    pub chunk: Option<usize>,
     /// Empty-space skipping: on or off (default: the model's `[render]` setting, on).
     #[arg(long, value_parser = parse_switch)]
     pub skip_empty_space: Option<bool>,
@@ -205,7 +208,7 @@ pub struct LoadedModel {
 impl LoadedModel {
     /// Reads, checks and loads `args.model` on `args.backend`.
     pub fn open(args: &ModelArgs) -> anyhow::Result<Self> {
-        if args.chunk == 0 {
+        if args.chunk == Some(0) {
             anyhow::bail!("--chunk must be at least 1");
         }
         if args.samples.is_some_and(|s| s < 2) {
@@ -284,6 +287,13 @@ impl LoadedModel {
     /// Samples per ray: the command line's, else the training setting.
     pub fn samples(&self, args: &ModelArgs) -> usize {
         args.samples.unwrap_or(self.run.train.samples)
+    }
+
+    /// Rays per network call: `--chunk`, or the device's default for `samples` samples per
+    /// ray and the `render` options ([`rays_per_call`]: more on a GPU).
+    pub fn chunk(&self, args: &ModelArgs, samples: usize, render: &RenderOptions) -> usize {
+        args.chunk
+            .unwrap_or_else(|| rays_per_call(&self.device, samples, render))
     }
 
     /// The run's `[data]` section, at `root` and with the SMPL model `smpl` when given.

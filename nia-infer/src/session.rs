@@ -68,9 +68,10 @@ impl RenderSession {
         let options = loaded.render_options(&args.model)?;
         let opened = OpenedSubject::open(&args.subject, &loaded.run)?;
         let views = opened.views_or_protocol(args.views.as_ref(), &loaded.run)?;
+        let samples = loaded.samples(&args.model);
         Ok(RenderSession {
-            samples: loaded.samples(&args.model),
-            chunk: args.model.chunk,
+            samples,
+            chunk: loaded.chunk(&args.model, samples, &options),
             loaded,
             opened,
             views,

@@ -214,6 +214,47 @@ fn wgpu_matches_ndarray() {
             "{at:?} (adaptive: {adaptive}): ndarray vs wgpu max difference {max_diff}"
         );
     }
+    // Whole images through `render_image`: on the GPU in its default chunk
+    // (`renderer::call_size`, far more rays than the CPU's), on the CPU in chunks of 2 rays;
+    // each chunk's columns come back in one read.
+    use nia_model::render_options::RenderOptions;
+    use nia_model::renderer::call_size::{gpu_rays_per_call, rays_per_call, CPU_RAYS_PER_CALL};
+    use nia_model::renderer::image::{render_image, ImageRenderOptions};
+    let gpu_chunk = rays_per_call(&gpu, SAMPLES, &RenderOptions::default());
+    assert_eq!(gpu_chunk, gpu_rays_per_call(SAMPLES, true));
+    assert!(gpu_chunk > CPU_RAYS_PER_CALL && gpu_chunk > rays.len());
+    let image = |m: &nia_model::NiaModel, d: &Device, chunk: usize| {
+        let scene = m
+            .encode(&input, None, d, None)
+            .unwrap()
+            .with_termination(Some(1e-3))
+            .with_colour_culling(Some(0.05));
+        let options = ImageRenderOptions {
+            samples: SAMPLES,
+            chunk,
+            timed: false,
+        };
+        render_image(m, &scene, &rays, [64, 64], options, &mut |_, _| {}).unwrap()
+    };
+    let (a, b) = (image(&model, &cpu, 2), image(&model_gpu, &gpu, gpu_chunk));
+    assert_eq!(a.point_evaluations, b.point_evaluations);
+    for (x, y, what) in [
+        (&a.rgb, &b.rgb, "colour"),
+        (&a.rgb0, &b.rgb0, "NeRF colour"),
+        (&a.rgb_ibr, &b.rgb_ibr, "IBR-only colour"),
+        (&a.acc, &b.acc, "opacity"),
+        (&a.blend_weights, &b.blend_weights, "blend weights"),
+    ] {
+        let max_diff = x
+            .iter()
+            .zip(y)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            max_diff <= BACKEND_TOLERANCE,
+            "image {what}: ndarray vs wgpu max difference {max_diff}"
+        );
+    }
 }
 
 /// The gradient of `w` in `grads`, flattened to host values.

@@ -478,3 +478,60 @@ fn a_pixel_is_the_mean_of_its_rays() {
         assert_close(got, &half(full), 1e-6, what);
     }
 }
+
+/// Rays are independent, so an image does not depend on how many rays each network call
+/// holds (`ImageRenderOptions::chunk`; a GPU render takes far larger chunks than a CPU one,
+/// `renderer::call_size`): chunks of 7, of 64 and one chunk of every ray give the same
+/// colours, opacity, depth and blend weights, with and without early termination and colour
+/// culling, and evaluate the same points.
+#[test]
+fn an_image_does_not_depend_on_its_chunk_size() {
+    let (_, input, model, encoded) = tiny_encoded();
+    let all = rays_through_view_0(&input);
+    let rays = all.slice(all.len() / 2 - 100..all.len() / 2 + 100);
+    for adaptive in [false, true] {
+        let epsilon = adaptive.then_some(1e-3);
+        let scene = encoded
+            .clone()
+            .with_termination(epsilon)
+            .with_colour_culling(epsilon);
+        let render = |chunk: usize| {
+            let options = ImageRenderOptions {
+                samples: 16,
+                chunk,
+                timed: false,
+            };
+            render_image(
+                &model,
+                &scene,
+                &rays,
+                [SIZE as usize; 2],
+                options,
+                &mut |_, _| {},
+            )
+            .unwrap()
+        };
+        let whole = render(rays.len());
+        assert!(
+            whole.acc.iter().any(|&v| v > 0.05),
+            "some opacity to compare"
+        );
+        for chunk in [7, 64] {
+            let part = render(chunk);
+            assert_eq!(part.rays, whole.rays);
+            assert_eq!(part.point_evaluations, whole.point_evaluations);
+            assert_eq!(part.colour_evaluations, whole.colour_evaluations);
+            for (got, expected, what) in [
+                (&part.rgb, &whole.rgb, "colour"),
+                (&part.rgb0, &whole.rgb0, "NeRF colour"),
+                (&part.rgb_ibr, &whole.rgb_ibr, "IBR-only colour"),
+                (&part.acc, &whole.acc, "opacity"),
+                (&part.depth, &whole.depth, "depth"),
+                (&part.blend_weights, &whole.blend_weights, "blend weights"),
+            ] {
+                assert!(got.iter().all(|v| v.is_finite()), "{what}: finite");
+                assert_close(got, expected, 1e-5, &format!("{what}, chunks of {chunk}"));
+            }
+        }
+    }
+}

@@ -197,7 +197,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         EvalOptions {
             task,
             samples,
-            chunk: args.model.chunk,
+            chunk: loaded.chunk(&args.model, samples, &adaptive),
             timed: true,
             render: adaptive,
             lpips: lpips.as_ref().map(|(_, net)| net.clone()),

@@ -125,6 +125,11 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                     "ratio {ratio}, {views} views, {samples} samples, \
                      {supersample}x{supersample} rays per pixel, skipping {skipping}"
                 ));
+                let render = RenderOptions {
+                    skip_empty_space: skip,
+                    supersample,
+                    ..base_adaptive
+                };
                 let results = loaded.evaluate(
                     &data,
                     split,
@@ -132,13 +137,9 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                     EvalOptions {
                         task: EvalTask::NovelView,
                         samples,
-                        chunk: args.model.chunk,
+                        chunk: loaded.chunk(&args.model, samples, &render),
                         timed: false,
-                        render: RenderOptions {
-                            skip_empty_space: skip,
-                            supersample,
-                            ..base_adaptive
-                        },
+                        render,
                         lpips: None,
                     },
                     &mut |_| Ok(()),

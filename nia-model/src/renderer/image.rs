@@ -151,43 +151,44 @@ pub fn render_image_cancellable(
             options.timed.then_some(&mut times),
         )?;
         let n = end - start;
-        let rgb = readback("colours", rgb)?;
-        let rgb0 = readback("NeRF colours", rgb0)?;
-        let rgb_ibr = match rgb_ibr {
-            Some(c) => readback("IBR-only colours", c)?,
-            None => vec![0.0; 3 * n],
-        };
-        let acc = readback("opacity", acc.reshape([n, 1]))?;
-        let depth = readback("depth", depth.reshape([n, 1]))?;
-        let weights = match blend_weights {
-            Some(wts) => readback("blend weights", wts)?,
-            None => vec![0.0; n * k],
-        };
-        if rgb.len() != 3 * n || weights.len() != k * n {
+        // One transfer per chunk (on a GPU each read back waits for the device): the columns
+        // side by side, [n, 3 + 3 + 3 + 1 + 1 + K].
+        let device = rgb.device();
+        let zeros = |width: usize| Tensor::<2>::zeros([n, width], &device);
+        let parts = [
+            ("colours", rgb, 3),
+            ("NeRF colours", rgb0, 3),
+            ("IBR-only colours", rgb_ibr.unwrap_or_else(|| zeros(3)), 3),
+            ("opacity", acc.reshape([n, 1]), 1),
+            ("depth", depth.reshape([n, 1]), 1),
+            (
+                "blend weights",
+                blend_weights.unwrap_or_else(|| zeros(k)),
+                k,
+            ),
+        ];
+        if let Some((name, part, width)) = parts.iter().find(|(_, t, w)| t.dims() != [n, *w]) {
             return Err(ModelError::Input(format!(
-                "the renderer returned {} colours and {} blend weights for {n} rays of {k} channels",
-                rgb.len(),
-                weights.len()
+                "the renderer returned {name} of shape {:?} for {n} rays (expected [{n}, {width}])",
+                part.dims()
             )));
         }
+        let columns = Tensor::cat(parts.into_iter().map(|(_, t, _)| t).collect(), 1);
+        let width = 11 + k;
+        let values = readback("the rendered chunk", columns)?;
         for (i, &p) in batch.pixels.iter().enumerate() {
             let p = p as usize;
             let f = share[p];
+            let row = &values[width * i..width * (i + 1)];
             let add = |to: &mut [f32], from: &[f32]| {
                 to.iter_mut().zip(from).for_each(|(t, v)| *t += f * v);
             };
-            add(&mut out.rgb[3 * p..3 * p + 3], &rgb[3 * i..3 * i + 3]);
-            add(&mut out.rgb0[3 * p..3 * p + 3], &rgb0[3 * i..3 * i + 3]);
-            add(
-                &mut out.rgb_ibr[3 * p..3 * p + 3],
-                &rgb_ibr[3 * i..3 * i + 3],
-            );
-            add(&mut out.acc[p..p + 1], &acc[i..i + 1]);
-            add(&mut out.depth[p..p + 1], &depth[i..i + 1]);
-            add(
-                &mut out.blend_weights[k * p..k * p + k],
-                &weights[k * i..k * i + k],
-            );
+            add(&mut out.rgb[3 * p..3 * p + 3], &row[0..3]);
+            add(&mut out.rgb0[3 * p..3 * p + 3], &row[3..6]);
+            add(&mut out.rgb_ibr[3 * p..3 * p + 3], &row[6..9]);
+            add(&mut out.acc[p..p + 1], &row[9..10]);
+            add(&mut out.depth[p..p + 1], &row[10..11]);
+            add(&mut out.blend_weights[k * p..k * p + k], &row[11..11 + k]);
         }
         out.rays += n;
         out.point_evaluations += point_evaluations as u64;

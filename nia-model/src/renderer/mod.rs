@@ -7,9 +7,11 @@
 //!   opaque front or under a negligible weight;
 //! - [`shape_buckets`]: the point counts of a GPU render's network calls padded to a few shapes;
 //! - [`image`]: whole target images in chunks of rays;
+//! - [`call_size`]: how many rays a chunk holds by default (more on a GPU);
 //! - [`view`]: [`view::render_view`], the one entry point every command renders through (scene
 //!   encoding with the `[render]` options, rays through the pixels, the image).
 
+pub mod call_size;
 pub mod colour_culling;
 mod forward;
 pub mod image;
