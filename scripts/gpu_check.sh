@@ -45,6 +45,11 @@ carry_binary() {
   xz -T2 -6 -f ".gpu/$1"
 }
 
+# Marks the Rust sources of our crates in the tree DIR as changed (see the baseline build).
+touch_sources() {
+  find "$1"/nia-*/src -name '*.rs' -exec touch {} +
+}
+
 prepare() {
   export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$HOME/.cache/nia-rs/target}
   mkdir -p .gpu
@@ -65,9 +70,15 @@ prepare() {
   if [ -n "${GPU_CHECK_BASELINE:-}" ]; then
     local tree=/tmp/nia-baseline-$GPU_CHECK_BASELINE
     [ -d "$tree" ] || git worktree add --detach "$tree" "$GPU_CHECK_BASELINE"
+    # Both trees build into one target folder, and cargo names a workspace crate's artifacts
+    # without its path: the two trees' nia-data, nia-model and nia-infer overwrite each other,
+    # and a tree whose sources are older than the other's artifacts counts as built. Touching
+    # a tree's sources before its build makes cargo rebuild our crates from them.
+    touch_sources "$tree"
     (cd "$tree" && cargo build --quiet --release --features wgpu -p nia-infer)
     carry_binary nia-infer-baseline
     git -C "$tree" rev-parse --short HEAD > .gpu/baseline.txt
+    touch_sources .
   fi
   cargo build --quiet --release --features wgpu -p nia-infer   # the uplifted binary back to WGSL
   [ -d runs/paper300 ] || { echo "runs/paper300 missing: train it first (docs/speed.md)" >&2; exit 1; }
