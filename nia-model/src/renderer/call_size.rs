@@ -38,8 +38,19 @@ pub const GPU_MAX_RAYS_PER_CALL: usize = 16_384;
 /// as many as keep a call's points within [`GPU_POINTS_PER_CALL`], between
 /// [`CPU_RAYS_PER_CALL`] and [`GPU_MAX_RAYS_PER_CALL`].
 pub fn rays_per_call(device: &Device, samples: usize, options: &RenderOptions) -> usize {
+    rays_per_call_or(device, samples, options, CPU_RAYS_PER_CALL)
+}
+
+/// [`rays_per_call`] with `cpu` rays per call on the CPU backends (training validates in
+/// chunks of its rays per step there).
+pub fn rays_per_call_or(
+    device: &Device,
+    samples: usize,
+    options: &RenderOptions,
+    cpu: usize,
+) -> usize {
     if computes_on_cpu(device) {
-        return CPU_RAYS_PER_CALL;
+        return cpu;
     }
     gpu_rays_per_call(samples, options.early_termination > 0.0)
 }
