@@ -14,11 +14,7 @@
 # directory).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out=${1:?OUT_DIR}; shift
-bin=${NIA_INFER:-${CARGO_TARGET_DIR:-target}/debug/nia-infer}
-[ -x "$bin" ] || { echo "no nia-infer at $bin (build it or set NIA_INFER)" >&2; exit 1; }
-bin=$(cd "$(dirname "$bin")" && pwd)/$(basename "$bin")
-mkdir -p "$out"; out=$(cd "$out" && pwd)
+source scripts/launch_count_setup.sh "${1:-}"; shift
 (cd "$out" && rm -f cubecl.toml && "$bin" bench --backend wgpu --reps 1 "$@" > bench_warm.json 2> bench_warm.err) \
   || { echo "nia-infer bench failed: $out/bench_warm.err" >&2; exit 1; }
 for reps in 1 2; do

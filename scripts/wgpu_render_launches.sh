@@ -11,27 +11,25 @@
 #   NIA_INFER=path/to/nia-infer  (default: the dev build in $CARGO_TARGET_DIR or target/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out=${1:?OUT_DIR}; shift
-bin=${NIA_INFER:-${CARGO_TARGET_DIR:-target}/debug/nia-infer}
-[ -x "$bin" ] || { echo "no nia-infer at $bin (build it or set NIA_INFER)" >&2; exit 1; }
-bin=$(cd "$(dirname "$bin")" && pwd)/$(basename "$bin")
-mkdir -p "$out"; out=$(cd "$out" && pwd)
+source scripts/launch_count_setup.sh "${1:-}"; shift
 repo=$(pwd)
 args=()
 for a in "$@"; do # paths relative to the repository
   if [ -e "$repo/$a" ]; then args+=("$repo/$a"); else args+=("$a"); fi
 done
+# One render into OUT/NAME, run in OUT (cubecl reads cubecl.toml there).
+render() {
+  (cd "$out" && "$bin" render --backend wgpu --out "$out/$1" "${args[@]}" > "$1.json" 2> "$1.err") \
+    || { echo "nia-infer render failed: $out/$1.err" >&2; exit 1; }
+}
 rm -f "$out/cubecl.toml"
-(cd "$out" && "$bin" render --backend wgpu --out "$out/warm" "${args[@]}" > warm.json 2> warm.err) \
-  || { echo "nia-infer render failed: $out/warm.err" >&2; exit 1; }
+render warm
 start=$(date +%s.%N)
-(cd "$out" && "$bin" render --backend wgpu --out "$out/timed" "${args[@]}" > timed.json 2> timed.err) \
-  || { echo "nia-infer render failed: $out/timed.err" >&2; exit 1; }
+render timed
 end=$(date +%s.%N)
 printf '[profiling.logger]\nlevel = "minimal"\nfile = "%s/launches.log"\n' "$out" > "$out/cubecl.toml"
 rm -f "$out/launches.log"
-(cd "$out" && "$bin" render --backend wgpu --out "$out/logged" "${args[@]}" > logged.json 2> logged.err) \
-  || { echo "nia-infer render failed: $out/logged.err" >&2; exit 1; }
+render logged
 rm -f "$out/cubecl.toml"
 python3 - "$out" "$start" "$end" <<'PY'
 import json, sys

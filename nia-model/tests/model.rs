@@ -203,12 +203,7 @@ fn wgpu_matches_ndarray() {
         model_gpu.source_colours_at = at;
         let (rgb_cpu, acc_cpu) = run(&model, &cpu, adaptive);
         let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu, adaptive);
-        let max_diff = rgb_cpu
-            .iter()
-            .zip(&rgb_gpu)
-            .chain(acc_cpu.iter().zip(&acc_gpu))
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
+        let max_diff = max_abs_diff(&rgb_cpu, &rgb_gpu).max(max_abs_diff(&acc_cpu, &acc_gpu));
         assert!(
             max_diff <= BACKEND_TOLERANCE,
             "{at:?} (adaptive: {adaptive}): ndarray vs wgpu max difference {max_diff}"
@@ -245,16 +240,20 @@ fn wgpu_matches_ndarray() {
         (&a.acc, &b.acc, "opacity"),
         (&a.blend_weights, &b.blend_weights, "blend weights"),
     ] {
-        let max_diff = x
-            .iter()
-            .zip(y)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
+        let max_diff = max_abs_diff(x, y);
         assert!(
             max_diff <= BACKEND_TOLERANCE,
             "image {what}: ndarray vs wgpu max difference {max_diff}"
         );
     }
+}
+
+/// The largest |a - b| over the pairs of `a` and `b`.
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max)
 }
 
 /// The gradient of `w` in `grads`, flattened to host values.
@@ -722,11 +721,7 @@ fn c0_shuffling_changes_the_blend_but_not_the_nerf_composite() {
     let (plain, shuffled, n_rays) = render_plain_and_shuffled(&model, &device);
     let v = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
     assert_eq!(v(plain.rgb0.clone()), v(shuffled.rgb0.clone()));
-    let moved = v(plain.rgb.clone())
-        .iter()
-        .zip(v(shuffled.rgb.clone()))
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+    let moved = max_abs_diff(&v(plain.rgb.clone()), &v(shuffled.rgb.clone()));
     assert!(moved > 1e-6, "shuffling did not change the blend");
     let gt = Tensor::<2>::ones([n_rays, 3], &device).mul_scalar(0.5);
     let grads = render_loss(shuffled.rgb, shuffled.rgb0, gt)

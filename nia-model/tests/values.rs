@@ -16,7 +16,7 @@ use nia_model::config::SourceColoursAt;
 use nia_model::field::PointTensors;
 use nia_model::ibr::fetch_source_colours;
 use nia_model::ibr::surface::{surface_colours, SURFACE_ACC_FLOOR};
-use nia_model::renderer::image::{render_image, ImageRenderOptions};
+use nia_model::renderer::image::{render_image, ImageRenderOptions, RenderedImage};
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::SceneEncoding;
 use nia_model::variant::Variant;
@@ -420,6 +420,29 @@ fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() 
     }
 }
 
+/// `rays` of a `SIZE`-px image of `scene`, 16 samples each, in chunks of `chunk` rays.
+fn image_of(
+    model: &NiaModel,
+    scene: &SceneEncoding,
+    rays: &RayBundle,
+    chunk: usize,
+) -> RenderedImage {
+    let options = ImageRenderOptions {
+        samples: 16,
+        chunk,
+        timed: false,
+    };
+    render_image(
+        model,
+        scene,
+        rays,
+        [SIZE as usize; 2],
+        options,
+        &mut |_, _| {},
+    )
+    .unwrap()
+}
+
 /// A pixel with several rays (supersampling) is the mean of its rays: the same ray twice gives
 /// the one-ray image, and a ray with a zero-length partner (a sub-ray that misses the box)
 /// gives half its colour, opacity, depth and blend weights.
@@ -440,22 +463,7 @@ fn a_pixel_is_the_mean_of_its_rays() {
         with_blank.push(ray, near, far, p);
         with_blank.push(ray, near, near, p);
     }
-    let options = ImageRenderOptions {
-        samples: 16,
-        chunk: 20,
-        timed: false,
-    };
-    let render = |rays: &RayBundle| {
-        render_image(
-            &model,
-            &encoded,
-            rays,
-            [SIZE as usize; 2],
-            options,
-            &mut |_, _| {},
-        )
-        .unwrap()
-    };
+    let render = |rays: &RayBundle| image_of(&model, &encoded, rays, 20);
     let (a, b, c) = (render(&one), render(&twice), render(&with_blank));
     assert!(a.acc.iter().any(|&v| v > 0.05), "some opacity to compare");
     assert_eq!((b.rays, c.rays), (2 * a.rays, 2 * a.rays));
@@ -495,22 +503,7 @@ fn an_image_does_not_depend_on_its_chunk_size() {
             .clone()
             .with_termination(epsilon)
             .with_colour_culling(epsilon);
-        let render = |chunk: usize| {
-            let options = ImageRenderOptions {
-                samples: 16,
-                chunk,
-                timed: false,
-            };
-            render_image(
-                &model,
-                &scene,
-                &rays,
-                [SIZE as usize; 2],
-                options,
-                &mut |_, _| {},
-            )
-            .unwrap()
-        };
+        let render = |chunk: usize| image_of(&model, &scene, &rays, chunk);
         let whole = render(rays.len());
         assert!(
             whole.acc.iter().any(|&v| v > 0.05),

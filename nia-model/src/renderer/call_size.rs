@@ -52,7 +52,7 @@ pub fn rays_per_call_or(
     if computes_on_cpu(device) {
         return cpu;
     }
-    gpu_rays_per_call(samples, options.early_termination > 0.0)
+    gpu_rays_per_call(samples, options.termination().is_some())
 }
 
 /// [`rays_per_call`] on a GPU: `samples` per ray, evaluated in [`TERMINATION_SEGMENTS`]
