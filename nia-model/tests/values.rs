@@ -420,6 +420,63 @@ fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() 
     }
 }
 
+/// Shape-bucket padding pads the computed inputs (`PointInputs::padded`): the same arrays,
+/// to the bit, as computing the inputs of the points with the last one repeated, body-volume
+/// corners and the visual hull's carving included.
+#[test]
+fn padded_point_inputs_are_the_inputs_of_the_repeated_last_point() {
+    let (_, input, _, scene) = tiny_encoded();
+    let hull = scene.with_visual_hull(&input, Some(1)).unwrap();
+    let geometry = &hull.geometry;
+    let cameras = &geometry.cameras;
+    let scales = &hull
+        .volume
+        .as_ref()
+        .expect("a body volume")
+        .0
+        .pyramid
+        .levels[1..];
+    let centre = common::body_centre(&input.body.vertices);
+    // Points on the body and 15 cm off it, so that visibility, corners and carving all vary.
+    let points: Vec<Vec3> = input.body.vertices[..40]
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| v + (v - centre).normalize_or_zero() * 0.15 * (i % 2) as f32)
+        .collect();
+    let dirs: Vec<Vec3> = (0..points.len())
+        .map(|i| Vec3::new(0.1 * i as f32, 0.2, 1.0).normalize())
+        .collect();
+    let inputs = |points: &[Vec3], dirs: &[Vec3]| {
+        let smpl: Vec<[f32; 3]> = points.iter().map(|&p| geometry.to_smpl(p)).collect();
+        PointInputs::compute(geometry, points, dirs, Some((scales, &smpl))).carved(
+            hull.visual_hull.as_deref().expect("a hull"),
+            cameras,
+            points,
+        )
+    };
+    let len = 57;
+    let repeat = |items: &[Vec3]| {
+        let mut out = items.to_vec();
+        out.resize(len, *items.last().unwrap());
+        out
+    };
+    let padded = inputs(&points, &dirs).padded(len);
+    let expected = inputs(&repeat(&points), &repeat(&dirs));
+    assert_eq!(padded.num_points, len);
+    assert_eq!(padded.proj_grid, expected.proj_grid);
+    assert_eq!(padded.view_dir_features, expected.view_dir_features);
+    assert_eq!(padded.visibility, expected.visibility);
+    assert_eq!(padded.dirs, expected.dirs);
+    assert_eq!(padded.hull, expected.hull);
+    assert_eq!(padded.corners.len(), scales.len());
+    for (a, b) in padded.corners.iter().zip(&expected.corners) {
+        assert_eq!((&a.index, &a.weight), (&b.index, &b.weight));
+    }
+    // Already long enough, or no points: unchanged.
+    assert_eq!(inputs(&points, &dirs).padded(10).num_points, points.len());
+    assert_eq!(inputs(&[], &[]).padded(len).num_points, 0);
+}
+
 /// `rays` of a `SIZE`-px image of `scene`, 16 samples each, in chunks of `chunk` rays.
 fn image_of(
     model: &NiaModel,

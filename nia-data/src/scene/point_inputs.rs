@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use super::{SceneGeometry, VisualHull};
 use crate::geometry::camera::Camera;
-use crate::geometry::sparse::{ScaleGeometry, TrilinearCorners};
+use crate::geometry::sparse::{ScaleGeometry, TrilinearCorners, CORNERS};
 
 /// Width of d_hat_n: (d - d_n) (3 channels) and d . d_n (1 channel).
 pub const VIEW_DIR_FEATURE_DIM: usize = 4;
@@ -154,6 +154,53 @@ impl PointInputs {
         );
         self
     }
+
+    /// These inputs for `len` points: the M points', then copies of the last point's up to
+    /// `len` (what [`Self::compute`] would give for the points with the last one repeated,
+    /// without computing it again). Unchanged when M is 0 or already `len` or more.
+    ///
+    /// # Shapes
+    /// every `[N, M, ..]` / `[M, ..]` array becomes `[N, len, ..]` / `[len, ..]`
+    pub fn padded(self, len: usize) -> Self {
+        let m = self.num_points;
+        if m == 0 || len <= m {
+            return self;
+        }
+        let n = self.num_views;
+        PointInputs {
+            num_points: len,
+            num_views: n,
+            proj_grid: pad_rows(&self.proj_grid, n, m, 2, len),
+            view_dir_features: pad_rows(&self.view_dir_features, n, m, VIEW_DIR_FEATURE_DIM, len),
+            visibility: pad_rows(&self.visibility, n, m, 1, len),
+            dirs: pad_rows(&self.dirs, 1, m, 3, len),
+            hull: self.hull.as_deref().map(|h| pad_rows(h, 1, m, 1, len)),
+            corners: self
+                .corners
+                .into_iter()
+                .map(|c| TrilinearCorners {
+                    index: pad_rows(&c.index, 1, m, CORNERS, len),
+                    weight: pad_rows(&c.weight, 1, m, CORNERS, len),
+                    num_sites: c.num_sites,
+                })
+                .collect(),
+        }
+    }
+}
+
+/// `[blocks, m, width]` values as `[blocks, len, width]`: each block's m rows, then copies of
+/// its last row (m > 0, len >= m).
+fn pad_rows<T: Copy>(values: &[T], blocks: usize, m: usize, width: usize, len: usize) -> Vec<T> {
+    debug_assert_eq!(values.len(), blocks * m * width);
+    let mut out = Vec::with_capacity(blocks * len * width);
+    for block in values.chunks_exact(m * width) {
+        out.extend_from_slice(block);
+        let last = &block[(m - 1) * width..];
+        for _ in m..len {
+            out.extend_from_slice(last);
+        }
+    }
+    out
 }
 
 /// d_hat_n for one point and view: `(d - d_n, d . d_n)`, with `target_dir` d the unit

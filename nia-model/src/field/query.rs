@@ -50,6 +50,18 @@ impl NiaModel {
         points: &[Vec3],
         dirs: &[Vec3],
     ) -> Result<PointTensors, ModelError> {
+        let inputs = self.point_inputs(scene, points, dirs)?;
+        upload_point_inputs(scene, inputs)
+    }
+
+    /// [`Self::point_tensors`]' host half: the point inputs of world points (in the rendered
+    /// pose), reposed into the scene's pose first when the scene was encoded for another pose.
+    pub(crate) fn point_inputs(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+    ) -> Result<PointInputs, ModelError> {
         let geometry = &scene.geometry;
         let scales = scene.volume.as_ref().map(|(vg, _)| &vg.levels[1..]);
         // The visual hull is read where the source views are: at x, or x' when reposed.
@@ -81,11 +93,7 @@ impl NiaModel {
                 carve(inputs, &mapped.points)
             }
         };
-        let device = scene.images.device();
-        match (&scene.host_volume, inputs.corners.is_empty()) {
-            (Some(host), false) => PointTensors::upload_read(inputs, host, &device),
-            _ => Ok(PointTensors::upload(&inputs, &device)),
-        }
+        Ok(inputs)
     }
 
     /// [`Self::field_with`]'s density half: the point inputs and [`Self::query_density`].
@@ -287,6 +295,19 @@ impl DensityPass {
 /// Weight a view keeps in [`ibr_only_colour`] whatever its blend weight, so a point that puts all
 /// weight on c0 gets the plain mean of the source colours instead of 0/0.
 const IBR_ONLY_FLOOR: f32 = 1e-6;
+
+/// [`NiaModel::point_tensors`]' upload: `inputs` on the scene's device, with the body volume
+/// read on the host where the scene keeps a host copy of it.
+pub(crate) fn upload_point_inputs(
+    scene: &SceneEncoding,
+    inputs: PointInputs,
+) -> Result<PointTensors, ModelError> {
+    let device = scene.images.device();
+    match (&scene.host_volume, inputs.corners.is_empty()) {
+        (Some(host), false) => PointTensors::upload_read(inputs, host, &device),
+        _ => Ok(PointTensors::upload(&inputs, &device)),
+    }
+}
 
 /// The source colours under the blend weights of the views, renormalised over the views.
 ///

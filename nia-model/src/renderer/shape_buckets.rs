@@ -11,14 +11,23 @@ use glam::Vec3;
 
 use crate::device::computes_on_cpu;
 use crate::error::ModelError;
+use crate::field::query::upload_point_inputs;
 use crate::field::{PointOutput, PointTensors};
 use crate::model::NiaModel;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::Stopwatch;
 use burn::tensor::Device;
 
-/// The smallest bucket.
-pub const MIN_BUCKET: usize = 256;
+/// The smallest bucket: every call of fewer points is padded to it.
+///
+/// Below it a call is bound by launches, not by the GPU's width (an H100 keeps about 270,000
+/// threads in flight; 8,192 points of 64 channels are half a million values), so the padding
+/// costs about nothing on a GPU. What it saves is compilation: cubecl autotunes a matrix
+/// product once per power of two of its rows, so the network's layers in calls of 256 to
+/// 65,536 points met nine octaves of keys, now four. On lavapipe a first render of three
+/// views in a fresh process tuned 38 matrix-product keys instead of 68 (664 candidate kernels
+/// instead of 1,282; docs/speed.md, "A floor under the buckets").
+pub const MIN_BUCKET: usize = 8192;
 
 /// The smallest `m * 2^k >= n` with `m` in 4..=7 (so at most 25 % padding), at least
 /// [`MIN_BUCKET`]. `bucket_len(0) == 0`.
@@ -27,7 +36,7 @@ pub fn bucket_len(n: usize) -> usize {
         return 0;
     }
     let n = n.max(MIN_BUCKET);
-    // n >= 256, so 2^k with k = floor(log2 n) - 2 is at least 64.
+    // n >= MIN_BUCKET >= 4, so k = floor(log2 n) - 2 >= 0.
     let k = usize::BITS - 1 - n.leading_zeros() - 2;
     let step = 1usize << k;
     n.div_ceil(step) * step
@@ -49,12 +58,6 @@ pub fn pad_to<T: Copy>(items: &[T], len: usize) -> Vec<T> {
     out
 }
 
-/// Points and directions padded to their bucket: `(points, dirs)` with `bucket_len(M)` rows.
-pub fn pad_points(points: &[Vec3], dirs: &[Vec3]) -> (Vec<Vec3>, Vec<Vec3>) {
-    let len = bucket_len(points.len());
-    (pad_to(points, len), pad_to(dirs, len))
-}
-
 impl NiaModel {
     /// The point inputs of `points` padded to their bucket on the scene's device:
     /// `bucket_len(M)` rows, the M points first ([`PointTensors::real_points`] = M).
@@ -64,10 +67,12 @@ impl NiaModel {
         points: &[Vec3],
         dirs: &[Vec3],
     ) -> Result<PointTensors, ModelError> {
-        let (padded_points, padded_dirs) = pad_points(points, dirs);
-        let mut inputs = self.point_tensors(scene, &padded_points, &padded_dirs)?;
-        inputs.real_points = points.len();
-        Ok(inputs)
+        let inputs = self
+            .point_inputs(scene, points, dirs)?
+            .padded(bucket_len(points.len()));
+        let mut tensors = upload_point_inputs(scene, inputs)?;
+        tensors.real_points = points.len();
+        Ok(tensors)
     }
 
     /// [`NiaModel::field_with`] at `points` padded to their bucket: `bucket_len(M)` rows of
@@ -106,11 +111,11 @@ mod tests {
     #[test]
     fn buckets_cover_with_at_most_a_quarter_of_padding() {
         assert_eq!(bucket_len(0), 0);
-        assert_eq!(bucket_len(1), 256);
-        assert_eq!(bucket_len(256), 256);
-        assert_eq!(bucket_len(257), 320);
-        assert_eq!(bucket_len(1000), 1024);
-        assert_eq!(bucket_len(1025), 1280);
+        assert_eq!(bucket_len(1), MIN_BUCKET);
+        assert_eq!(bucket_len(8192), 8192);
+        assert_eq!(bucket_len(8193), 10240);
+        assert_eq!(bucket_len(60_000), 65536);
+        assert_eq!(bucket_len(65537), 81920);
         let mut buckets = std::collections::BTreeSet::new();
         for n in 1..100_000 {
             let b = bucket_len(n);
@@ -121,8 +126,8 @@ mod tests {
             );
             buckets.insert(b);
         }
-        // Four per octave from 256 to 2^17: 38 shapes for any count up to 100,000.
-        assert!(buckets.len() <= 40, "{} buckets", buckets.len());
+        // The floor, then four per octave: 16 shapes for any count up to 100,000.
+        assert_eq!(buckets.len(), 16, "{buckets:?}");
     }
 
     #[test]
