@@ -22,7 +22,7 @@ use burn::tensor::Device;
 ///
 /// Below it a call is bound by launches, not by the GPU's width (an H100 keeps about 270,000
 /// threads in flight; 8,192 points of 64 channels are half a million values), so the padding
-/// costs about nothing on a GPU. What it saves is compilation: cubecl autotunes a matrix
+/// should cost a GPU little (reasoning; a device run is to measure it). What it saves is compilation: cubecl autotunes a matrix
 /// product once per power of two of its rows, so the network's layers in calls of 256 to
 /// 65,536 points met nine octaves of keys, now four. On lavapipe a first render of three
 /// views in a fresh process tuned 38 matrix-product keys instead of 68 (664 candidate kernels
