@@ -177,6 +177,20 @@ fn steady_figures_are_medians_of_the_listed_repetitions() {
     }
     let stages = v["stages_s"].as_array().unwrap();
     assert!(stages.iter().all(|s| s[1].as_f64().unwrap() >= 0.0), "{v}");
+    // The host's point inputs are a stage of their own, ahead of the reads at the points.
+    let names: Vec<&str> = stages.iter().map(|s| s[0].as_str().unwrap()).collect();
+    let at = |name: &str| {
+        names
+            .iter()
+            .position(|n| *n == name)
+            .unwrap_or_else(|| panic!("no stage {name}: {v}"))
+    };
+    assert!(at("point_inputs") < at("sampling"), "{v}");
+    let point_inputs = stages[at("point_inputs")][1].as_f64().unwrap();
+    assert!(
+        point_inputs > 0.0,
+        "no time charged to the point inputs: {v}"
+    );
 }
 
 #[test]

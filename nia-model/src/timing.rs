@@ -1,5 +1,5 @@
-//! Per-stage wall-clock timings of a forward pass (encoder, body volume, sampling, MLPs,
-//! blending, compositing). Timing a stage synchronises the device at its end, so the numbers
+//! Per-stage wall-clock timings of a forward pass (encoder, body volume, point inputs, sampling,
+//! MLPs, blending, compositing). Timing a stage synchronises the device at its end, so the numbers
 //! are real on asynchronous backends too; with timing off nothing is synchronised.
 
 use std::time::{Duration, Instant};
@@ -15,7 +15,11 @@ pub enum Stage {
     Encoder,
     /// Vertex features, voxelisation, rulebooks and the sparse convolutions (per scene).
     BodyVolume,
-    /// CPU point inputs (projections, o_n, trilinear corners) and the grid/trilinear sampling.
+    /// On the CPU: the ray samples and the points' inputs (projections, o_n, trilinear corners,
+    /// the visual hull's carving), the host geometry of every backend.
+    PointInputs,
+    /// The inputs' upload and the reads at the points: pixel features (bilinear), source
+    /// colours and the body volume (trilinear).
     Sampling,
     /// Attention, F_sigma and F_c0.
     Mlps,
@@ -26,9 +30,10 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 6] = [
+    pub const ALL: [Stage; 7] = [
         Stage::Encoder,
         Stage::BodyVolume,
+        Stage::PointInputs,
         Stage::Sampling,
         Stage::Mlps,
         Stage::Blending,
@@ -39,6 +44,7 @@ impl Stage {
         match self {
             Stage::Encoder => "encoder",
             Stage::BodyVolume => "body_volume",
+            Stage::PointInputs => "point_inputs",
             Stage::Sampling => "sampling",
             Stage::Mlps => "mlps",
             Stage::Blending => "blending",

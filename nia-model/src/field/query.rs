@@ -38,19 +38,22 @@ impl NiaModel {
         dirs: &[Vec3],
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointOutput, ModelError> {
-        let inputs = self.point_tensors(scene, points, dirs)?;
+        let inputs = self.point_tensors(scene, points, dirs, watch)?;
         self.query_with(scene, &inputs, watch)
     }
 
     /// The point inputs of world points (in the rendered pose) on the scene's device, reposed
-    /// into the scene's pose first when the scene was encoded for another pose.
+    /// into the scene's pose first when the scene was encoded for another pose. `watch`
+    /// charges the host part to [`Stage::PointInputs`].
     pub(crate) fn point_tensors(
         &self,
         scene: &SceneEncoding,
         points: &[Vec3],
         dirs: &[Vec3],
+        watch: &mut Stopwatch<'_>,
     ) -> Result<PointTensors, ModelError> {
         let inputs = self.point_inputs(scene, points, dirs)?;
+        watch.mark(Stage::PointInputs);
         upload_point_inputs(scene, inputs)
     }
 
@@ -104,7 +107,7 @@ impl NiaModel {
         dirs: &[Vec3],
         watch: &mut Stopwatch<'_>,
     ) -> Result<DensityPass, ModelError> {
-        let inputs = self.point_tensors(scene, points, dirs)?;
+        let inputs = self.point_tensors(scene, points, dirs, watch)?;
         self.query_density(scene, &inputs, watch)
     }
 

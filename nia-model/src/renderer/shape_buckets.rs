@@ -15,7 +15,7 @@ use crate::field::query::upload_point_inputs;
 use crate::field::{PointOutput, PointTensors};
 use crate::model::NiaModel;
 use crate::scene_encoding::SceneEncoding;
-use crate::timing::Stopwatch;
+use crate::timing::{Stage, Stopwatch};
 use burn::tensor::Device;
 
 /// The smallest bucket: every call of fewer points is padded to it.
@@ -66,10 +66,12 @@ impl NiaModel {
         scene: &SceneEncoding,
         points: &[Vec3],
         dirs: &[Vec3],
+        watch: &mut Stopwatch<'_>,
     ) -> Result<PointTensors, ModelError> {
         let inputs = self
             .point_inputs(scene, points, dirs)?
             .padded(bucket_len(points.len()));
+        watch.mark(Stage::PointInputs);
         let mut tensors = upload_point_inputs(scene, inputs)?;
         tensors.real_points = points.len();
         Ok(tensors)
@@ -85,7 +87,7 @@ impl NiaModel {
         dirs: &[Vec3],
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointOutput, ModelError> {
-        let inputs = self.point_tensors_in_bucket(scene, points, dirs)?;
+        let inputs = self.point_tensors_in_bucket(scene, points, dirs, watch)?;
         self.query_with(scene, &inputs, watch)
     }
 }

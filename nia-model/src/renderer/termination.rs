@@ -86,7 +86,7 @@ impl NiaModel {
             let dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
             // With padding, the density pass has bucket_len(chosen) points, the chosen first.
             let density = if pad {
-                let inputs = self.point_tensors_in_bucket(scene, &points, &dirs)?;
+                let inputs = self.point_tensors_in_bucket(scene, &points, &dirs, watch)?;
                 self.query_density(scene, &inputs, watch)?
             } else {
                 self.field_density(scene, &points, &dirs, watch)?
