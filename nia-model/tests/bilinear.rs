@@ -171,8 +171,20 @@ fn grid_gradient_is_the_finite_difference() {
 /// gradient in the maps, instead of spreading NaN into them.
 #[test]
 fn non_finite_coordinates_read_zero() {
-    let dev = device();
-    let ad = dev.autodiff();
+    non_finite_coordinates_read_zero_on(&device());
+}
+
+/// The same on wgpu, whose read tests the map's bounds as its own kernels do.
+#[cfg(feature = "wgpu")]
+#[test]
+fn non_finite_coordinates_read_zero_on_wgpu() {
+    if let Some(dev) = common::wgpu_device() {
+        non_finite_coordinates_read_zero_on(&dev);
+    }
+}
+
+fn non_finite_coordinates_read_zero_on(dev: &Device) {
+    let ad = dev.clone().autodiff();
     let maps = tensor(maps_values(), [N, C, H, W], &ad).require_grad();
     let grid = vec![
         f32::NAN,
