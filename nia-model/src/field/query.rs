@@ -142,11 +142,12 @@ impl NiaModel {
         points: &PointTensors,
         watch: &mut Stopwatch<'_>,
     ) -> Result<DensityPass, ModelError> {
+        // The pixel features l_n, [N, M, d].
         let l = self
             .pixel_feature
-            .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?; // [N, M, d]
-                                                                           // The body volume read (on the host: a layout whose wide scales are already reduced,
-                                                                           // with the host copy that reads it), then s_n = W_b^T read + b, [N, M, d].
+            .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?;
+        // The body volume read (on the host: a layout whose wide scales are already reduced,
+        // with the host copy that reads it), then s_n = W_b^T read + b, [N, M, d].
         let read = match (&scene.volume, self.variant.uses_body(), &points.body) {
             (Some(_), true, Some(read)) => match scene.host_volume.as_deref() {
                 Some(host) => Some((read.clone(), Some(host))),

@@ -22,11 +22,12 @@ use burn::tensor::Device;
 ///
 /// Below it a call is bound by launches, not by the GPU's width (an H100 keeps about 270,000
 /// threads in flight; 8,192 points of 64 channels are half a million values), so the padding
-/// should cost a GPU little (reasoning; a device run is to measure it). What it saves is compilation: cubecl autotunes a matrix
-/// product once per power of two of its rows, so the network's layers in calls of 256 to
-/// 65,536 points met nine octaves of keys, now four. On lavapipe a first render of three
-/// views in a fresh process tuned 38 matrix-product keys instead of 68 (664 candidate kernels
-/// instead of 1,282; docs/speed.md, "A floor under the buckets").
+/// should cost a GPU little (reasoning; a device run is to measure it). What it saves is
+/// compilation: cubecl autotunes a matrix product once per power of two of its rows, so the
+/// network's layers in calls of 256 to 65,536 points met nine octaves of keys, now four. On
+/// lavapipe a first render of three views in a fresh process tuned 38 matrix-product keys
+/// instead of 68 (664 candidate kernels instead of 1,282; docs/speed.md, "A floor under the
+/// buckets").
 pub const MIN_BUCKET: usize = 8192;
 
 /// The smallest `m * 2^k >= n` with `m` in 4..=7 (so at most 25 % padding), at least
