@@ -15,7 +15,7 @@ use nia_data::geometry::sparse::{
     VoxelBox, CORNERS, KERNEL_VOLUME,
 };
 use nia_data::rng::Rng;
-use nia_model::body_volume::trilinear::{sample, sample_with, CornerRead};
+use nia_model::body_volume::trilinear::{sample, sample_with, CornerRead, SiteRows};
 use nia_model::body_volume::{
     BodyVolumeGeometry, BodyVolumeNetConfig, ConvMethod, RulebookTensors, SiteNormConfig,
     SparseConv3d, SparseConv3dConfig, TrilinearTensors, NUM_SCALES,
@@ -510,26 +510,16 @@ fn trilinear_matches_dense_grid_sample() {
         let got =
             values(sample(tensor3(features.clone(), [n, p, c], &dev), &corner_tensors).unwrap());
         // Blocks of 7 points give the same values; the GPU backends' read (one gather per
-        // corner) sums the same 8 products in another order.
-        let blocked = values(
-            sample_with(
-                tensor3(features.clone(), [n, p, c], &dev),
-                &corner_tensors,
-                CornerRead::Stacked,
-                7,
-            )
-            .unwrap(),
-        );
+        // corner, corner-major corners, site-major rows) sums the same 8 products in another
+        // order.
+        let rows_for = |read| SiteRows::new(tensor3(features.clone(), [n, p, c], &dev), read);
+        let blocked =
+            values(sample_with(&rows_for(CornerRead::Stacked), &corner_tensors, 7).unwrap());
         assert_eq!(got, blocked);
+        let by_corner_tensors = TrilinearTensors::upload_for(&corners, CornerRead::ByCorner, &dev);
         for block in [7, points.len()] {
             let by_corner = values(
-                sample_with(
-                    tensor3(features.clone(), [n, p, c], &dev),
-                    &corner_tensors,
-                    CornerRead::ByCorner,
-                    block,
-                )
-                .unwrap(),
+                sample_with(&rows_for(CornerRead::ByCorner), &by_corner_tensors, block).unwrap(),
             );
             assert_eq!(by_corner.len(), got.len());
             for (a, b) in by_corner.iter().zip(&got) {
@@ -537,6 +527,8 @@ fn trilinear_matches_dense_grid_sample() {
                 assert!((a - b).abs() <= 1e-6, "by-corner read {a} vs stacked {b}");
             }
         }
+        // Rows and corners laid out for different reads are an error, not a wrong read.
+        assert!(sample_with(&rows_for(CornerRead::ByCorner), &corner_tensors, 7).is_err());
         let sites = &scale.sites;
         let grid = densify(&features, n, c, sites);
         let per_view = c * dims.iter().product::<usize>();
@@ -582,9 +574,8 @@ fn trilinear_with_gradient(
     let [n, _, c] = dims;
     let x = tensor3(features.to_vec(), dims, &ad).require_grad();
     let out = sample_with(
-        x.clone(),
-        &TrilinearTensors::upload(corners, &ad),
-        read,
+        &SiteRows::new(x.clone(), read),
+        &TrilinearTensors::upload_for(corners, read, &ad),
         block,
     )
     .unwrap();
@@ -614,14 +605,16 @@ fn trilinear_by_corner_on_wgpu_matches_ndarray() {
     let scale = ScaleGeometry::new(&vb, 0, random_sites(&mut rng, dims, 0.6)).unwrap();
     let (n, c, p) = (3, 16, scale.num_sites());
     let features = normals(&mut rng, n * p * c);
-    let mut points = random_points(&mut rng, &vb, 2000, 0.08);
+    // 4,096 points: blocks of 2,048 are views of the corner-major rows on any alignment, blocks
+    // of 777 are copies.
+    let mut points = random_points(&mut rng, &vb, 4094, 0.08);
     points.push(vb.min_m);
     points.push(vb.max_m());
     let corners = TrilinearCorners::compute(&points, &scale);
     let fdims = [n, p, c];
     let (want, want_grad) =
         trilinear_with_gradient(&cpu, &features, fdims, &corners, CornerRead::Stacked, 300);
-    for block in [777, points.len()] {
+    for block in [777, 2048, points.len()] {
         let (got, got_grad) = trilinear_with_gradient(
             &gpu,
             &features,
@@ -640,20 +633,41 @@ fn trilinear_by_corner_on_wgpu_matches_ndarray() {
             assert!(diff <= 1e-5, "{what} on wgpu, blocks of {block}: {diff}");
         }
     }
-    // `sample` on wgpu picks the by-corner read.
-    let got = values(
+    // `sample` on wgpu picks the by-corner read; a scale volume there lays its rows out once
+    // and reads them for every call, and reads corners uploaded for the stacked read too.
+    let scale = std::sync::Arc::new(scale);
+    let volume = nia_model::body_volume::ScaleVolume::new(
+        tensor3(features.clone(), fdims, &gpu),
+        scale.clone(),
+    );
+    assert_eq!(
+        volume.rows.as_ref().map(|r| r.read),
+        Some(CornerRead::ByCorner)
+    );
+    for got in [
         sample(
             tensor3(features.clone(), fdims, &gpu),
             &TrilinearTensors::upload(&corners, &gpu),
         )
         .unwrap(),
-    );
-    let diff = got
-        .iter()
-        .zip(&want)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max);
-    assert!(diff <= 1e-5, "sample on wgpu: {diff}");
+        volume
+            .sample(&TrilinearTensors::upload(&corners, &gpu))
+            .unwrap(),
+        volume
+            .sample(&TrilinearTensors::upload_for(
+                &corners,
+                CornerRead::Stacked,
+                &gpu,
+            ))
+            .unwrap(),
+    ] {
+        let diff = values(got)
+            .iter()
+            .zip(&want)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        assert!(diff <= 1e-5, "sample on wgpu: {diff}");
+    }
     assert_eq!(CornerRead::for_device(&gpu), CornerRead::ByCorner);
     assert_eq!(CornerRead::for_device(&cpu), CornerRead::Stacked);
 }
@@ -676,7 +690,7 @@ fn host_read_matches_the_tensor_read_on_every_scale() {
         let geometry = Arc::new(ScaleGeometry::new(&vb, level, sites).unwrap());
         let p = geometry.num_sites();
         let features = tensor3(normals(&mut rng, n * p * c), [n, p, c], &dev);
-        scales.push(ScaleVolume { features, geometry });
+        scales.push(ScaleVolume::new(features, geometry));
     }
     let volume = BodyVolume { scales };
     let mut points = random_points(&mut rng, &vb, 400, 0.08);

@@ -28,7 +28,7 @@ use super::site_norm::{SiteNorm, SiteNormConfig};
 use super::sparse_conv::{
     int_tensor, ConvMethod, RulebookTensors, SparseConv3d, SparseConv3dConfig,
 };
-use super::trilinear::{self, TrilinearTensors};
+use super::trilinear::{self, CornerRead, SiteRows, TrilinearTensors};
 use super::BodyVolumeError;
 
 /// Scales read back (1/2, 1/4, 1/8, 1/16 resolution).
@@ -150,10 +150,7 @@ impl BodyVolumeNet {
             for block in &stage.convs {
                 x = block.forward(x, &geometry.submanifold[s + 1])?;
             }
-            scales.push(ScaleVolume {
-                features: x.clone(),
-                geometry: geometry.levels[s + 1].clone(),
-            });
+            scales.push(ScaleVolume::new(x.clone(), geometry.levels[s + 1].clone()));
         }
         Ok(BodyVolume { scales })
     }
@@ -282,6 +279,37 @@ pub struct ScaleVolume {
     pub features: Tensor<3>,
     /// The sites and placement of this scale.
     pub geometry: Arc<ScaleGeometry>,
+    /// On the GPU backends, `features` laid out for their read, once for every call that reads
+    /// the scene ([`trilinear::SiteRows`]); `None` on the CPU backends, whose inference reads
+    /// on the host ([`super::HostVolume`]) and whose tensor read lays the rows out per call.
+    pub rows: Option<SiteRows>,
+}
+
+impl ScaleVolume {
+    /// A scale of `features` on `geometry`, with its rows laid out on a GPU backend.
+    ///
+    /// # Shapes
+    /// - features: `[N, P_s, C_s]`
+    pub fn new(features: Tensor<3>, geometry: Arc<ScaleGeometry>) -> Self {
+        let read = CornerRead::for_device(&features.device());
+        let rows = (read == CornerRead::ByCorner).then(|| SiteRows::new(features.clone(), read));
+        ScaleVolume {
+            features,
+            geometry,
+            rows,
+        }
+    }
+
+    /// Reads the scale at `corners` ([`trilinear::sample`]).
+    ///
+    /// # Shapes
+    /// - output: `[N, M, C_s]`
+    pub fn sample(&self, corners: &TrilinearTensors) -> Result<Tensor<3>, BodyVolumeError> {
+        match &self.rows {
+            Some(rows) if rows.read == corners.read => trilinear::sample_rows(rows, corners),
+            _ => trilinear::sample(self.features.clone(), corners),
+        }
+    }
 }
 
 /// The body volume of every view at the four scales.
@@ -317,7 +345,7 @@ impl BodyVolume {
             .scales
             .iter()
             .zip(corners)
-            .map(|(scale, c)| trilinear::sample(scale.features.clone(), c))
+            .map(|(scale, c)| scale.sample(c))
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Tensor::cat(parts, 2))
     }

@@ -142,12 +142,10 @@ impl NiaModel {
         points: &PointTensors,
         watch: &mut Stopwatch<'_>,
     ) -> Result<DensityPass, ModelError> {
-        // The pixel features l_n, [N, M, d].
-        let l = self
-            .pixel_feature
-            .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?;
         // The body volume read (on the host: a layout whose wide scales are already reduced,
-        // with the host copy that reads it), then s_n = W_b^T read + b, [N, M, d].
+        // with the host copy that reads it), then s_n = W_b^T read + b, [N, M, d]. Read before
+        // the pixel features: on wgpu, queued after them, its first scale's gathers ran as 23
+        // unfused kernels instead of two fused ones (docs/speed.md, "Slices that are views").
         let read = match (&scene.volume, self.variant.uses_body(), &points.body) {
             (Some(_), true, Some(read)) => match scene.host_volume.as_deref() {
                 Some(host) => Some((read.clone(), Some(host))),
@@ -161,6 +159,10 @@ impl NiaModel {
             (Some((_, volume)), true, None) => Some((volume.sample(&points.corners)?, None)),
             _ => None,
         };
+        // The pixel features l_n, [N, M, d].
+        let l = self
+            .pixel_feature
+            .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?;
         watch.mark(Stage::Sampling);
         let on_host = matches!(read, Some((_, Some(_))));
         let s = match read {
