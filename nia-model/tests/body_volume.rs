@@ -1231,3 +1231,28 @@ fn host_kernels_match_the_tensor_path_through_the_network() {
         ConvMethod::Host
     );
 }
+
+/// The GPU read's blocks hold a multiple of `BY_CORNER_BLOCK_ALIGN` points (so a block's slice
+/// of a corner's row is a view, not a copy) and no more than 64 MiB of gathered values, at the
+/// paper's scales and at widths too large for one aligned block.
+#[test]
+fn by_corner_blocks_are_aligned_and_within_their_bytes() {
+    use nia_model::body_volume::trilinear::{BY_CORNER_BLOCK_ALIGN, BY_CORNER_BLOCK_BYTES};
+    for (n, c) in [(3, 32), (3, 64), (3, 128), (1, 8), (4, 128)] {
+        let points = CornerRead::ByCorner.points_per_block(n, c);
+        assert_eq!(
+            points % BY_CORNER_BLOCK_ALIGN,
+            0,
+            "N {n} C {c}: {points} points"
+        );
+        assert!(points * n * c * 4 <= BY_CORNER_BLOCK_BYTES, "N {n} C {c}");
+        assert!((points + BY_CORNER_BLOCK_ALIGN) * n * c * 4 > BY_CORNER_BLOCK_BYTES);
+    }
+    // Rows too wide for even one aligned block: as many points as fit, at least one.
+    let wide = CornerRead::ByCorner.points_per_block(1, BY_CORNER_BLOCK_BYTES / 4 / 1000);
+    assert!((1..BY_CORNER_BLOCK_ALIGN).contains(&wide), "{wide}");
+    assert_eq!(
+        CornerRead::ByCorner.points_per_block(1, BY_CORNER_BLOCK_BYTES),
+        1
+    );
+}
