@@ -120,7 +120,7 @@ fn main() {
         for _ in 0..3 {
             let t = Instant::now();
             let v = net.forward(&geometry, features.clone()).expect("forward");
-            sync(v.scales[3].features.clone().sum());
+            sync(v.scales[3].features().clone().sum());
             forward.push(format!("{:.0}", ms(t)));
             volume = Some(v);
         }
@@ -133,7 +133,7 @@ fn main() {
             net.forward(&im2col, features.clone())
                 .expect("forward")
                 .scales[3]
-                .features
+                .features()
                 .clone()
                 .sum(),
         );

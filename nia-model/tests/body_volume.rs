@@ -640,10 +640,7 @@ fn trilinear_by_corner_on_wgpu_matches_ndarray() {
         tensor3(features.clone(), fdims, &gpu),
         scale.clone(),
     );
-    assert_eq!(
-        volume.rows.as_ref().map(|r| r.read),
-        Some(CornerRead::ByCorner)
-    );
+    assert_eq!(volume.rows().map(|r| r.read), Some(CornerRead::ByCorner));
     for got in [
         sample(
             tensor3(features.clone(), fdims, &gpu),
@@ -1024,11 +1021,13 @@ fn network_forward_and_backward_are_finite() {
     for (s, scale) in volume.scales.iter().enumerate() {
         let p_s = geometry.scale(s).unwrap().num_sites();
         assert_eq!(
-            scale.features.dims(),
+            scale.features().dims(),
             [n, p_s, config.scale_channels[s]],
             "scale {s}"
         );
-        assert!(values(scale.features.clone()).iter().all(|v| v.is_finite()));
+        assert!(values(scale.features().clone())
+            .iter()
+            .all(|v| v.is_finite()));
     }
 
     let mut points = random_points(&mut rng, &vb, 200, 0.0);
@@ -1123,10 +1122,10 @@ fn network_outputs_and_gradients(
     let mut loss = None;
     let mut outputs = Vec::new();
     for scale in &volume.scales {
-        let dims = scale.features.dims();
+        let dims = scale.features().dims();
         let r = tensor3(normals(&mut rng, dims.iter().product()), dims, device);
-        outputs.push(values(scale.features.clone()));
-        let term = (scale.features.clone() * r).sum();
+        outputs.push(values(scale.features().clone()));
+        let term = (scale.features().clone() * r).sum();
         loss = Some(match loss {
             None => term,
             Some(l) => l + term,
@@ -1216,7 +1215,7 @@ fn host_kernels_match_the_tensor_path_through_the_network() {
     );
     let volume = record.forward(&geometry, x).unwrap();
     for (scale, expected) in volume.scales.iter().zip(&out_host) {
-        assert_eq!(&values(scale.features.clone()), expected);
+        assert_eq!(&values(scale.features().clone()), expected);
     }
     // On ndarray `Host` runs as its tensor equivalent.
     #[allow(deprecated)]

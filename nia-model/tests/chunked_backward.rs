@@ -183,3 +183,49 @@ fn chunked_backward_refuses_jitter_of_the_wrong_length() {
     .unwrap_err();
     common::assert_mentions(&err.to_string(), &["jitter", "9 rays", "8 samples"]);
 }
+
+/// On wgpu too (where the body volume's scales keep their gather rows laid out from the
+/// features: the cut must lay them out again from its leaves), chunks give the gradient of one
+/// backward, the body volume's through the cut included. Atomic adds on a GPU sum in no fixed
+/// order, hence the looser tolerance.
+#[cfg(feature = "wgpu")]
+#[test]
+fn chunked_gradients_on_wgpu_equal_one_backward() {
+    let Some(gpu) = common::wgpu_device() else {
+        return;
+    };
+    let device = gpu.autodiff();
+    device.seed(11);
+    let model = ModelConfig::tiny().init(&device);
+    let whole = gradients(&model, &device, 0);
+    let chunked = gradients(&model, &device, 4);
+    assert_eq!(chunked.len(), whole.len());
+    let global = whole.values().flatten().fold(0.0f32, |m, x| m.max(x.abs()));
+    let mut body_volume = 0;
+    // The vertex features feed only the body volume: their layer learns through its cut.
+    let first_body_layer = model.vertex_reduce.weight.id;
+    for (id, expected) in &whole {
+        let got = &chunked[id];
+        let scale = expected
+            .iter()
+            .fold(0.0f32, |m, x| m.max(x.abs()))
+            .max(1e-3 * global);
+        if *id == first_body_layer {
+            body_volume += 1;
+            assert!(
+                expected.iter().any(|&x| x != 0.0),
+                "no body-volume gradient"
+            );
+        }
+        for (g, e) in got.iter().zip(expected) {
+            assert!(
+                g.is_finite() && (g - e).abs() <= 1e-3 * scale,
+                "parameter {id}: {g} against {e} (largest {scale})"
+            );
+        }
+    }
+    assert_eq!(
+        body_volume, 1,
+        "the body volume's first layer has a gradient"
+    );
+}

@@ -61,7 +61,7 @@ impl HostVolume {
         volume: &BodyVolume,
         reduction: Option<Tensor<2>>,
     ) -> Result<Self, BodyVolumeError> {
-        let total: usize = volume.scales.iter().map(|s| s.features.dims()[2]).sum();
+        let total: usize = volume.scales.iter().map(|s| s.features().dims()[2]).sum();
         let reduction = match reduction {
             Some(w) if w.dims()[0] != total => {
                 return Err(BodyVolumeError::invalid(
@@ -78,16 +78,20 @@ impl HostVolume {
         let mut reduced_width = 0;
         let mut scales = Vec::with_capacity(volume.scales.len());
         for scale in &volume.scales {
-            let [n, p_s, c_s] = scale.features.dims();
+            let [n, p_s, c_s] = scale.features().dims();
             num_views = n;
             let (features, c, reduced) = match &reduction {
                 Some(w) if c_s >= d && d > 0 => {
                     reduced_width = d;
                     let rows = w.clone().narrow(0, offset, c_s);
-                    let through = scale.features.clone().reshape([n * p_s, c_s]).matmul(rows);
+                    let through = scale
+                        .features()
+                        .clone()
+                        .reshape([n * p_s, c_s])
+                        .matmul(rows);
                     (through, d, true)
                 }
-                _ => (scale.features.clone().reshape([n * p_s, c_s]), c_s, false),
+                _ => (scale.features().clone().reshape([n * p_s, c_s]), c_s, false),
             };
             let features = host_values(features).map_err(|e| {
                 BodyVolumeError::invalid("HostVolume::read features", "f32 site features", e)

@@ -272,32 +272,48 @@ impl BodyVolumeGeometry {
     }
 }
 
-/// One scale of the body volume.
+/// One scale of the body volume: the features and, on the GPU backends, their rows as the
+/// read gathers them, always made together ([`ScaleVolume::new`]) so they cannot disagree.
 #[derive(Debug, Clone)]
 pub struct ScaleVolume {
     /// [N, P_s, C_s] features of the active sites, per view.
-    pub features: Tensor<3>,
+    features: Tensor<3>,
     /// The sites and placement of this scale.
     pub geometry: Arc<ScaleGeometry>,
-    /// On the GPU backends, `features` laid out for their read, once for every call that reads
-    /// the scene ([`trilinear::SiteRows`]); `None` on the CPU backends, whose inference reads
-    /// on the host ([`super::HostVolume`]) and whose tensor read lays the rows out per call.
-    pub rows: Option<SiteRows>,
+    /// On the GPU backends at inference, `features` laid out for their read, once for every
+    /// call that reads the scene ([`trilinear::SiteRows`]); `None` on the CPU backends, whose
+    /// inference reads on the host ([`super::HostVolume`]), and in training: those reads lay
+    /// the rows out per call.
+    rows: Option<SiteRows>,
 }
 
 impl ScaleVolume {
-    /// A scale of `features` on `geometry`, with its rows laid out on a GPU backend.
+    /// A scale of `features` on `geometry`, with its rows laid out on a GPU backend when no
+    /// backward runs through the features. Tracked features lay them out in every read: rows
+    /// made once would be one graph node that each chunk's backward of the chunked training
+    /// step ([`crate::scene_encoding::cut`]) consumes, and the second chunk's would fail.
     ///
     /// # Shapes
     /// - features: `[N, P_s, C_s]`
     pub fn new(features: Tensor<3>, geometry: Arc<ScaleGeometry>) -> Self {
         let read = CornerRead::for_device(&features.device());
-        let rows = (read == CornerRead::ByCorner).then(|| SiteRows::new(features.clone(), read));
+        let rows = (read == CornerRead::ByCorner && !features.is_tracked())
+            .then(|| SiteRows::new(features.clone(), read));
         ScaleVolume {
             features,
             geometry,
             rows,
         }
+    }
+
+    /// `[N, P_s, C_s]` features of the active sites, per view.
+    pub fn features(&self) -> &Tensor<3> {
+        &self.features
+    }
+
+    /// The rows laid out for the GPU read (`None` on the CPU backends).
+    pub fn rows(&self) -> Option<&SiteRows> {
+        self.rows.as_ref()
     }
 
     /// Reads the scale at `corners` ([`trilinear::sample`]).

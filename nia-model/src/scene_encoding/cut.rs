@@ -21,6 +21,7 @@ use burn::prelude::*;
 use burn::tensor::Gradients;
 use nia_data::geometry::rays::RayBundle;
 
+use crate::body_volume::ScaleVolume;
 use crate::error::ModelError;
 use crate::model::NiaModel;
 use crate::renderer::quadrature::RenderOutput;
@@ -64,8 +65,10 @@ impl SceneEncoding {
         let mut sites = Vec::new();
         if let Some((_, volume)) = cut.volume.as_mut() {
             for scale in &mut volume.scales {
-                sites.push(scale.features.clone());
-                scale.features = scale.features.clone().detach().require_grad();
+                let features = scale.features().clone();
+                sites.push(features.clone());
+                // A new scale, whose reads lay their rows out from the leaf.
+                *scale = ScaleVolume::new(features.detach().require_grad(), scale.geometry.clone());
             }
         }
         let roots = CutRoots {
@@ -84,7 +87,7 @@ impl CutRoots {
         if let Some((_, volume)) = &cut.volume {
             acc.sites.resize_with(volume.scales.len(), || None);
             for (a, scale) in acc.sites.iter_mut().zip(&volume.scales) {
-                add(a, scale.features.grad(grads));
+                add(a, scale.features().grad(grads));
             }
         }
     }
