@@ -118,21 +118,11 @@ impl TrilinearTensors {
                 corners.weight.clone(),
                 [m, CORNERS],
             ),
-            CornerRead::ByCorner => {
-                let by_corner = |values: &[u32]| -> Vec<u32> {
-                    (0..CORNERS)
-                        .flat_map(|j| (0..m).map(move |p| values[p * CORNERS + j]))
-                        .collect()
-                };
-                let weight = (0..CORNERS)
-                    .flat_map(|j| (0..m).map(move |p| corners.weight[p * CORNERS + j]))
-                    .collect();
-                (
-                    int_tensor(&by_corner(&corners.index), device),
-                    weight,
-                    [CORNERS, m],
-                )
-            }
+            CornerRead::ByCorner => (
+                int_tensor(&corner_major(&corners.index), device),
+                corner_major(&corners.weight),
+                [CORNERS, m],
+            ),
         };
         TrilinearTensors {
             index: index.reshape(shape),
@@ -142,6 +132,14 @@ impl TrilinearTensors {
             num_sites: corners.num_sites,
         }
     }
+}
+
+/// `[M, 8]` point-major values as `[8, M]` corner-major.
+fn corner_major<T: Copy>(values: &[T]) -> Vec<T> {
+    let m = values.len() / CORNERS;
+    (0..CORNERS)
+        .flat_map(|j| (0..m).map(move |p| values[p * CORNERS + j]))
+        .collect()
 }
 
 /// A volume's features as [`sample_rows`] gathers them: every view's rows and a zero row (the
