@@ -967,6 +967,81 @@ fn small_config() -> BodyVolumeNetConfig {
         .with_scale_convs([1, 1, 1, 1])
 }
 
+/// The network on wgpu against ndarray (both sum in a different order; the GPU's scatter-adds
+/// are atomic): largest |difference| over the largest |value| of each output and gradient.
+#[cfg(feature = "wgpu")]
+const NETWORK_WGPU_TOL: f32 = 1e-4;
+
+/// The body volume network on wgpu against ndarray, same weights and inputs: every scale's
+/// features and the gradients of the vertex features and of the first convolution's weight,
+/// with `Im2col` in blocks of 64 outputs (the stacked indices' block slices are views) and
+/// with `Pairs`; the views' scatter-mean onto the sites included.
+#[cfg(feature = "wgpu")]
+#[test]
+fn body_volume_network_on_wgpu_matches_ndarray() {
+    let Some(gpu) = common::wgpu_device() else {
+        return;
+    };
+    let mut rng = Rng::new(83);
+    let vertices = body_like_vertices(&mut rng, 800);
+    let vb = VoxelBox::enclosing(&vertices, 0.025, 0.03).unwrap();
+    let config = small_config();
+    let net = config.init(&device().autodiff());
+    let (n, c_v) = (3, config.vertex_channels);
+    let features = normals(&mut rng, n * vertices.len() * c_v);
+    let run = |dev: &Device, method: ConvMethod, block: Option<usize>| {
+        let ad = dev.clone().autodiff();
+        let mut geometry =
+            BodyVolumeGeometry::build_with_method(&vertices, &vb, method, &ad).unwrap();
+        if let Some(b) = block {
+            let blocked = |rules: Vec<RulebookTensors>| {
+                rules
+                    .into_iter()
+                    .map(|r| r.with_outputs_per_chunk(b))
+                    .collect()
+            };
+            geometry.submanifold = blocked(geometry.submanifold);
+            geometry.strided = blocked(geometry.strided);
+        }
+        let net = net.clone().fork(&ad);
+        let x = tensor3(features.clone(), [n, vertices.len(), c_v], &ad).require_grad();
+        let volume = net.forward(&geometry, x.clone()).unwrap();
+        let mut outputs = Vec::new();
+        let mut loss = Tensor::<1>::zeros([1], &ad);
+        for scale in &volume.scales {
+            let f = scale.features().clone();
+            outputs.push(values(f.clone()));
+            loss = loss + (f.clone() * f).sum();
+        }
+        let grads = loss.backward();
+        outputs.push(values(x.grad(&grads).unwrap()));
+        outputs.push(values(net.full[0].conv.weight.grad(&grads).unwrap()));
+        (geometry.levels[0].num_sites(), outputs)
+    };
+    for (method, block) in [(ConvMethod::Im2col, Some(64)), (ConvMethod::Pairs, None)] {
+        let (sites, reference) = run(&device(), method, block);
+        assert!(
+            sites > 2 * 64,
+            "{sites} level-0 sites: too few for several blocks"
+        );
+        let (_, got) = run(&gpu, method, block);
+        for (i, (r, g)) in reference.iter().zip(&got).enumerate() {
+            assert_eq!(r.len(), g.len());
+            let scale = r.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            assert!(scale > 0.0, "{method:?} output {i} is all zeros");
+            let diff = r
+                .iter()
+                .zip(g)
+                .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(
+                diff <= NETWORK_WGPU_TOL * scale,
+                "{method:?} blocks {block:?}, output {i} (scales, then d vertex features, \
+                 d weight): max |wgpu - ndarray| {diff} of max |value| {scale}"
+            );
+        }
+    }
+}
+
 #[test]
 fn network_forward_and_backward_are_finite() {
     let ad = device().autodiff();

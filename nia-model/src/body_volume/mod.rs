@@ -10,6 +10,7 @@
 //! - [`site_norm`]: [`SiteNorm`], per-view channel normalisation over the active sites.
 //! - [`network`]: [`BodyVolumeNet`] and [`BodyVolumeGeometry`] -> [`BodyVolume`].
 //! - [`trilinear`]: the tensor-side trilinear sampling at the corners of the query points.
+//! - `view_rows`: the row indices of N stacked views, laid out on the host.
 //!
 //! Coordinates: `x_smpl = (x_world - Th) @ R(Rh)` (the caller converts), metres.
 
@@ -21,6 +22,7 @@ pub mod network;
 pub mod site_norm;
 pub mod sparse_conv;
 pub mod trilinear;
+mod view_rows;
 
 pub use host_read::HostVolume;
 pub use network::{

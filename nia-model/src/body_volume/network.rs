@@ -22,14 +22,13 @@ use nia_data::geometry::sparse::{
 
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use burn::tensor::IndexingUpdateOp;
 
 use super::site_norm::{SiteNorm, SiteNormConfig};
-use super::sparse_conv::{
-    int_tensor, ConvMethod, RulebookTensors, SparseConv3d, SparseConv3dConfig,
-};
+use super::sparse_conv::{ConvMethod, RulebookTensors, SparseConv3d, SparseConv3dConfig};
 use super::trilinear::{self, CornerRead, SiteRows, TrilinearTensors};
+use super::view_rows::ViewRows;
 use super::BodyVolumeError;
+use crate::blocked_rows::scatter_add_rows;
 
 /// Scales read back (1/2, 1/4, 1/8, 1/16 resolution).
 pub const NUM_SCALES: usize = 4;
@@ -170,8 +169,8 @@ pub struct BodyVolumeGeometry {
     pub submanifold: Vec<RulebookTensors>,
     /// [4] `strided_rules` on the device.
     pub strided: Vec<RulebookTensors>,
-    /// [V] Int, level-0 site of every vertex.
-    pub vertex_site: Tensor<1, Int>,
+    /// [V] level-0 site of every vertex (rows of `[N * P_0, C_v]`).
+    vertex_site: ViewRows,
     /// [1, P_0, 1] 1 / (vertices in the site).
     pub inverse_count: Tensor<3>,
 }
@@ -224,7 +223,7 @@ impl BodyVolumeGeometry {
         let p0 = inverse.len();
         Ok(BodyVolumeGeometry {
             voxel_box: *voxel_box,
-            vertex_site: int_tensor(&pyramid.voxels.vertex_site, device),
+            vertex_site: ViewRows::new(pyramid.voxels.vertex_site.clone(), 1, p0, device),
             inverse_count: Tensor::from_data(TensorData::new(inverse, [1, p0, 1]), device),
             pyramid,
             submanifold,
@@ -249,12 +248,14 @@ impl BodyVolumeGeometry {
         }
         let [n, _, c_v] = dims;
         let p0 = self.levels[0].num_sites();
-        let summed = Tensor::zeros([n, p0, c_v], &vertex_features.device()).select_assign(
-            1,
-            self.vertex_site.clone(),
-            vertex_features,
-            IndexingUpdateOp::Add,
-        );
+        // Views stacked along the rows: on the GPU backends an atomic scatter-add, not burn's
+        // `select_assign`, one serial loop over the V vertices per column (`blocked_rows`).
+        let summed = scatter_add_rows(
+            Tensor::zeros([n * p0, c_v], &vertex_features.device()),
+            self.vertex_site.stacked(n, usize::MAX),
+            vertex_features.reshape([n * v, c_v]),
+        )
+        .reshape([n, p0, c_v]);
         Ok(summed * self.inverse_count.clone())
     }
 

@@ -22,6 +22,7 @@ use burn::prelude::*;
 use std::sync::Arc;
 
 use super::host_conv::{runs_on_host, sparse_conv_host, HostRules};
+use super::view_rows::ViewRows;
 use super::BodyVolumeError;
 use crate::blocked_rows::{scatter_add_rows, select_rows};
 use crate::device::computes_on_cpu;
@@ -59,14 +60,16 @@ pub enum ConvMethod {
 #[derive(Debug, Clone)]
 enum RulebookIndices {
     Im2col {
-        /// [P_out * 27] input site per (output, offset), `n_in` = missing (zero row).
-        neighbours: Tensor<1, Int>,
+        /// [P_out * 27] input site per (output, offset), `n_in` = missing (zero row), rows of
+        /// `[N * (P_in + 1), C_in]`.
+        neighbours: ViewRows,
     },
     Pairs {
-        /// [T] row `in * 27 + k` of the per-offset products `[P_in * 27, C_out]` of every pair.
-        product_row: Tensor<1, Int>,
-        /// [T] output site of every pair.
-        out_index: Tensor<1, Int>,
+        /// [T] row `in * 27 + k` of the per-offset products `[N * P_in * 27, C_out]` of every
+        /// pair.
+        product_row: ViewRows,
+        /// [T] output site of every pair, rows of `[N * P_out, C_out]`.
+        out_index: ViewRows,
     },
     Host {
         rules: Arc<HostRules>,
@@ -108,7 +111,12 @@ impl RulebookTensors {
                 rules: Arc::new(HostRules::new(rulebook)),
             },
             ConvMethod::Im2col => RulebookIndices::Im2col {
-                neighbours: int_tensor(&rulebook.neighbour_map(), device),
+                neighbours: ViewRows::new(
+                    rulebook.neighbour_map(),
+                    KERNEL_VOLUME,
+                    rulebook.n_in + 1,
+                    device,
+                ),
             },
             ConvMethod::Auto | ConvMethod::Pairs => {
                 let mut product_row = Vec::with_capacity(rulebook.num_pairs());
@@ -116,14 +124,17 @@ impl RulebookTensors {
                     product_row.extend(
                         rulebook
                             .pairs(k)
-                            .map(|(i, _)| i as u64 * KERNEL_VOLUME as u64 + k as u64),
+                            .map(|(i, _)| i * KERNEL_VOLUME as u32 + k as u32),
                     );
                 }
-                let product_row: Vec<i64> = product_row.into_iter().map(|v| v as i64).collect();
-                let t = product_row.len();
                 RulebookIndices::Pairs {
-                    product_row: Tensor::from_data(TensorData::new(product_row, [t]), device),
-                    out_index: int_tensor(&rulebook.out_index, device),
+                    product_row: ViewRows::new(
+                        product_row,
+                        1,
+                        rulebook.n_in * KERNEL_VOLUME,
+                        device,
+                    ),
+                    out_index: ViewRows::new(rulebook.out_index.clone(), 1, rulebook.n_out, device),
                 }
             }
         };
@@ -178,6 +189,24 @@ fn im2col_block_bytes(rows: &Tensor<2>) -> usize {
         GPU_IM2COL_BLOCK_BYTES
     }
 }
+
+/// Outputs per `Im2col` block when a row of gathered columns holds `floats_per_row` f32
+/// values: [`im2col_block_bytes`] worth, and on the GPU backends a multiple of
+/// [`GPU_IM2COL_BLOCK_ALIGN`] (when at least that many), so that every block's slice of the
+/// stacked indices starts on the device's alignment and is a view, not a copy.
+fn im2col_outputs_per_block(rows: &Tensor<2>, floats_per_row: usize) -> usize {
+    let outputs = rows_per_block(im2col_block_bytes(rows), floats_per_row);
+    if computes_on_cpu(&rows.device()) || outputs < GPU_IM2COL_BLOCK_ALIGN {
+        outputs
+    } else {
+        outputs / GPU_IM2COL_BLOCK_ALIGN * GPU_IM2COL_BLOCK_ALIGN
+    }
+}
+
+/// `Im2col` blocks on the GPU backends hold a multiple of this many outputs: a block's slice
+/// of the stacked Int indices then starts at a multiple of `N * 64 * 27` integers, a multiple
+/// of 256 bytes whether they are 4 or 8 bytes wide.
+pub const GPU_IM2COL_BLOCK_ALIGN: usize = 64;
 
 /// Rows per gathered block of `block_bytes` when a row holds `floats_per_row` f32 values (at
 /// least 1).
@@ -305,18 +334,21 @@ impl SparseConv3d {
             RulebookIndices::Im2col { neighbours } => {
                 let rows = rows_with_zero_row(features); // [N * (P_in + 1), C_in]
                 let w = weight.reshape([KERNEL_VOLUME * c_in, c_out]);
-                let chunk = rulebook.outputs_per_chunk.unwrap_or_else(|| {
-                    rows_per_block(im2col_block_bytes(&rows), n * KERNEL_VOLUME * c_in)
-                });
+                let chunk = rulebook
+                    .outputs_per_chunk
+                    .unwrap_or_else(|| im2col_outputs_per_block(&rows, n * KERNEL_VOLUME * c_in));
+                // [N * P_out * 27], block by block and view-major within a block.
+                let stacked = neighbours.stacked(n, chunk);
                 let mut parts = Vec::with_capacity(p_out.div_ceil(chunk));
                 for start in (0..p_out).step_by(chunk) {
                     let len = chunk.min(p_out - start);
-                    let index =
-                        neighbours
-                            .clone()
-                            .narrow(0, start * KERNEL_VOLUME, len * KERNEL_VOLUME);
+                    let index = if len == p_out {
+                        stacked.clone()
+                    } else {
+                        stacked.clone().slice(neighbours.block_range(n, start, len))
+                    };
                     parts.push(
-                        select_rows(rows.clone(), per_view_rows(&index, n, rulebook.n_in + 1))
+                        select_rows(rows.clone(), index)
                             .reshape([n * len, KERNEL_VOLUME * c_in])
                             .matmul(w.clone())
                             .reshape([n, len, c_out]),
@@ -330,7 +362,7 @@ impl SparseConv3d {
             } => {
                 let device = features.device();
                 let out = Tensor::zeros([n * p_out, c_out], &device);
-                if product_row.dims()[0] == 0 {
+                if product_row.groups() == 0 {
                     out.reshape([n, p_out, c_out])
                 } else {
                     // Every input times every offset's weight: [N * P_in * 27, C_out].
@@ -341,11 +373,9 @@ impl SparseConv3d {
                         .reshape([n * rulebook.n_in, c_in])
                         .matmul(w_all)
                         .reshape([n * rulebook.n_in * KERNEL_VOLUME, c_out]);
-                    let gathered = select_rows(
-                        products,
-                        per_view_rows(product_row, n, rulebook.n_in * KERNEL_VOLUME),
-                    );
-                    scatter_add_rows(out, per_view_rows(out_index, n, p_out), gathered)
+                    // One block: [N * T], view-major.
+                    let gathered = select_rows(products, product_row.stacked(n, usize::MAX));
+                    scatter_add_rows(out, out_index.stacked(n, usize::MAX), gathered)
                         .reshape([n, p_out, c_out])
                 }
             }
