@@ -230,19 +230,6 @@ pub(crate) fn int_tensor(values: &[u32], device: &Device) -> Tensor<1, Int> {
     Tensor::from_data(TensorData::new(data, [n]), device)
 }
 
-/// Row indices into `[N * rows, ..]` (N views stacked) of the per-view rows `index` [L]:
-/// `[N * L]`, view-major, `n * rows + index[l]`.
-pub(crate) fn per_view_rows(index: &Tensor<1, Int>, views: usize, rows: usize) -> Tensor<1, Int> {
-    if views == 1 {
-        return index.clone();
-    }
-    let [len] = index.dims();
-    let offsets = Tensor::<1, Int>::arange(0..views as i64, &index.device())
-        .mul_scalar(rows as i64)
-        .reshape([views, 1]);
-    (offsets + index.clone().reshape([1, len])).reshape([views * len])
-}
-
 /// `[N, P, C]` -> `[N * (P + 1), C]`: every view's rows followed by one zero row (index P).
 pub(crate) fn rows_with_zero_row(features: Tensor<3>) -> Tensor<2> {
     let [n, p, c] = features.dims();

@@ -17,8 +17,9 @@
 use burn::prelude::*;
 
 use super::sparse_conv::{
-    cat_parts, int_tensor, per_view_rows, rows_per_block, rows_with_zero_row, GATHER_CHUNK_BYTES,
+    cat_parts, int_tensor, rows_per_block, rows_with_zero_row, GATHER_CHUNK_BYTES,
 };
+use super::view_rows::per_view_rows;
 use super::BodyVolumeError;
 use crate::blocked_rows::select_rows;
 use crate::device::computes_on_cpu;

@@ -96,3 +96,16 @@ impl ViewRows {
         first..first + views * len * self.group
     }
 }
+
+/// The same rows made on the device, for indices that arrive with every call (the CPU
+/// backends' stacked trilinear read): `[N * L]`, view-major, `v * rows + index[l]`.
+pub(crate) fn per_view_rows(index: &Tensor<1, Int>, views: usize, rows: usize) -> Tensor<1, Int> {
+    if views == 1 {
+        return index.clone();
+    }
+    let [len] = index.dims();
+    let offsets = Tensor::<1, Int>::arange(0..views as i64, &index.device())
+        .mul_scalar(rows as i64)
+        .reshape([views, 1]);
+    (offsets + index.clone().reshape([1, len])).reshape([views * len])
+}
