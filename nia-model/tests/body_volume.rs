@@ -506,6 +506,16 @@ fn trilinear_matches_dense_grid_sample() {
         points.push([f32::NAN, 0.3, 0.1]);
         let corners = TrilinearCorners::compute(&points, &scale);
         assert_eq!(corners.index.len(), points.len() * CORNERS);
+        // Computed in parallel tasks of 1,024 points: 3,040 points get each point's own
+        // corners, in order.
+        let many: Vec<[f32; 3]> = (0..10).flat_map(|_| points.iter().copied()).collect();
+        let all = TrilinearCorners::compute(&many, &scale);
+        assert_eq!(all.num_points(), many.len());
+        for (m, point) in many.iter().enumerate() {
+            let one = TrilinearCorners::compute(&[*point], &scale);
+            assert_eq!(&all.index[m * CORNERS..(m + 1) * CORNERS], &one.index[..]);
+            assert_eq!(&all.weight[m * CORNERS..(m + 1) * CORNERS], &one.weight[..]);
+        }
         let corner_tensors = TrilinearTensors::upload(&corners, &dev);
         let got =
             values(sample(tensor3(features.clone(), [n, p, c], &dev), &corner_tensors).unwrap());

@@ -112,6 +112,49 @@ fn band_samples_lie_in_the_band_and_their_intervals_cover_it() {
     }
 }
 
+/// The band sampler works on rays in parallel (tasks of 64 rays) and keeps the occupied
+/// samples in parallel: a bundle of 300 rays, some missing the band, must give each ray's
+/// samples exactly as sampling that ray alone does, in ray order.
+#[test]
+fn band_samples_of_many_rays_are_each_rays_own() {
+    let grid = band();
+    let xs: Vec<f32> = (0..300).map(|i| -0.3 + 0.6 * (i as f32 / 299.0)).collect();
+    let bundle = rays(&xs);
+    let s = 16;
+    let jitter: Vec<f32> = (0..bundle.len() * s)
+        .map(|i| ((i * 7919) % 97) as f32 / 97.0)
+        .collect();
+    let occupancy = band();
+    for jitter in [None, Some(jitter.as_slice())] {
+        for occupancy in [None, Some(&occupancy)] {
+            let all = RaySamples::in_band(&bundle, s, jitter, &grid, occupancy).unwrap();
+            let (mut points, mut kept) = (Vec::new(), Vec::new());
+            let (mut missed, mut hit) = (0, 0);
+            for (r, &x) in xs.iter().enumerate() {
+                let jitter = jitter.map(|j| &j[r * s..(r + 1) * s]);
+                let one = RaySamples::in_band(&rays(&[x]), s, jitter, &grid, occupancy).unwrap();
+                assert_eq!(&all.t[r * s..(r + 1) * s], &one.t[..], "ray {r}");
+                assert_eq!(&all.delta[r * s..(r + 1) * s], &one.delta[..], "ray {r}");
+                let one_kept: Vec<usize> = match &one.kept {
+                    Some(k) => k.clone(),
+                    None => (0..s).collect(),
+                };
+                if one_kept.is_empty() {
+                    missed += 1;
+                } else {
+                    hit += 1;
+                }
+                kept.extend(one_kept.iter().map(|&i| r * s + i));
+                points.extend(one.points.iter().copied());
+            }
+            assert!(missed > 0 && hit > 100, "{missed} rays miss, {hit} hit");
+            assert_eq!(all.kept.as_deref(), Some(kept.as_slice()));
+            assert_eq!(all.points, points);
+            assert!(all.dirs.iter().all(|&d| d == Vec3::Z));
+        }
+    }
+}
+
 #[test]
 fn band_quadrature_of_a_constant_density_gives_the_analytic_opacity() {
     let grid = band();

@@ -4,6 +4,7 @@
 use burn::prelude::*;
 use glam::Vec3;
 use nia_data::scene::PointInputs;
+use rayon::prelude::*;
 
 use super::heads::view_mean;
 use super::{PointOutput, PointTensors};
@@ -75,7 +76,7 @@ impl NiaModel {
         let inputs = match &scene.reposer {
             None => {
                 let volume_points: Option<Vec<[f32; 3]>> =
-                    scales.map(|_| points.iter().map(|&p| geometry.to_smpl(p)).collect());
+                    scales.map(|_| points.par_iter().map(|&p| geometry.to_smpl(p)).collect());
                 let volume = scales.zip(volume_points.as_deref());
                 carve(PointInputs::compute(geometry, points, dirs, volume), points)
             }
@@ -84,7 +85,7 @@ impl NiaModel {
                 // features, colours and visibility are read at x' in the reference views.
                 let volume_points: Option<Vec<[f32; 3]>> = scales.map(|_| {
                     points
-                        .iter()
+                        .par_iter()
                         .map(|&p| reposer.target_to_smpl(p).to_array())
                         .collect()
                 });

@@ -191,54 +191,19 @@ impl RaySamples {
     ) -> Result<Self, SamplerError> {
         check_sampler_inputs(&rays.near, &rays.far, samples, jitter)?;
         let step = band.cell_m() * 0.25;
-        let mut t = Vec::with_capacity(rays.len() * samples);
-        let mut delta = Vec::with_capacity(rays.len() * samples);
+        let mut t = vec![0.0f32; rays.len() * samples];
+        let mut delta = vec![0.0f32; rays.len() * samples];
         let mut hit = vec![false; rays.len()];
-        let mut segments: Vec<(f32, f32)> = Vec::new();
-        for r in 0..rays.len() {
-            let (near, far) = (rays.near[r], rays.far[r]);
-            segments.clear();
-            let steps = ((far - near) / step).ceil().max(0.0) as usize;
-            for k in 0..steps {
-                let a = near + k as f32 * step;
-                let b = (a + step).min(far);
-                if band.occupied(rays.origins[r] + rays.dirs[r] * (0.5 * (a + b))) {
-                    match segments.last_mut() {
-                        Some(last) if last.1 >= a => last.1 = b,
-                        _ => segments.push((a, b)),
-                    }
-                }
-            }
-            let length: f32 = segments.iter().map(|(a, b)| b - a).sum();
-            if length <= 0.0 {
-                t.extend(std::iter::repeat_n(near, samples));
-                delta.extend(std::iter::repeat_n(0.0, samples));
-                continue;
-            }
-            hit[r] = true;
-            let bin = length / samples as f32;
-            // Positions u in [0, length) along the band, mapped back to t segment by segment.
-            let mut segment = 0;
-            let mut before = 0.0f32;
-            let mut u_prev = 0.0f32;
-            for i in 0..samples {
-                let j = jitter.map_or(0.5, |j| j[r * samples + i]);
-                let u = ((i as f32 + j) * bin).min(length);
-                while segment + 1 < segments.len()
-                    && u > before + (segments[segment].1 - segments[segment].0)
-                {
-                    before += segments[segment].1 - segments[segment].0;
-                    segment += 1;
-                }
-                let (a, b) = segments[segment];
-                t.push((a + (u - before)).min(b));
-                if i > 0 {
-                    delta.push((u - u_prev).max(0.0));
-                }
-                u_prev = u;
-            }
-            delta.push((length - u_prev).max(0.0));
-        }
+        // One ray at a time, rays in parallel (each writes its own S samples).
+        t.par_chunks_mut(samples)
+            .zip(delta.par_chunks_mut(samples))
+            .zip(hit.par_iter_mut())
+            .enumerate()
+            .with_min_len(RAYS_PER_TASK)
+            .for_each_init(Vec::new, |segments, (r, ((t, delta), hit))| {
+                let jitter = jitter.map(|j| &j[r * samples..(r + 1) * samples]);
+                *hit = band_samples(rays, r, step, band, jitter, segments, t, delta);
+            });
         Self::keep_occupied(rays, samples, t, delta, occupancy, Some(&hit))
     }
 
@@ -263,13 +228,23 @@ impl RaySamples {
                 None
             } else {
                 let kept: Vec<usize> = (0..total)
+                    .into_par_iter()
+                    .with_min_len(RAYS_PER_TASK * samples)
                     .filter(|&i| ray_hit(i) && occupancy.is_none_or(|grid| grid.occupied(at(i))))
                     .collect();
                 (kept.len() < total).then_some(kept)
             };
         let (points, dirs) = match &kept {
-            Some(k) => k.iter().map(|&i| (at(i), rays.dirs[i / samples])).unzip(),
-            None => (0..total).map(|i| (at(i), rays.dirs[i / samples])).unzip(),
+            Some(k) => k
+                .par_iter()
+                .with_min_len(RAYS_PER_TASK * samples)
+                .map(|&i| (at(i), rays.dirs[i / samples]))
+                .unzip(),
+            None => (0..total)
+                .into_par_iter()
+                .with_min_len(RAYS_PER_TASK * samples)
+                .map(|i| (at(i), rays.dirs[i / samples]))
+                .unzip(),
         };
         Ok(RaySamples {
             per_ray: samples,
@@ -315,4 +290,67 @@ impl RaySamples {
     pub fn evaluated(&self) -> usize {
         self.points.len()
     }
+}
+
+/// Rays per rayon task of the band sampler and of the occupancy test.
+const RAYS_PER_TASK: usize = 64;
+
+/// [`RaySamples::in_band`] for ray `r` of `rays`: its S samples' `t` and `delta` ([S] each),
+/// `jitter` its [S] jitter (bin centres when `None`), `segments` a scratch list. Returns
+/// whether the ray meets the band; a ray that misses it gets S samples at `near` with zero
+/// intervals.
+#[allow(clippy::too_many_arguments)]
+fn band_samples(
+    rays: &RayBundle,
+    r: usize,
+    step: f32,
+    band: &OccupancyGrid,
+    jitter: Option<&[f32]>,
+    segments: &mut Vec<(f32, f32)>,
+    t: &mut [f32],
+    delta: &mut [f32],
+) -> bool {
+    let samples = t.len();
+    let (near, far) = (rays.near[r], rays.far[r]);
+    segments.clear();
+    let steps = ((far - near) / step).ceil().max(0.0) as usize;
+    for k in 0..steps {
+        let a = near + k as f32 * step;
+        let b = (a + step).min(far);
+        if band.occupied(rays.origins[r] + rays.dirs[r] * (0.5 * (a + b))) {
+            match segments.last_mut() {
+                Some(last) if last.1 >= a => last.1 = b,
+                _ => segments.push((a, b)),
+            }
+        }
+    }
+    let length: f32 = segments.iter().map(|(a, b)| b - a).sum();
+    if length <= 0.0 {
+        t.fill(near);
+        delta.fill(0.0);
+        return false;
+    }
+    let bin = length / samples as f32;
+    // Positions u in [0, length) along the band, mapped back to t segment by segment.
+    let mut segment = 0;
+    let mut before = 0.0f32;
+    let mut u_prev = 0.0f32;
+    for i in 0..samples {
+        let j = jitter.map_or(0.5, |j| j[i]);
+        let u = ((i as f32 + j) * bin).min(length);
+        while segment + 1 < segments.len()
+            && u > before + (segments[segment].1 - segments[segment].0)
+        {
+            before += segments[segment].1 - segments[segment].0;
+            segment += 1;
+        }
+        let (a, b) = segments[segment];
+        t[i] = (a + (u - before)).min(b);
+        if i > 0 {
+            delta[i - 1] = (u - u_prev).max(0.0);
+        }
+        u_prev = u;
+    }
+    delta[samples - 1] = (length - u_prev).max(0.0);
+    true
 }
