@@ -26,6 +26,7 @@ pub mod encoder;
 pub mod error;
 pub mod field;
 pub mod fitting;
+pub mod host_mlp;
 pub mod ibr;
 pub mod linear_rows;
 pub mod loss;

@@ -747,18 +747,22 @@ fn host_read_matches_the_tensor_read_on_every_scale() {
     let reducing = HostVolume::read(&volume, Some(linear.weight.val())).unwrap();
     assert_eq!(reducing.channels(), 3 + 4);
     let read = reducing.sample(&corners).unwrap();
-    let read = tensor3(read, [n, points.len(), 7], &dev);
-    let reduced = values(reducing.reduce(read, &linear));
+    let reduced = reducing.reduce(&read, &linear).unwrap();
     let expected = values(linear_rows(&linear, volume.sample(&uploaded).unwrap()));
     assert_eq!(reduced.len(), expected.len());
     for (i, (r, e)) in reduced.iter().zip(&expected).enumerate() {
         assert!((r - e).abs() <= 1e-5, "[{i}] reduced host read {r} vs {e}");
     }
     // Without reduced scales `reduce` is the linear layer itself.
-    let plain = values(host.reduce(tensor3(fused.clone(), [n, points.len(), 8], &dev), &linear));
+    let plain = host.reduce(&fused, &linear).unwrap();
     for (i, (r, e)) in plain.iter().zip(&expected).enumerate() {
         assert!((r - e).abs() <= 1e-5, "[{i}] host read reduced {r} vs {e}");
     }
+    // A read that is not whole rows of the layout's channels is an error.
+    let err = reducing
+        .reduce(&read[..read.len() - 1], &linear)
+        .unwrap_err();
+    assert!(err.to_string().contains("rows of 7 channels"), "{err}");
     // A weight of another height is an error naming what was expected.
     let wrong = LinearConfig::new(6, 4).init(&dev);
     let err = HostVolume::read(&volume, Some(wrong.weight.val())).unwrap_err();

@@ -128,15 +128,16 @@ fn positional_encoding_tensor_and_cpu_agree_for_directions() {
 // ----------------------------------------------------------------------------------------------
 
 /// The attention's view mean fused on the host (inference on the CPU backends) against the
-/// tensor form and `view_mean`, for 1 and 3 views, with features large enough that the scores
-/// reach +-1e4 (the softmax must subtract its maximum), and a shape error.
+/// tensor form and `view_mean`, for 1 and 3 views and 300 points (tasks of 128, the last one
+/// short), with features large enough that the scores reach +-1e4 (the softmax must subtract
+/// its maximum), and a shape error.
 #[test]
 fn host_attention_view_mean_matches_the_tensor_form() {
     let (dev, d) = (device(), 8);
     let attention = ViewCrossAttentionConfig::new().with_d_model(d).init(&dev);
     let mut rng = Rng::new(77);
     for (n, amplitude) in [(1usize, 1.0f32), (3, 1.0), (3, 60.0)] {
-        let m = 37;
+        let m = 300; // three tasks of points, the last one short
         let mut draw = |k: usize| -> Vec<f32> {
             (0..k)
                 .map(|_| (rng.uniform() * 2.0 - 1.0) * amplitude)
@@ -866,4 +867,150 @@ fn variant_colour_rules() {
     assert_eq!(Variant::default(), Variant::Full);
     assert!(!Variant::NoBody.uses_body() && Variant::Full.uses_body());
     assert!(Variant::NoBody.uses_blender() && !Variant::SimpleAverage.uses_blender());
+}
+
+/// F_sigma, F_c0 and F_B on the host ([`HostNetwork`], the CPU backends' inference path)
+/// against their tensor forms: M across several row tasks with a remainder, and one point;
+/// N of 1 and 3; F_B with and without view statistics; inputs large enough that the ReLUs
+/// switch many units off.
+#[test]
+fn host_network_matches_the_tensor_heads_and_blender() {
+    use nia_model::field::network_host::HostNetwork;
+    let dev = device();
+    let (d, d_dir, d_hidden) = (12, 27, 24);
+    let mut rng = Rng::new(91);
+    for (statistics, n) in [(false, 3usize), (true, 3), (false, 1)] {
+        dev.seed(17);
+        let density = DensityHeadConfig::new()
+            .with_d_input(d)
+            .with_d_hidden(d_hidden)
+            .init(&dev);
+        let colour = ColourHeadConfig::new()
+            .with_d_input(d)
+            .with_d_direction(d_dir)
+            .with_d_hidden(d_hidden)
+            .init(&dev);
+        let blender = BlenderConfig::new()
+            .with_d_pixel(d)
+            .with_d_h(d_hidden)
+            .with_d_hidden(16)
+            .with_view_statistics(statistics)
+            .init(&dev);
+        let host = HostNetwork::read(&density, &colour, &blender).unwrap();
+        for m in [600usize, 1] {
+            let case = format!("statistics {statistics}, N {n}, M {m}");
+            let mean_z = tensor(random(&mut rng, m * d, -3.0, 3.0), [m, d], &dev);
+            let gamma = tensor(random(&mut rng, m * d_dir, -1.0, 1.0), [m, d_dir], &dev);
+            let sigma = values(host.density(mean_z.clone()).unwrap());
+            let sigma_ref = values(density.forward(mean_z.clone()).unwrap());
+            assert_eq!(sigma.len(), m, "{case}");
+            assert_finite(&sigma, &case);
+            assert_close(&sigma, &sigma_ref, VALUE_TOL, &format!("{case}: sigma"));
+            let heads = host.colour(mean_z.clone(), gamma.clone()).unwrap();
+            let heads_ref = colour.forward(mean_z, gamma).unwrap();
+            assert_eq!(heads.h.dims(), [m, d_hidden], "{case}");
+            for (what, got, want) in [
+                ("c0", heads.c0.clone(), heads_ref.c0.clone()),
+                (
+                    "psi",
+                    heads.confidence.clone(),
+                    heads_ref.confidence.clone(),
+                ),
+                ("h", heads.h.clone(), heads_ref.h.clone()),
+            ] {
+                assert_close(
+                    &values(got),
+                    &values(want),
+                    VALUE_TOL,
+                    &format!("{case}: {what}"),
+                );
+            }
+            let x = BlendInputs {
+                c0: heads_ref.c0,
+                confidence: heads_ref.confidence,
+                h: heads_ref.h,
+                source_colours: tensor(random(&mut rng, n * m * 3, 0.0, 1.0), [n, m, 3], &dev),
+                pixel_feature: tensor(random(&mut rng, n * m * d, -2.0, 2.0), [n, m, d], &dev),
+                view_dir_features: tensor(random(&mut rng, n * m * 4, -1.0, 1.0), [n, m, 4], &dev),
+                visibility: tensor(random(&mut rng, n * m, 0.0, 1.0), [n, m], &dev),
+            };
+            let got = blender
+                .colour_with(Variant::Full, x.clone(), Some(&host))
+                .unwrap();
+            let want = blender.colour(Variant::Full, x).unwrap();
+            assert_eq!(got.blend_weights.dims(), [m, n + 1], "{case}");
+            let weights = values(got.blend_weights);
+            assert_finite(&weights, &case);
+            assert_close(
+                &weights,
+                &values(want.blend_weights),
+                VALUE_TOL,
+                &format!("{case}: blend weights"),
+            );
+            assert_close(
+                &values(got.colour),
+                &values(want.colour),
+                VALUE_TOL,
+                &format!("{case}: colour"),
+            );
+        }
+    }
+}
+
+/// [`HostMlp`]'s contract: the tapped activation is the ReLU after the asked layer, the
+/// first-layer addend repeats with its period, and bad shapes are errors that name the stack.
+#[test]
+fn host_mlp_taps_adds_and_refuses_bad_shapes() {
+    use nia_model::host_mlp::{FirstLayerAddend, HostLinear, HostMlp};
+    let dev = device();
+    // x -> 2x - 1 (ReLU) -> y + 3: the tap is relu(2x - 1 + addend), the output that plus 3.
+    let first = linear(vec![2.0], vec![-1.0], 1, 1, &dev);
+    let second = linear(vec![1.0], vec![3.0], 1, 1, &dev);
+    let layers = vec![
+        HostLinear::read("first", &first).unwrap(),
+        HostLinear::read("second", &second).unwrap(),
+    ];
+    let mlp = HostMlp::new("toy", layers.clone()).unwrap();
+    // 600 rows: three tasks, the last one short.
+    let rows = 600;
+    let x: Vec<f32> = (0..rows).map(|r| (r % 7) as f32 * 0.25 - 0.5).collect();
+    let addend = [0.5f32, -10.0];
+    let out = mlp
+        .forward(
+            "toy",
+            &x,
+            rows,
+            Some(FirstLayerAddend {
+                values: &addend,
+                period: 2,
+            }),
+            Some(0),
+        )
+        .unwrap();
+    let tapped = out.tapped.unwrap();
+    for r in 0..rows {
+        let hidden = (2.0 * x[r] - 1.0 + addend[r % 2]).max(0.0);
+        assert_eq!(tapped[r], hidden, "row {r}: tap");
+        assert_eq!(out.output[r], hidden + 3.0, "row {r}: output");
+    }
+    let err = |r: Result<(), ShapeError>| r.err().map(|e| e.to_string()).unwrap_or_default();
+    assert!(err(mlp.forward("toy", &x[..5], rows, None, None).map(|_| ())).contains("toy"));
+    assert!(
+        err(mlp.forward("toy", &x, rows, None, Some(1)).map(|_| ())).contains("before the last")
+    );
+    let bad_period = FirstLayerAddend {
+        values: &addend,
+        period: 3,
+    };
+    assert!(err(mlp
+        .forward("toy", &x, rows, Some(bad_period), None)
+        .map(|_| ()))
+    .contains("addend"));
+    let wide = linear(vec![1.0, 1.0], vec![0.0, 0.0], 1, 2, &dev);
+    let mismatched = vec![
+        HostLinear::read("wide", &wide).unwrap(),
+        HostLinear::read("wide", &wide).unwrap(),
+    ];
+    assert!(err(HostMlp::new("mismatched", mismatched).map(|_| ())).contains("mismatched"));
+    assert!(err(HostMlp::new("none", Vec::new()).map(|_| ())).contains("none"));
 }

@@ -25,6 +25,7 @@ use rayon::prelude::*;
 use super::network::BodyVolume;
 use super::trilinear::{TrilinearCorners, CORNERS};
 use super::BodyVolumeError;
+use crate::host_mlp::HostLinear;
 use crate::readback::host_values;
 
 /// Points per parallel task.
@@ -128,38 +129,90 @@ impl HostVolume {
     }
 
     /// `s = W^T read + b` from a read of [`Self::sample`]: the kept scales through their rows
-    /// of `linear`'s weight, plus the reduced block, plus the bias. Without reduced scales this
-    /// is `linear` applied to the read.
+    /// of `linear`'s weight, plus the reduced block, plus the bias, in parallel tasks of
+    /// [`POINTS_PER_TASK`] rows (each starts from the bias and the reduced block and lets the
+    /// product of the kept channels accumulate into it). Without reduced scales this is
+    /// `linear` applied to the read.
     ///
     /// # Shapes
-    /// - `read`: `[N, M, Self::channels()]`
-    /// - output: `[N, M, d]`
-    pub fn reduce(&self, read: Tensor<3>, linear: &Linear) -> Tensor<3> {
-        let [n, m, _] = read.dims();
-        let raw = self.raw_channels();
-        let weight = linear.weight.val();
-        let d = weight.dims()[1];
-        let rows: Vec<Tensor<2>> = self
-            .scales
-            .iter()
-            .filter(|s| !s.reduced)
-            .map(|s| weight.clone().narrow(0, s.offset, s.channels))
-            .collect();
-        let mut s = match rows.is_empty() {
-            true => Tensor::zeros([n * m, d], &read.device()),
-            false => read
-                .clone()
-                .narrow(2, 0, raw)
-                .reshape([n * m, raw])
-                .matmul(Tensor::cat(rows, 0)),
+    /// - `read`: `[N, M, Self::channels()]` row-major
+    /// - output: `[N, M, d]` row-major
+    pub fn reduce(&self, read: &[f32], linear: &Linear) -> Result<Vec<f32>, BodyVolumeError> {
+        let invalid = |field: &'static str, expected: String, got: String| {
+            BodyVolumeError::invalid(field, expected, got)
         };
-        if self.reduced_width > 0 {
-            s = s + read.narrow(2, raw, self.reduced_width).reshape([n * m, d]);
+        let channels = self.channels();
+        let raw = self.raw_channels();
+        let [d_total, d] = linear.weight.dims();
+        if !read.len().is_multiple_of(channels.max(1)) {
+            return Err(invalid(
+                "HostVolume::reduce read",
+                format!("rows of {channels} channels"),
+                format!("{} values", read.len()),
+            ));
         }
-        if let Some(b) = &linear.bias {
-            s = s + b.val().unsqueeze::<2>();
+        if self.reduced_width > 0 && self.reduced_width != d {
+            return Err(invalid(
+                "HostVolume::reduce weight",
+                format!("[_, {}] (the reduced block's width)", self.reduced_width),
+                format!("{:?}", [d_total, d]),
+            ));
         }
-        s.reshape([n, m, d])
+        let rows = read.len() / channels.max(1);
+        let weight = host_values(linear.weight.val())
+            .map_err(|e| invalid("HostVolume::reduce weight", "f32 values".into(), e))?;
+        let bias = match &linear.bias {
+            Some(b) => host_values(b.val())
+                .map_err(|e| invalid("HostVolume::reduce bias", "f32 values".into(), e))?,
+            None => vec![0.0; d],
+        };
+        // The kept scales' rows of the weight, in the read's channel order.
+        let mut kept = Vec::with_capacity(raw * d);
+        for scale in self.scales.iter().filter(|s| !s.reduced) {
+            let (from, to) = (scale.offset * d, (scale.offset + scale.channels) * d);
+            let rows_of_scale = weight.get(from..to).ok_or_else(|| {
+                invalid(
+                    "HostVolume::reduce weight",
+                    format!("at least {} rows", scale.offset + scale.channels),
+                    format!("{d_total}"),
+                )
+            })?;
+            kept.extend_from_slice(rows_of_scale);
+        }
+        let kept =
+            HostLinear::new("HostVolume::reduce weight", kept, bias, raw, d).map_err(|e| {
+                invalid(
+                    "HostVolume::reduce weight",
+                    "a kept-channel product".into(),
+                    e.to_string(),
+                )
+            })?;
+        let reduced_width = self.reduced_width;
+        let mut out = vec![0.0f32; rows * d];
+        out.par_chunks_mut(POINTS_PER_TASK * d)
+            .enumerate()
+            .for_each(|(task, block)| {
+                let r0 = task * POINTS_PER_TASK;
+                let n = block.len() / d;
+                for (r, row) in block.chunks_mut(d).enumerate() {
+                    row.copy_from_slice(kept.bias());
+                    if reduced_width > 0 {
+                        let from = (r0 + r) * channels + raw;
+                        for (v, x) in row.iter_mut().zip(&read[from..from + d]) {
+                            *v += x;
+                        }
+                    }
+                }
+                if raw > 0 {
+                    kept.accumulate(
+                        &read[r0 * channels..(r0 + n) * channels],
+                        channels,
+                        n,
+                        block,
+                    );
+                }
+            });
+        Ok(out)
     }
 
     /// Number of views N.

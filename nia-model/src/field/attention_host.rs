@@ -4,9 +4,10 @@
 //! The field reads only `mean_n z_n` of the attention's output. The tensor form
 //! ([`ViewCrossAttention::forward`] then [`super::heads::view_mean`]) materialises the
 //! `[M, N, N, d]` products of the scores and of the weighted values and sums them, one
-//! element-wise kernel after the other. Here the projections stay matrix products on the device
-//! and the rest runs per point on the host, in parallel: the N x N scores, the stable softmax
-//! (maximum subtracted), `z_i = sum_j a_ij v_j + s_i` and the mean over i, writing only
+//! element-wise kernel after the other. Here everything runs on the host in tasks of
+//! [`POINTS_PER_TASK`] points: the task's projections phi_k(S), phi_k(L), phi_v(L) (one matrix
+//! product per view, [`HostLinear::apply`]), then per point the N x N scores, the stable
+//! softmax (maximum subtracted), `z_i = sum_j a_ij v_j + s_i` and the mean over i, writing only
 //! `[M, d]`. Same formula; the tensor form stays the reference (and the path with gradients
 //! and on the GPU), `nia-model/tests/fields.rs` checks the two agree.
 
@@ -14,15 +15,15 @@ use burn::prelude::*;
 use rayon::prelude::*;
 
 use super::attention::ViewCrossAttention;
-use crate::linear_rows::linear_rows;
+use crate::host_mlp::HostLinear;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
-/// Points per parallel task.
-const POINTS_PER_TASK: usize = 64;
+/// Points per parallel task (its three projections of N x 128 rows stay in cache).
+const POINTS_PER_TASK: usize = 128;
 
 impl ViewCrossAttention {
-    /// `mean_n z_n` of [`Self::forward`], computed on the host after the projections.
+    /// `mean_n z_n` of [`Self::forward`], computed on the host (projections included).
     ///
     /// # Shapes
     /// - `body_feature` S and `pixel_feature` L: `[N, M, d]` (views first)
@@ -47,32 +48,65 @@ impl ViewCrossAttention {
             return Err(ShapeError::empty("attention views N"));
         }
         let device = body_feature.device();
-        let host = |t: Tensor<3>, what: &str| host_values_of(what, t);
-        let q = host(
-            linear_rows(&self.phi_k, body_feature.clone()),
-            "attention queries",
-        )?;
-        let k = host(
-            linear_rows(&self.phi_k, pixel_feature.clone()),
-            "attention keys",
-        )?;
-        let v = host(linear_rows(&self.phi_v, pixel_feature), "attention values")?;
-        let s = host(body_feature, "attention `body_feature`")?;
+        let s = host_values_of("attention `body_feature`", body_feature)?;
+        let l = host_values_of("attention `pixel_feature`", pixel_feature)?;
+        let out = self.view_mean_of_values(&s, &l, n, m)?;
+        Ok(Tensor::from_data(TensorData::new(out, [m, d]), &device))
+    }
+
+    /// [`Self::view_mean_on_host`] on host values.
+    ///
+    /// # Shapes
+    /// - `s` (S) and `l` (L): `[N, M, d]` row-major (views first)
+    /// - output: `[M, d]` row-major
+    pub fn view_mean_of_values(
+        &self,
+        s: &[f32],
+        l: &[f32],
+        n: usize,
+        m: usize,
+    ) -> Result<Vec<f32>, ShapeError> {
+        let d = self.d_model;
+        for (what, values) in [("attention S values", s), ("attention L values", l)] {
+            if values.len() != n * m * d {
+                return Err(ShapeError::value(
+                    what,
+                    format!("{n} x {m} x {d} values, got {}", values.len()),
+                ));
+            }
+        }
+        if n == 0 {
+            return Err(ShapeError::empty("attention views N"));
+        }
+        let phi_k = HostLinear::read("attention phi_k", &self.phi_k)?;
+        let phi_v = HostLinear::read("attention phi_v", &self.phi_v)?;
         let scale = 1.0 / (self.d_model as f32).sqrt();
-        let at = |view: usize, point: usize| (view * m + point) * d;
         let mut out = vec![0.0f32; m * d];
         out.par_chunks_mut(POINTS_PER_TASK * d)
             .enumerate()
             .for_each(|(task, block)| {
+                let p0 = task * POINTS_PER_TASK;
+                let points = block.len() / d;
+                // The task's projections, [N, points, d] each: one product per view and map
+                // (a view's rows of the task are contiguous in [N, M, d]).
+                let mut q = vec![0.0f32; n * points * d];
+                let mut k = vec![0.0f32; n * points * d];
+                let mut v = vec![0.0f32; n * points * d];
+                for view in 0..n {
+                    let rows = (view * m + p0) * d..(view * m + p0 + points) * d;
+                    let at = view * points * d..(view + 1) * points * d;
+                    phi_k.apply(&s[rows.clone()], points, &mut q[at.clone()]);
+                    phi_k.apply(&l[rows.clone()], points, &mut k[at.clone()]);
+                    phi_v.apply(&l[rows], points, &mut v[at]);
+                }
+                let at = |view: usize, r: usize| (view * points + r) * d;
                 let mut scores = vec![0.0f32; n];
                 for (r, mean) in block.chunks_mut(d).enumerate() {
-                    let point = task * POINTS_PER_TASK + r;
                     for i in 0..n {
-                        let qi = &q[at(i, point)..at(i, point) + d];
+                        let qi = &q[at(i, r)..at(i, r) + d];
                         for (j, score) in scores.iter_mut().enumerate() {
-                            let kj = &k[at(j, point)..at(j, point) + d];
-                            let dot: f32 = qi.iter().zip(kj).map(|(a, b)| a * b).sum();
-                            *score = dot * scale;
+                            let kj = &k[at(j, r)..at(j, r) + d];
+                            *score = dot(qi, kj) * scale;
                         }
                         let max = scores.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
                         let mut total = 0.0f32;
@@ -83,12 +117,12 @@ impl ViewCrossAttention {
                         // z_i = sum_j a_ij v_j + s_i, summed into the mean.
                         for (j, &e) in scores.iter().enumerate() {
                             let a = e / total;
-                            let vj = &v[at(j, point)..at(j, point) + d];
+                            let vj = &v[at(j, r)..at(j, r) + d];
                             for (acc, &x) in mean.iter_mut().zip(vj) {
                                 *acc += a * x;
                             }
                         }
-                        let si = &s[at(i, point)..at(i, point) + d];
+                        let si = &s[(i * m + p0 + r) * d..(i * m + p0 + r + 1) * d];
                         for (acc, &x) in mean.iter_mut().zip(si) {
                             *acc += x;
                         }
@@ -99,6 +133,24 @@ impl ViewCrossAttention {
                     }
                 }
             });
-        Ok(Tensor::from_data(TensorData::new(out, [m, d]), &device))
+        Ok(out)
     }
+}
+
+/// `sum_i a_i b_i` in eight independent lanes (a sequential f32 sum does not vectorise).
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut lanes = [0.0f32; 8];
+    let (a8, b8) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = a8
+        .remainder()
+        .iter()
+        .zip(b8.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in a8.zip(b8) {
+        for k in 0..8 {
+            lanes[k] += x[k] * y[k];
+        }
+    }
+    lanes.iter().sum::<f32>() + tail
 }

@@ -16,6 +16,7 @@
 pub mod attention;
 pub mod attention_host;
 pub mod heads;
+pub mod network_host;
 pub mod positional_encoding;
 pub mod query;
 

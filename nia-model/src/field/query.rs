@@ -13,6 +13,7 @@ use crate::ibr::blender::BlendInputs;
 use crate::ibr::fetch_source_colours_from;
 use crate::linear_rows::linear_rows;
 use crate::model::NiaModel;
+use crate::readback::host_values_of;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::{Stage, StageTimes, Stopwatch};
 
@@ -165,20 +166,29 @@ impl NiaModel {
             .pixel_feature
             .sample_reduced(&scene.pixel_rows, points.proj_grid.clone())?;
         watch.mark(Stage::Sampling);
-        let on_host = matches!(read, Some((_, Some(_))));
-        let s = match read {
-            Some((read, Some(host))) => Some(host.reduce(read, &self.body_reduce)),
-            Some((read, None)) => Some(linear_rows(&self.body_reduce, read)),
-            None => None,
-        };
-        let mean_z = match (s, self.variant.uses_body()) {
-            // Inference with host reads: the attention's view mean fused on the host.
-            (Some(s), true) if on_host && !s.is_autodiff() => {
-                self.attention.view_mean_on_host(s, l.clone())? // [M, d]
+        let l_device = l.device();
+        let mean_z = match (read, self.variant.uses_body()) {
+            // Inference with host reads: the reduction and the attention's view mean fused on
+            // the host, on host values.
+            (Some((read, Some(_))), true) if read.is_autodiff() => {
+                return Err(ModelError::Input(
+                    "a host body-volume read carries no gradients; train on the tensor read".into(),
+                ))
             }
-            (Some(s), true) => view_mean(
-                self.attention
-                    .forward(s.swap_dims(0, 1), l.clone().swap_dims(0, 1))?, // [M, N, d]
+            (Some((read, Some(host))), true) => {
+                let [n, m, _] = read.dims();
+                let read = host_values_of("body volume read", read)?;
+                let s = host.reduce(&read, &self.body_reduce)?; // [N, M, d]
+                let l = host_values_of("pixel features l_n", l.clone())?;
+                let mean = self.attention.view_mean_of_values(&s, &l, n, m)?;
+                let d = mean.len() / m.max(1);
+                Tensor::from_data(TensorData::new(mean, [m, d]), &l_device)
+            }
+            (Some((read, None)), true) => view_mean(
+                self.attention.forward(
+                    linear_rows(&self.body_reduce, read).swap_dims(0, 1),
+                    l.clone().swap_dims(0, 1),
+                )?, // [M, N, d]
             ),
             (None, true) => {
                 return Err(ModelError::Input(
@@ -187,7 +197,10 @@ impl NiaModel {
             }
             (_, false) => view_mean(l.clone().swap_dims(0, 1)),
         }; // [M, d]
-        let sigma = self.density.forward(mean_z.clone())?;
+        let sigma = match scene.host_network.as_deref() {
+            Some(host) if !mean_z.is_autodiff() => host.density(mean_z.clone())?,
+            _ => self.density.forward(mean_z.clone())?,
+        };
         // Visual-hull carving (a switch): no density where a source mask says empty space.
         let sigma = match &points.hull {
             Some(hull) => sigma * hull.clone(),
@@ -227,7 +240,11 @@ impl NiaModel {
         let source_colours = fetch_source_colours_from(&scene.image_rows, proj_grid)?; // [N, M, 3]
         watch.mark(Stage::Sampling);
         let gamma = self.direction_encoding.forward(dirs)?;
-        let heads = self.colour.forward(mean_z, gamma)?;
+        let host = scene.host_network.as_deref();
+        let heads = match host {
+            Some(host) if !mean_z.is_autodiff() => host.colour(mean_z, gamma)?,
+            _ => self.colour.forward(mean_z, gamma)?,
+        };
         let c0 = heads.c0.clone();
         // Shuffling is F_B's augmentation: the fixed rules of (b)-(d) would only average noise.
         let blend_c0 = scene
@@ -235,7 +252,7 @@ impl NiaModel {
             .filter(|_| self.variant.uses_blender())
             .map(|s| s.apply(heads.c0.clone(), visibility.clone(), real_points));
         watch.mark(Stage::Mlps);
-        let blended = self.blender.colour(
+        let blended = self.blender.colour_with(
             self.variant,
             BlendInputs {
                 c0: blend_c0.clone().unwrap_or(heads.c0),
@@ -246,6 +263,7 @@ impl NiaModel {
                 view_dir_features,
                 visibility,
             },
+            host,
         )?;
         let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
         watch.mark(Stage::Blending);

@@ -34,6 +34,7 @@ use burn::tensor::activation::relu;
 
 use super::view_statistics::{mean_and_variance, view_weights};
 use super::{cosine_weights, simple_average_weights};
+use crate::field::network_host::HostNetwork;
 use crate::linear_rows::linear_rows;
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
@@ -162,6 +163,33 @@ impl Blender {
         confidence: Tensor<2>,
         colours: Option<(Tensor<2>, Tensor<3>)>,
     ) -> Result<Tensor<2>, ShapeError> {
+        let (tokens, point) = self.tokens(
+            pixel_feature,
+            view_dir_features,
+            visibility,
+            h,
+            confidence,
+            colours,
+        )?;
+        Ok(self.logits(tokens, point))
+    }
+
+    /// F_B's inputs: the N + 1 tokens and the per-point part, checked and laid out (see the
+    /// module docs).
+    ///
+    /// # Shapes
+    /// - inputs as [`Self::forward`]'s
+    /// - outputs: tokens `[N + 1, M, d + 6 (+3)]` (token 0 = c0's), per-point part
+    ///   `[M, d_h + 1 (+2d + 6)]`
+    pub fn tokens(
+        &self,
+        pixel_feature: Tensor<3>,
+        view_dir_features: Tensor<3>,
+        visibility: Tensor<2>,
+        h: Tensor<2>,
+        confidence: Tensor<2>,
+        colours: Option<(Tensor<2>, Tensor<3>)>,
+    ) -> Result<(Tensor<3>, Tensor<2>), ShapeError> {
         let [n, m, d] = pixel_feature.dims();
         let colour_dim = if self.view_statistics { 3 } else { 0 };
         let d_token = self.token_input.weight.dims()[0];
@@ -235,16 +263,23 @@ impl Blender {
         let view_tokens = Tensor::cat(view_parts, 2);
         let nerf_token = Tensor::cat(nerf_parts, 2);
         let tokens = Tensor::cat(vec![nerf_token, view_tokens], 0); // [N + 1, M, d + 6 (+3)]
-        let point = self
-            .point_input
-            .forward(Tensor::cat(point_parts, 1))
-            .unsqueeze_dim::<3>(0); // [1, M, d_hidden]
+        Ok((tokens, Tensor::cat(point_parts, 1)))
+    }
 
+    /// F_B's layers on its inputs ([`Self::tokens`]): `relu(W_t token + b + W_p point)`, then
+    /// layers 2..8, one logit per token.
+    ///
+    /// # Shapes
+    /// - `tokens`: `[N + 1, M, d_token]`; `point`: `[M, d_point]`
+    /// - output `[M, N + 1]`
+    pub fn logits(&self, tokens: Tensor<3>, point: Tensor<2>) -> Tensor<2> {
+        let [t, m, _] = tokens.dims();
+        let point = self.point_input.forward(point).unsqueeze_dim::<3>(0); // [1, M, d_hidden]
         let first = relu(linear_rows(&self.token_input, tokens) + point); // [N + 1, M, d_hidden]
                                                                           // Layers 2..8 on the tokens as rows of one matrix: one matmul per layer instead of a
                                                                           // batch of N + 1 (the weights are shared).
         let width = first.dims()[2];
-        let mut x = first.reshape([(n + 1) * m, width]);
+        let mut x = first.reshape([t * m, width]);
         let last = self.layers.len() - 1;
         for (i, layer) in self.layers.iter().enumerate() {
             x = layer.forward(x);
@@ -253,7 +288,7 @@ impl Blender {
             }
         }
         // [(N + 1) M, 1] -> [M, N + 1]
-        Ok(x.reshape([n + 1, m]).transpose())
+        x.reshape([t, m]).transpose()
     }
 
     /// The colour of each point under `variant` (see [`PointColour::blend_weights`]).
@@ -261,6 +296,17 @@ impl Blender {
     /// # Shapes
     /// - see [`BlendInputs`]; output colour `[M, 3]`, blend weights `[M, N + 1]`
     pub fn colour(&self, variant: Variant, inputs: BlendInputs) -> Result<PointColour, ShapeError> {
+        self.colour_with(variant, inputs, None)
+    }
+
+    /// [`Self::colour`], with F_B's layers on the host where `host` holds them and the inputs
+    /// carry no gradients ([`HostNetwork`], inference on the CPU backends).
+    pub fn colour_with(
+        &self,
+        variant: Variant,
+        inputs: BlendInputs,
+        host: Option<&HostNetwork>,
+    ) -> Result<PointColour, ShapeError> {
         let [n, m] = inputs.visibility.dims();
         ShapeError::check("blend `c0` [M, 3]", &inputs.c0.dims(), &[Some(m), Some(3)])?;
         if n == 0 {
@@ -306,7 +352,7 @@ impl Blender {
                 )
             }
             Variant::NoBody | Variant::Full => {
-                let blend_logits = self.forward(
+                let (tokens, point) = self.tokens(
                     inputs.pixel_feature,
                     inputs.view_dir_features,
                     inputs.visibility,
@@ -314,6 +360,10 @@ impl Blender {
                     inputs.confidence,
                     Some((inputs.c0.clone(), inputs.source_colours.clone())),
                 )?;
+                let blend_logits = match host {
+                    Some(host) if !tokens.is_autodiff() => host.blend_logits(tokens, point)?,
+                    _ => self.logits(tokens, point),
+                };
                 blend(blend_logits, inputs.c0, inputs.source_colours)
             }
         }

@@ -62,6 +62,7 @@ impl SceneEncoding {
         let mut cut = self.clone();
         cut.pixel_rows = self.pixel_rows.detached_leaf();
         cut.host_volume = None;
+        cut.host_network = None;
         let mut sites = Vec::new();
         if let Some((_, volume)) = cut.volume.as_mut() {
             for scale in &mut volume.scales {

@@ -15,6 +15,7 @@ use crate::encoder::bilinear::ViewRows;
 use crate::encoder::host::HostTrunk;
 use crate::encoder::pyramid_host::reduce_to_rows;
 use crate::error::ModelError;
+use crate::field::network_host::HostNetwork;
 use crate::ibr::sample_rows_through;
 use crate::model::NiaModel;
 use crate::timing::{Stage, StageTimes, Stopwatch};
@@ -78,6 +79,7 @@ impl NiaModel {
             pixel_rows,
             volume,
             host_volume: None,
+            host_network: None,
             reposer,
             occupancy: None,
             termination: None,
@@ -129,6 +131,7 @@ impl NiaModel {
             pixel_rows: scene.pixel_rows.clone(),
             volume,
             host_volume,
+            host_network: scene.host_network.clone(),
             reposer,
             occupancy: None,
             termination: scene.termination,
@@ -141,6 +144,15 @@ impl NiaModel {
 
     /// The host copy of `volume` for the fused read, its wide scales through the body
     /// reduction's weight ([`HostVolume::read`]).
+    /// F_sigma, F_c0 and F_B's weights read back for [`HostNetwork`].
+    pub(super) fn host_network(&self) -> Result<HostNetwork, ModelError> {
+        Ok(HostNetwork::read(
+            &self.density,
+            &self.colour,
+            &self.blender,
+        )?)
+    }
+
     pub(super) fn host_volume(&self, volume: &BodyVolume) -> Result<HostVolume, ModelError> {
         Ok(HostVolume::read(
             volume,

@@ -18,6 +18,7 @@ mod encode;
 use crate::body_volume::{BodyVolume, BodyVolumeGeometry, HostVolume};
 use crate::encoder::bilinear::ViewRows;
 use crate::error::ModelError;
+use crate::field::network_host::HostNetwork;
 use crate::ibr::c0_shuffle::C0Shuffle;
 use crate::model::NiaModel;
 
@@ -42,6 +43,9 @@ pub struct SceneEncoding {
     /// A host copy of the body volume's site features for the fused CPU read
     /// ([`HostVolume`], inference on the CPU backends); `None` reads with tensor operations.
     pub host_volume: Option<Arc<HostVolume>>,
+    /// F_sigma, F_c0 and F_B's weights on the host for the fused CPU MLPs ([`HostNetwork`],
+    /// inference on the CPU backends); `None` runs them with tensor operations.
+    pub host_network: Option<Arc<HostNetwork>>,
     /// Pose animation: maps query points of the rendered (target) pose to the scene's pose.
     /// `None` renders the scene's own pose, with no reposing work at all.
     pub reposer: Option<Arc<Reposer>>,
@@ -114,8 +118,9 @@ impl SceneEncoding {
     }
 
     /// This encoding with the body volume, the source images and the pixel-feature maps read
-    /// on the host (`on`, for the CPU backends at inference: [`HostVolume`],
-    /// [`ViewRows::with_host_copy`]) or with tensor operations (every backend, with gradients).
+    /// on the host and the MLPs run there (`on`, for the CPU backends at inference:
+    /// [`HostVolume`], [`ViewRows::with_host_copy`], [`HostNetwork`]) or with tensor operations
+    /// (every backend, with gradients).
     /// [`NiaModel::encode`] turns it on for a CPU device without autodiff; off is the
     /// reference path the host read is tested against.
     pub fn with_host_reads(mut self, model: &NiaModel, on: bool) -> Result<Self, ModelError> {
@@ -127,6 +132,10 @@ impl SceneEncoding {
             (true, false) => rows.with_host_copy(),
             (true, true) => Ok(rows),
             (false, _) => Ok(rows.without_host_copy()),
+        };
+        self.host_network = match on {
+            true => Some(Arc::new(model.host_network()?)),
+            false => None,
         };
         self.image_rows = host_copy(self.image_rows)?;
         self.pixel_rows = host_copy(self.pixel_rows)?;
