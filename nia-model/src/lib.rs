@@ -16,7 +16,8 @@
 //! Beside them: [`config`] (the network's sizes and switches), [`model`] (the module tree),
 //! [`render_options`] (the `[render]` section), [`error`], [`loss`] (NIA eq. 6), [`lpips`]
 //! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints) and the tensor
-//! helpers ([`shape`], [`softmax`], [`linear_rows`], [`readback`], [`timing`], [`device`]).
+//! helpers ([`shape`], [`softmax`], [`linear_rows`], [`host_mlp`] (linear stacks fused on
+//! the host), [`readback`], [`timing`], [`device`]).
 
 pub mod blocked_rows;
 pub mod body_volume;

@@ -130,7 +130,7 @@ impl HostVolume {
 
     /// `s = W^T read + b` from a read of [`Self::sample`]: the kept scales through their rows
     /// of `linear`'s weight, plus the reduced block, plus the bias, in parallel tasks of
-    /// [`POINTS_PER_TASK`] rows (each starts from the bias and the reduced block and lets the
+    /// 256 rows (each starts from the bias and the reduced block and lets the
     /// product of the kept channels accumulate into it). Without reduced scales this is
     /// `linear` applied to the read.
     ///

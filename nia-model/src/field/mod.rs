@@ -8,6 +8,9 @@
 //!   with [`positional_encoding`] gamma;
 //! - then F_B blends `[c0, c_1..c_N]` (`crate::ibr::blender`).
 //!
+//! At inference on the CPU backends the attention's view mean ([`attention_host`]) and the
+//! three MLPs ([`network_host`]) run fused on the host; the tensor forms are the reference.
+//!
 //! [`NiaModel::field`](crate::NiaModel::field) takes world points (in the rendered pose),
 //! computes their CPU inputs ([`PointInputs`]: projections, d_hat_n, o_n, trilinear corners;
 //! reposed into the scene's pose first when the scene renders another pose) and runs
