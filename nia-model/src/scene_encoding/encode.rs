@@ -142,8 +142,6 @@ impl NiaModel {
         })
     }
 
-    /// The host copy of `volume` for the fused read, its wide scales through the body
-    /// reduction's weight ([`HostVolume::read`]).
     /// F_sigma, F_c0 and F_B's weights read back for [`HostNetwork`].
     pub(super) fn host_network(&self) -> Result<HostNetwork, ModelError> {
         Ok(HostNetwork::read(
@@ -153,6 +151,8 @@ impl NiaModel {
         )?)
     }
 
+    /// The host copy of `volume` for the fused read, its wide scales through the body
+    /// reduction's weight ([`HostVolume::read`]).
     pub(super) fn host_volume(&self, volume: &BodyVolume) -> Result<HostVolume, ModelError> {
         Ok(HostVolume::read(
             volume,
