@@ -934,9 +934,7 @@ fn host_network_matches_the_tensor_heads_and_blender() {
                 view_dir_features: tensor(random(&mut rng, n * m * 4, -1.0, 1.0), [n, m, 4], &dev),
                 visibility: tensor(random(&mut rng, n * m, 0.0, 1.0), [n, m], &dev),
             };
-            let got = blender
-                .colour_with(Variant::Full, x.clone(), Some(&host))
-                .unwrap();
+            let got = host.blend_colour(&blender, x.clone()).unwrap();
             let want = blender.colour(Variant::Full, x).unwrap();
             assert_eq!(got.blend_weights.dims(), [m, n + 1], "{case}");
             let weights = values(got.blend_weights);

@@ -3,10 +3,10 @@
 //!
 //! The three MLP stacks run as [`HostMlp`]s: each task carries its rows through every layer in
 //! cache, where the tensor path allocates, zeroes, copies and revisits every layer's output on
-//! the calling thread ([`crate::host_mlp`]). The inputs are laid out as the tensor path lays
-//! them out (F_B's tokens are still built with tensor operations, [`Blender::tokens`]), and the
-//! activations after the stacks (softplus, sigmoid, the blend's softmax) stay tensor operations,
-//! so only the products, biases and ReLUs move. [`crate::SceneEncoding::with_host_reads`] reads
+//! the calling thread ([`crate::host_mlp`]). F_B's tokens and per-point part are laid out on
+//! the host as [`Blender::tokens`] lays them out (with the view statistics' weighted means and
+//! variances), and the activations after the stacks (softplus, sigmoid, the blend's softmax)
+//! stay tensor operations. [`crate::SceneEncoding::with_host_reads`] reads
 //! the weights once per scene; the tensor path stays the reference, the path with gradients and
 //! the one on the GPU (`nia-model/tests/fields.rs` and `tests/model.rs` compare them).
 
@@ -14,10 +14,14 @@ use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, softplus};
 
 use super::heads::{ColourHead, ColourHeadOutput, DensityHead};
-use crate::host_mlp::{FirstLayerAddend, HostMlp};
-use crate::ibr::blender::Blender;
+use rayon::prelude::*;
+
+use crate::host_mlp::{FirstLayerAddend, HostMlp, ROWS_PER_TASK};
+use crate::ibr::blender::{blend, BlendInputs, Blender, PointColour, TOKEN_EXTRA_DIM};
+use crate::ibr::view_statistics::STATISTICS_FLOOR;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
+use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 
 /// F_c0's layer whose ReLU activation is h (the third of four).
 const H_LAYER: usize = 2;
@@ -108,27 +112,147 @@ impl HostNetwork {
         })
     }
 
-    /// [`Blender::forward`]'s network on its inputs: the blend logits w_0..w_N.
+    /// [`Blender::colour`] for the variants with F_B ((e) full, (a) no body), its logits from
+    /// [`Self::blend_logits`].
     ///
     /// # Shapes
-    /// - `tokens`: `[N + 1, M, d_token]` (token 0 = c0's); `point`: `[M, d_point]`
-    /// - output `[M, N + 1]`
+    /// - as [`BlendInputs`]; output colour `[M, 3]`, blend weights `[M, N + 1]`
+    pub fn blend_colour(
+        &self,
+        blender: &Blender,
+        inputs: BlendInputs,
+    ) -> Result<PointColour, ShapeError> {
+        blender.check_inputs(
+            &inputs.pixel_feature,
+            &inputs.view_dir_features,
+            &inputs.visibility,
+            &inputs.h,
+            &inputs.confidence,
+            Some((&inputs.c0, &inputs.source_colours)),
+        )?;
+        let blend_logits = self.blend_logits(blender.view_statistics, &inputs)?;
+        blend(blend_logits, inputs.c0, inputs.source_colours)
+    }
+
+    /// F_B's blend logits w_0..w_N from its inputs, the tokens and the per-point part laid out
+    /// on the host exactly as [`Blender::tokens`] lays them out (module docs of
+    /// [`crate::ibr::blender`]), in parallel, then the layers. The inputs must have passed
+    /// [`Blender::check_inputs`].
+    ///
+    /// # Shapes
+    /// - as [`BlendInputs`] (N views, M points); output `[M, N + 1]`
     pub fn blend_logits(
         &self,
-        tokens: Tensor<3>,
-        point: Tensor<2>,
+        view_statistics: bool,
+        inputs: &BlendInputs,
     ) -> Result<Tensor<2>, ShapeError> {
-        let [t, m, _] = tokens.dims();
-        let device = tokens.device();
+        let [n, m, d] = inputs.pixel_feature.dims();
+        let device = inputs.c0.device();
+        let t = n + 1;
         if m == 0 {
             return Ok(Tensor::zeros([0, t], &device));
         }
-        let point = host_values_of("host F_B per-point input", point)?;
+        let read = |what: &str, x: Tensor<3>| host_values_of(what, x);
+        let p = read("host F_B p_n", inputs.pixel_feature.clone())?;
+        let d_hat = read("host F_B d_hat_n", inputs.view_dir_features.clone())?;
+        let o = host_values_of("host F_B o_n", inputs.visibility.clone())?;
+        let h = host_values_of("host F_B h", inputs.h.clone())?;
+        let psi = host_values_of("host F_B psi", inputs.confidence.clone())?;
+        let (c0, c) = match view_statistics {
+            true => (
+                host_values_of("host F_B c0", inputs.c0.clone())?,
+                read("host F_B c_n", inputs.source_colours.clone())?,
+            ),
+            false => (Vec::new(), Vec::new()),
+        };
+        let d_h = h.len() / m;
+        let colour_dim = if view_statistics { 3 } else { 0 };
+        let d_token = d + TOKEN_EXTRA_DIM + colour_dim;
+        let d_point = d_h + 1 + if view_statistics { 2 * d + 6 } else { 0 };
+        let inv_n = 1.0 / n as f32;
+
+        // Tokens, token-major [N + 1, M, d_token]: token 0 is c0's.
+        let mut tokens = vec![0.0f32; t * m * d_token];
+        tokens
+            .par_chunks_mut(ROWS_PER_TASK * d_token)
+            .enumerate()
+            .for_each(|(task, block)| {
+                for (r, row) in block.chunks_mut(d_token).enumerate() {
+                    let (token, i) = (
+                        (task * ROWS_PER_TASK + r) / m,
+                        (task * ROWS_PER_TASK + r) % m,
+                    );
+                    let (feature, rest) = row.split_at_mut(d);
+                    if token == 0 {
+                        // [mean_n p_n, (0, 0, 0, 1), mean_n o_n, 1 (, c0)]
+                        feature.fill(0.0);
+                        let mut o_sum = 0.0f32;
+                        for view in 0..n {
+                            let pv = &p[(view * m + i) * d..(view * m + i + 1) * d];
+                            for (acc, x) in feature.iter_mut().zip(pv) {
+                                *acc += x;
+                            }
+                            o_sum += o[view * m + i];
+                        }
+                        for acc in feature.iter_mut() {
+                            *acc *= inv_n;
+                        }
+                        rest[..VIEW_DIR_FEATURE_DIM].copy_from_slice(&NERF_DIRECTION);
+                        rest[VIEW_DIR_FEATURE_DIM] = o_sum * inv_n;
+                        rest[VIEW_DIR_FEATURE_DIM + 1] = 1.0;
+                        if view_statistics {
+                            rest[TOKEN_EXTRA_DIM..].copy_from_slice(&c0[i * 3..i * 3 + 3]);
+                        }
+                    } else {
+                        // [p_n, d_hat_n, o_n, 0 (, c_n)]
+                        let at = (token - 1) * m + i;
+                        feature.copy_from_slice(&p[at * d..(at + 1) * d]);
+                        rest[..VIEW_DIR_FEATURE_DIM].copy_from_slice(
+                            &d_hat[at * VIEW_DIR_FEATURE_DIM..(at + 1) * VIEW_DIR_FEATURE_DIM],
+                        );
+                        rest[VIEW_DIR_FEATURE_DIM] = o[at];
+                        rest[VIEW_DIR_FEATURE_DIM + 1] = 0.0;
+                        if view_statistics {
+                            rest[TOKEN_EXTRA_DIM..].copy_from_slice(&c[at * 3..at * 3 + 3]);
+                        }
+                    }
+                }
+            });
+
+        // The per-point part [M, d_point]: [h, psi (, mean p, var p, mean c, var c)].
+        let mut point = vec![0.0f32; m * d_point];
+        point
+            .par_chunks_mut(ROWS_PER_TASK * d_point)
+            .enumerate()
+            .for_each(|(task, block)| {
+                let mut omega = vec![0.0f32; n];
+                for (r, row) in block.chunks_mut(d_point).enumerate() {
+                    let i = task * ROWS_PER_TASK + r;
+                    row[..d_h].copy_from_slice(&h[i * d_h..(i + 1) * d_h]);
+                    row[d_h] = psi[i];
+                    if !view_statistics {
+                        continue;
+                    }
+                    // omega_n = (o_n + FLOOR) / sum_k (o_k + FLOOR)
+                    let mut total = 0.0f32;
+                    for (view, w) in omega.iter_mut().enumerate() {
+                        *w = o[view * m + i] + STATISTICS_FLOOR;
+                        total += *w;
+                    }
+                    for w in omega.iter_mut() {
+                        *w /= total;
+                    }
+                    let stats = &mut row[d_h + 1..];
+                    let (p_stats, c_stats) = stats.split_at_mut(2 * d);
+                    weighted_mean_and_variance(&p, d, m, i, &omega, p_stats);
+                    weighted_mean_and_variance(&c, 3, m, i, &omega, c_stats);
+                }
+            });
+
         let point = self
             .blend_point
             .forward("host F_B per-point layer", &point, m, None, None)?
             .output;
-        let tokens = host_values_of("host F_B tokens", tokens)?;
         let logits = self.blend_tokens.forward(
             "host F_B token layers",
             &tokens,
@@ -140,5 +264,35 @@ impl HostNetwork {
             None,
         )?;
         Ok(Tensor::<2>::from_data(TensorData::new(logits.output, [t, m]), &device).transpose())
+    }
+}
+
+/// d_hat of the NeRF token: a view looking exactly along the target ray.
+const NERF_DIRECTION: [f32; VIEW_DIR_FEATURE_DIM] = [0.0, 0.0, 0.0, 1.0];
+
+/// `out = [mean, var]` over the views of point `i`'s `k` values in `x` (`[N, M, k]`) under
+/// the weights `omega` (`ibr::view_statistics`).
+fn weighted_mean_and_variance(
+    x: &[f32],
+    k: usize,
+    m: usize,
+    i: usize,
+    omega: &[f32],
+    out: &mut [f32],
+) {
+    let (mean, var) = out.split_at_mut(k);
+    mean.fill(0.0);
+    var.fill(0.0);
+    for (view, &w) in omega.iter().enumerate() {
+        let xv = &x[(view * m + i) * k..(view * m + i + 1) * k];
+        for (acc, v) in mean.iter_mut().zip(xv) {
+            *acc += v * w;
+        }
+    }
+    for (view, &w) in omega.iter().enumerate() {
+        let xv = &x[(view * m + i) * k..(view * m + i + 1) * k];
+        for ((acc, v), mu) in var.iter_mut().zip(xv).zip(mean.iter()) {
+            *acc += (v - mu) * (v - mu) * w;
+        }
     }
 }

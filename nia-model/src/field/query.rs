@@ -252,19 +252,22 @@ impl NiaModel {
             .filter(|_| self.variant.uses_blender())
             .map(|s| s.apply(heads.c0.clone(), visibility.clone(), real_points));
         watch.mark(Stage::Mlps);
-        let blended = self.blender.colour_with(
-            self.variant,
-            BlendInputs {
-                c0: blend_c0.clone().unwrap_or(heads.c0),
-                confidence: heads.confidence,
-                h: heads.h,
-                source_colours: source_colours.clone(),
-                pixel_feature: l,
-                view_dir_features,
-                visibility,
-            },
-            host,
-        )?;
+        let inputs = BlendInputs {
+            c0: blend_c0.clone().unwrap_or(heads.c0),
+            confidence: heads.confidence,
+            h: heads.h,
+            source_colours: source_colours.clone(),
+            pixel_feature: l,
+            view_dir_features,
+            visibility,
+        };
+        // F_B on the host at inference on the CPU backends; the fixed rules as they are.
+        let blended = match host {
+            Some(host) if self.variant.uses_blender() && !inputs.h.is_autodiff() => {
+                host.blend_colour(&self.blender, inputs)?
+            }
+            _ => self.blender.colour(self.variant, inputs)?,
+        };
         let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
         watch.mark(Stage::Blending);
         Ok(PointOutput {

@@ -34,7 +34,6 @@ use burn::tensor::activation::relu;
 
 use super::view_statistics::{mean_and_variance, view_weights};
 use super::{cosine_weights, simple_average_weights};
-use crate::field::network_host::HostNetwork;
 use crate::linear_rows::linear_rows;
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
@@ -45,7 +44,7 @@ use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 pub const BLENDER_LAYERS: usize = 8;
 
 /// Per-token channels besides p_n: d_hat (4), o (1), flag (1).
-const TOKEN_EXTRA_DIM: usize = VIEW_DIR_FEATURE_DIM + 2;
+pub const TOKEN_EXTRA_DIM: usize = VIEW_DIR_FEATURE_DIM + 2;
 
 /// Configuration of [`Blender`] (F_B).
 #[derive(Config, Debug)]
@@ -190,6 +189,67 @@ impl Blender {
         confidence: Tensor<2>,
         colours: Option<(Tensor<2>, Tensor<3>)>,
     ) -> Result<(Tensor<3>, Tensor<2>), ShapeError> {
+        self.check_inputs(
+            &pixel_feature,
+            &view_dir_features,
+            &visibility,
+            &h,
+            &confidence,
+            colours.as_ref().map(|(c0, c)| (c0, c)),
+        )?;
+        let [n, m, _] = pixel_feature.dims();
+        let device = pixel_feature.device();
+
+        let visibility = visibility.reshape([n, m, 1]);
+        let mut view_parts = vec![
+            pixel_feature.clone(),
+            view_dir_features,
+            visibility.clone(),
+            Tensor::zeros([n, m, 1], &device),
+        ];
+        let nerf_dir =
+            Tensor::<1>::from_data(TensorData::new(vec![0.0f32, 0.0, 0.0, 1.0], [4]), &device)
+                .reshape([1, 1, 4])
+                .expand([1, m, 4]);
+        let mut nerf_parts = vec![
+            pixel_feature.clone().mean_dim(0),
+            nerf_dir,
+            visibility.clone().mean_dim(0),
+            Tensor::ones([1, m, 1], &device),
+        ];
+        let mut point_parts = vec![h, confidence];
+        if self.view_statistics {
+            let Some((c0, source_colours)) = colours else {
+                return Err(ShapeError::value(
+                    "F_B `colours`",
+                    "c0 and c_n (view statistics are on)".into(),
+                ));
+            };
+            // Visibility-weighted across-view statistics, [M, k] each.
+            let omega = view_weights(visibility.clone().reshape([n, m]));
+            let (mean_p, var_p) = mean_and_variance(pixel_feature, omega.clone())?;
+            let (mean_c, var_c) = mean_and_variance(source_colours.clone(), omega)?;
+            point_parts.extend([mean_p, var_p, mean_c, var_c]);
+            view_parts.push(source_colours);
+            nerf_parts.push(c0.unsqueeze_dim::<3>(0));
+        }
+        let view_tokens = Tensor::cat(view_parts, 2);
+        let nerf_token = Tensor::cat(nerf_parts, 2);
+        let tokens = Tensor::cat(vec![nerf_token, view_tokens], 0); // [N + 1, M, d + 6 (+3)]
+        Ok((tokens, Tensor::cat(point_parts, 1)))
+    }
+
+    /// The checks of [`Self::tokens`]: every input's shape, at least one view, and with view
+    /// statistics the colours c0 `[M, 3]` and c_n `[N, M, 3]`.
+    pub fn check_inputs(
+        &self,
+        pixel_feature: &Tensor<3>,
+        view_dir_features: &Tensor<3>,
+        visibility: &Tensor<2>,
+        h: &Tensor<2>,
+        confidence: &Tensor<2>,
+        colours: Option<(&Tensor<2>, &Tensor<3>)>,
+    ) -> Result<(), ShapeError> {
         let [n, m, d] = pixel_feature.dims();
         let colour_dim = if self.view_statistics { 3 } else { 0 };
         let d_token = self.token_input.weight.dims()[0];
@@ -219,26 +279,6 @@ impl Blender {
             &confidence.dims(),
             &[Some(m), Some(1)],
         )?;
-        let device = pixel_feature.device();
-
-        let visibility = visibility.reshape([n, m, 1]);
-        let mut view_parts = vec![
-            pixel_feature.clone(),
-            view_dir_features,
-            visibility.clone(),
-            Tensor::zeros([n, m, 1], &device),
-        ];
-        let nerf_dir =
-            Tensor::<1>::from_data(TensorData::new(vec![0.0f32, 0.0, 0.0, 1.0], [4]), &device)
-                .reshape([1, 1, 4])
-                .expand([1, m, 4]);
-        let mut nerf_parts = vec![
-            pixel_feature.clone().mean_dim(0),
-            nerf_dir,
-            visibility.clone().mean_dim(0),
-            Tensor::ones([1, m, 1], &device),
-        ];
-        let mut point_parts = vec![h, confidence];
         if self.view_statistics {
             let Some((c0, source_colours)) = colours else {
                 return Err(ShapeError::value(
@@ -252,18 +292,8 @@ impl Blender {
                 &source_colours.dims(),
                 &[Some(n), Some(m), Some(3)],
             )?;
-            // Visibility-weighted across-view statistics, [M, k] each.
-            let omega = view_weights(visibility.clone().reshape([n, m]));
-            let (mean_p, var_p) = mean_and_variance(pixel_feature, omega.clone())?;
-            let (mean_c, var_c) = mean_and_variance(source_colours.clone(), omega)?;
-            point_parts.extend([mean_p, var_p, mean_c, var_c]);
-            view_parts.push(source_colours);
-            nerf_parts.push(c0.unsqueeze_dim::<3>(0));
         }
-        let view_tokens = Tensor::cat(view_parts, 2);
-        let nerf_token = Tensor::cat(nerf_parts, 2);
-        let tokens = Tensor::cat(vec![nerf_token, view_tokens], 0); // [N + 1, M, d + 6 (+3)]
-        Ok((tokens, Tensor::cat(point_parts, 1)))
+        Ok(())
     }
 
     /// F_B's layers on its inputs ([`Self::tokens`]): `relu(W_t token + b + W_p point)`, then
@@ -296,17 +326,6 @@ impl Blender {
     /// # Shapes
     /// - see [`BlendInputs`]; output colour `[M, 3]`, blend weights `[M, N + 1]`
     pub fn colour(&self, variant: Variant, inputs: BlendInputs) -> Result<PointColour, ShapeError> {
-        self.colour_with(variant, inputs, None)
-    }
-
-    /// [`Self::colour`], with F_B's layers on the host where `host` holds them and the inputs
-    /// carry no gradients ([`HostNetwork`], inference on the CPU backends).
-    pub fn colour_with(
-        &self,
-        variant: Variant,
-        inputs: BlendInputs,
-        host: Option<&HostNetwork>,
-    ) -> Result<PointColour, ShapeError> {
         let [n, m] = inputs.visibility.dims();
         ShapeError::check("blend `c0` [M, 3]", &inputs.c0.dims(), &[Some(m), Some(3)])?;
         if n == 0 {
@@ -360,10 +379,7 @@ impl Blender {
                     inputs.confidence,
                     Some((inputs.c0.clone(), inputs.source_colours.clone())),
                 )?;
-                let blend_logits = match host {
-                    Some(host) if !tokens.is_autodiff() => host.blend_logits(tokens, point)?,
-                    _ => self.logits(tokens, point),
-                };
+                let blend_logits = self.logits(tokens, point);
                 blend(blend_logits, inputs.c0, inputs.source_colours)
             }
         }
