@@ -140,6 +140,12 @@ impl HostMlp {
         if layers.is_empty() {
             return Err(ShapeError::empty(what));
         }
+        if let Some(l) = layers.iter().find(|l| l.d_in == 0 || l.d_out == 0) {
+            return Err(ShapeError::value(
+                what,
+                format!("layers at least 1 wide, got [{}, {}]", l.d_in, l.d_out),
+            ));
+        }
         for pair in layers.windows(2) {
             if pair[0].d_out != pair[1].d_in {
                 return Err(ShapeError::value(

@@ -1011,4 +1011,6 @@ fn host_mlp_taps_adds_and_refuses_bad_shapes() {
     ];
     assert!(err(HostMlp::new("mismatched", mismatched).map(|_| ())).contains("mismatched"));
     assert!(err(HostMlp::new("none", Vec::new()).map(|_| ())).contains("none"));
+    let empty = HostLinear::new("zero", Vec::new(), Vec::new(), 1, 0).unwrap();
+    assert!(err(HostMlp::new("zero wide", vec![empty]).map(|_| ())).contains("at least 1 wide"));
 }
