@@ -76,16 +76,6 @@ impl HostLinear {
         &self.bias
     }
 
-    /// Input width.
-    pub fn d_in(&self) -> usize {
-        self.d_in
-    }
-
-    /// Output width.
-    pub fn d_out(&self) -> usize {
-        self.d_out
-    }
-
     /// `dst = src W + b` on `rows` rows, on the calling thread (for callers that run their
     /// own tasks).
     ///
