@@ -193,3 +193,122 @@ mod visual_hull {
         assert!(err.to_string().contains("image size"), "{err}");
     }
 }
+
+/// o_n's mask test (`SourceMasks::shows_person`): the mask as it is, bilinear, and nothing
+/// seen where the view shows nothing (off the image, behind the camera).
+mod mask_test {
+    use glam::Vec2;
+    use nia_data::scene::SourceMasks;
+
+    const SIZE: usize = 16;
+
+    /// A 16 x 16 mask whose columns 0..=7 are the person, with a one-pixel hole at (3, 8).
+    fn left_half_with_hole() -> Vec<f32> {
+        let mut m: Vec<f32> = (0..SIZE * SIZE)
+            .map(|i| ((i % SIZE) < 8) as u8 as f32)
+            .collect();
+        m[8 * SIZE + 3] = 0.0;
+        m
+    }
+
+    fn masks() -> SourceMasks {
+        SourceMasks::new("o_n's mask test", &[&left_half_with_hole()], SIZE, SIZE, 0).unwrap()
+    }
+
+    #[test]
+    fn the_person_reads_one_and_holes_and_background_read_zero() {
+        let m = masks();
+        assert_eq!(m.shows_person(0, Some(Vec2::new(2.0, 4.0))), 1.0);
+        assert_eq!(
+            m.shows_person(0, Some(Vec2::new(3.0, 8.0))),
+            0.0,
+            "the hole"
+        );
+        assert_eq!(m.shows_person(0, Some(Vec2::new(12.0, 8.0))), 0.0);
+        // Half-way between the hole and the person beside it.
+        let got = m.shows_person(0, Some(Vec2::new(3.5, 8.0)));
+        assert!((got - 0.5).abs() < 1e-6, "{got}");
+    }
+
+    #[test]
+    fn a_view_that_shows_nothing_at_the_point_does_not_see_it() {
+        let m = masks();
+        for uv in [
+            Vec2::new(-5.0, 8.0),
+            Vec2::new(2.0, -3.0),
+            Vec2::new(2.0, 40.0),
+            Vec2::new(f32::NAN, 8.0),
+            Vec2::new(f32::INFINITY, f32::NEG_INFINITY),
+        ] {
+            assert_eq!(m.shows_person(0, Some(uv)), 0.0, "{uv:?}");
+        }
+        assert_eq!(m.shows_person(0, None), 0.0, "behind the camera");
+        // Half a pixel off the image's left edge, on a person column: half the weight.
+        let got = m.shows_person(0, Some(Vec2::new(-0.5, 4.0)));
+        assert!((got - 0.5).abs() < 1e-6, "{got}");
+    }
+
+    /// The body's silhouette joins the masks before carving (`masks_with_body`): a wall over
+    /// the image's left half (pixel columns 0..=7) as the body, and a mask of that half with
+    /// a band cut across it (rows 6 and 7), as a segmentation network cuts one.
+    #[test]
+    fn the_body_fills_a_band_cut_from_the_mask_but_for_its_eroded_rim() {
+        use glam::Vec3;
+        use nia_data::geometry::camera::Camera;
+        use nia_data::scene::masks_with_body;
+        let f = SIZE as f32;
+        let camera = Camera::look_at(
+            Vec3::ZERO,
+            Vec3::Z,
+            Vec3::NEG_Y,
+            f,
+            f,
+            SIZE as u32,
+            SIZE as u32,
+        )
+        .unwrap();
+        let wall = [
+            Vec3::new(-10.0, -10.0, 2.0),
+            Vec3::new(-0.0625, -10.0, 2.0),
+            Vec3::new(-0.0625, 10.0, 2.0),
+            Vec3::new(-10.0, 10.0, 2.0),
+        ];
+        let faces = [[0, 1, 2], [0, 2, 3]];
+        let mask: Vec<f32> = (0..SIZE * SIZE)
+            .map(|i| {
+                let (x, y) = (i % SIZE, i / SIZE);
+                (x < 8 && !(6..=7).contains(&y)) as u8 as f32
+            })
+            .collect();
+        let cameras = [camera];
+        let with = |erode| masks_with_body(&[&mask], &cameras, &wall, &faces, erode).unwrap();
+        let full = &with(0)[0];
+        let rim = &with(2)[0];
+        for y in 0..SIZE {
+            for x in 0..SIZE {
+                let i = y * SIZE + x;
+                let body = x < 8;
+                assert_eq!(full[i], body as u8 as f32, "erode 0 at ({x}, {y})");
+                // Eroded by 2 the body covers columns 0..=5: the band stays cut in 6 and 7.
+                let expected = mask[i].max((x < 6) as u8 as f32);
+                assert_eq!(rim[i], expected, "erode 2 at ({x}, {y})");
+            }
+        }
+        let err = masks_with_body(&[&mask, &mask], &cameras, &wall, &faces, 0).unwrap_err();
+        assert!(err.to_string().contains("one mask per camera"), "{err}");
+        let short = vec![0.0f32; SIZE * SIZE - 1];
+        let err = masks_with_body(&[&short], &cameras, &wall, &faces, 0).unwrap_err();
+        assert!(err.to_string().contains("views[0].mask"), "{err}");
+    }
+
+    #[test]
+    fn bad_masks_are_errors_naming_the_reader_and_the_view() {
+        let short = vec![1.0f32; SIZE * SIZE - 1];
+        let err = SourceMasks::new("o_n's mask test", &[&short], SIZE, SIZE, 0).unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.contains("o_n's mask test") && msg.contains("views[0].mask"),
+            "{msg}"
+        );
+    }
+}

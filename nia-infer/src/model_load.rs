@@ -65,6 +65,11 @@ pub struct ModelArgs {
     /// setting, 0).
     #[arg(long)]
     pub hull_dilate_px: Option<usize>,
+    /// The fitted body's silhouette, shrunk by N pixels, counts as person in every source mask
+    /// before carving; `off` uses the masks as they are (default: the model's `[render]`
+    /// setting, off).
+    #[arg(long, value_parser = parse_off_or_pixels)]
+    pub hull_body_erode_px: Option<OffOrPixels>,
     /// Rays per pixel side: every pixel the mean of N x N rays over its square, N x N times
     /// the work of 1 (one ray through the centre, the paper's) (default: the model's
     /// `[render]` setting).
@@ -87,6 +92,20 @@ pub enum SamplerKind {
     Band,
     /// Samples over the whole box.
     Stratified,
+}
+
+/// `off` (`None`) or a pixel count: the value of `--hull-body-erode-px`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OffOrPixels(pub Option<usize>);
+
+fn parse_off_or_pixels(s: &str) -> Result<OffOrPixels, String> {
+    match s {
+        "off" => Ok(OffOrPixels(None)),
+        n => n
+            .parse()
+            .map(|px| OffOrPixels(Some(px)))
+            .map_err(|_| format!("`{n}`: expected off or a number of pixels")),
+    }
 }
 
 fn parse_sampler_kind(s: &str) -> Result<SamplerKind, String> {
@@ -114,6 +133,7 @@ impl ModelArgs {
             ("colour_culling", self.colour_culling.is_some()),
             ("visual_hull", self.visual_hull.is_some()),
             ("hull_dilate_px", self.hull_dilate_px.is_some()),
+            ("hull_body_erode_px", self.hull_body_erode_px.is_some()),
             ("supersample", self.supersample.is_some()),
         ];
         if let Some(on) = self.skip_empty_space {
@@ -133,6 +153,9 @@ impl ModelArgs {
         }
         if let Some(px) = self.hull_dilate_px {
             options.hull_dilate_px = px;
+        }
+        if let Some(OffOrPixels(px)) = self.hull_body_erode_px {
+            options.hull_body_erode_px = px;
         }
         if let Some(s) = self.supersample {
             options.supersample = s;

@@ -22,6 +22,10 @@ fn carving_is_off_unless_asked_for() {
     assert!(!options.visual_hull);
     let options: RenderOptions = toml::from_str("visual_hull = true\nhull_dilate_px = 5").unwrap();
     assert_eq!(options.hull(), Some(5));
+    // Nor does a section without `hull_body_erode_px` add the body to the masks.
+    assert_eq!(options.hull_body_erode_px, None);
+    let options: RenderOptions = toml::from_str("hull_body_erode_px = 2").unwrap();
+    assert_eq!(options.hull_body_erode_px, Some(2));
 }
 
 /// The committed fixture was trained and evaluated before carving existed: its header's
@@ -36,6 +40,7 @@ fn a_model_file_from_before_carving_loads_without_it() {
     let settings = RunSettings::from_json(&run).unwrap();
     assert!(!settings.render.visual_hull);
     assert_eq!(settings.render.hull(), None);
+    assert_eq!(settings.render.hull_body_erode_px, None);
 }
 
 /// A model file written while carving defaulted to on carries the whole `[render]` section

@@ -60,6 +60,11 @@ pub struct ModelConfig {
     /// with this tolerance in metres (not in the paper; `None`, also what older model files
     /// carry, is the paper's per-vertex visibility alone; see `nia_data::scene::source_depth`).
     pub visibility_depth_tol_m: Option<f32>,
+    /// o_n also reads each source view's person mask at the point's projection, so a view
+    /// whose mask says background there (a segmentation hole, a lost hand) does not count as
+    /// seeing the point (not in the paper; `None` or `false`, also what older model files
+    /// carry, is off; see `nia_data::scene::source_masks`).
+    pub visibility_masks: Option<bool>,
 }
 
 /// Where the source colours c_n are read (`ibr::surface`).

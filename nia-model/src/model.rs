@@ -68,6 +68,9 @@ pub struct NiaModel {
     /// Tolerance of o_n's depth test, metres (`None`: the paper's o_n).
     #[module(skip)]
     pub visibility_depth_tol_m: Option<f32>,
+    /// o_n also reads the source masks (`ModelConfig::visibility_masks`).
+    #[module(skip)]
+    pub visibility_masks: bool,
 }
 
 impl ModelConfig {
@@ -92,6 +95,7 @@ impl ModelConfig {
             ray_sampler: self.ray_sampler,
             source_colours_at: self.source_colours_at.unwrap_or_default(),
             visibility_depth_tol_m: self.visibility_depth_tol_m,
+            visibility_masks: self.visibility_masks.unwrap_or(false),
         }
     }
 }

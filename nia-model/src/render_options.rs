@@ -84,6 +84,12 @@ pub struct RenderOptions {
     /// Pixels the masks are grown by before carving (noisy masks of real captures need a
     /// margin; the synthetic masks are exact).
     pub hull_dilate_px: usize,
+    /// The fitted body's silhouette in each source view, shrunk by this many pixels, counts as
+    /// person before carving (`nia_data::scene::masks_with_body`; `None`, the default: the
+    /// masks as they are). A segmentation network that cuts a band out of the person or loses a
+    /// hand in one source mask would otherwise have the hull carve that part away in every
+    /// target view.
+    pub hull_body_erode_px: Option<usize>,
     /// Rays per pixel side s (not in the paper): every pixel is the mean of s x s rays spread
     /// over its square (`RayBundle::through_pixel_footprints`), as a camera integrates over the
     /// pixel's area; s x s times the rays of 1, the paper's one ray through the centre.
@@ -100,6 +106,7 @@ impl Default for RenderOptions {
             colour_culling: DEFAULT_COLOUR_CULLING,
             visual_hull: false,
             hull_dilate_px: DEFAULT_HULL_DILATE_PX,
+            hull_body_erode_px: None,
             supersample: DEFAULT_SUPERSAMPLE,
         }
     }
@@ -158,6 +165,16 @@ impl RenderOptions {
                 "hull_dilate_px",
                 &format!("at most {MAX_HULL_DILATE_PX} pixels"),
                 self.hull_dilate_px.to_string(),
+            );
+        }
+        if self
+            .hull_body_erode_px
+            .is_some_and(|px| px > MAX_HULL_DILATE_PX)
+        {
+            return bad(
+                "hull_body_erode_px",
+                &format!("at most {MAX_HULL_DILATE_PX} pixels"),
+                format!("{:?}", self.hull_body_erode_px),
             );
         }
         if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {

@@ -765,6 +765,23 @@ fn the_depth_test_tolerance_is_checked_and_optional() {
     assert_eq!(old.visibility_depth_tol_m, None);
 }
 
+/// The mask test of o_n is off unless asked for; model files written before the switch carry
+/// no such key and keep the paper's o_n.
+#[test]
+fn the_mask_test_is_off_by_default_and_in_older_model_files() {
+    let device = Device::ndarray();
+    assert!(!ModelConfig::tiny().init(&device).visibility_masks);
+    let mut config = ModelConfig::tiny();
+    config.visibility_masks = Some(true);
+    assert!(config.init(&device).visibility_masks);
+    let mut json: serde_json::Value = serde_json::to_value(&config).unwrap();
+    assert_eq!(json["visibility_masks"], true);
+    json.as_object_mut().unwrap().remove("visibility_masks");
+    let old: ModelConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(old.visibility_masks, None);
+    assert!(!old.init(&device).visibility_masks);
+}
+
 /// The person masks the visual hull reads are checked with the rest of the scene: a mask of
 /// the wrong size or with a value outside [0, 1] is an error naming the view, and a hull
 /// built from another scene's views is refused.
@@ -786,11 +803,11 @@ fn bad_person_masks_are_errors_naming_the_view() {
     fewer.views.pop();
     let err = encoded
         .clone()
-        .with_visual_hull(&fewer, Some(0))
+        .with_visual_hull(&fewer, Some(0), None)
         .unwrap_err();
     assert!(err.to_string().contains("visual hull"), "{err}");
     assert!(encoded
-        .with_visual_hull(&good, None)
+        .with_visual_hull(&good, None, None)
         .unwrap()
         .visual_hull
         .is_none());

@@ -33,7 +33,8 @@ pub struct PointInputs {
     /// [N, M, 4] d_hat_n = (d - d_n, d . d_n).
     pub view_dir_features: Vec<f32>,
     /// [N, M] o_n: visibility interpolated on the nearest body face (times the depth test of
-    /// [`super::SourceDepth`] when the geometry has one).
+    /// [`super::SourceDepth`] and the mask test of [`super::SourceMasks`] when the geometry
+    /// has them).
     pub visibility: Vec<f32>,
     /// [M, 3] unit target directions d (input of gamma(d)).
     pub dirs: Vec<f32>,
@@ -121,6 +122,14 @@ impl PointInputs {
                             Some((uv, z)) => depth.unhidden(view, uv, z),
                             None => 0.0,
                         };
+                    });
+            }
+            if let Some(masks) = &geometry.source_masks {
+                let camera = &geometry.cameras[view];
+                out.par_iter_mut()
+                    .zip(image_points.par_iter())
+                    .for_each(|(o, &x)| {
+                        *o *= masks.shows_person(view, camera.project(x).map(|(uv, _)| uv));
                     });
             }
         }

@@ -67,7 +67,7 @@ pub fn prepare_scene(
         .with_occupancy(occupancy)
         .with_termination(options.termination())
         .with_colour_culling(options.culling())
-        .with_visual_hull(input, options.hull())
+        .with_visual_hull(input, options.hull(), options.hull_body_erode_px)
 }
 
 /// `base` (a [`prepare_scene`] of the reference pose) rendered in `reposer`'s target pose: the

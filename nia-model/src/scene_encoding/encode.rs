@@ -37,6 +37,9 @@ impl NiaModel {
         if let Some(tol) = self.visibility_depth_tol_m {
             geometry = geometry.with_depth_test(tol)?;
         }
+        if self.visibility_masks {
+            geometry = geometry.with_mask_test(input)?;
+        }
         let geometry = Arc::new(geometry);
         let n = input.views.len();
         let [h, w] = geometry.image_hw;

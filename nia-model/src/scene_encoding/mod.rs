@@ -10,7 +10,7 @@ use std::sync::Arc;
 use burn::prelude::*;
 use nia_data::body::reposing::Reposer;
 use nia_data::geometry::occupancy::OccupancyGrid;
-use nia_data::scene::{SceneError, SceneGeometry, SceneInput, VisualHull};
+use nia_data::scene::{masks_with_body, SceneError, SceneGeometry, SceneInput, VisualHull};
 
 pub mod cut;
 mod encode;
@@ -80,11 +80,14 @@ impl SceneEncoding {
     }
 
     /// This encoding with visual-hull carving from the person masks of `input` (the scene this
-    /// encoding was made from), each grown by `dilate_px` pixels (`None`: off).
+    /// encoding was made from), each grown by `dilate_px` pixels (`None`: off), and with
+    /// `body_erode_px` the body's silhouette shrunk by that many pixels counted as person
+    /// ([`nia_data::scene::masks_with_body`]).
     pub fn with_visual_hull(
         mut self,
         input: &SceneInput,
         dilate_px: Option<usize>,
+        body_erode_px: Option<usize>,
     ) -> Result<Self, ModelError> {
         self.visual_hull = match dilate_px {
             None => None,
@@ -98,6 +101,27 @@ impl SceneEncoding {
                     )));
                 }
                 let masks: Vec<&[f32]> = input.views.iter().map(|v| v.mask.as_slice()).collect();
+                let with_body = match body_erode_px {
+                    Some(erode) => {
+                        let cameras: Vec<_> =
+                            input.views.iter().map(|v| v.camera.clone()).collect();
+                        Some(
+                            masks_with_body(
+                                &masks,
+                                &cameras,
+                                &input.body.vertices,
+                                &input.body.faces,
+                                erode,
+                            )
+                            .map_err(SceneError::from)?,
+                        )
+                    }
+                    None => None,
+                };
+                let masks: Vec<&[f32]> = match &with_body {
+                    Some(m) => m.iter().map(Vec::as_slice).collect(),
+                    None => masks,
+                };
                 let hull = VisualHull::new(&masks, w, h, px).map_err(SceneError::from)?;
                 Some(Arc::new(hull))
             }
