@@ -23,6 +23,11 @@
 //! opposite a source view, where the synthetic protocol's targets sit (on ZJU-MoCap's ring of
 //! 21-23 cameras, a few targets are near-opposite a source view).
 //!
+//! A segmentation network's mask that lost a band or a hand would carve that part out of the
+//! person in every target view; with `[render] hull_body_erode_px` the fitted body's silhouette,
+//! shrunk by that many pixels, counts as person in each mask first
+//! ([`super::masks_with_body`]).
+//!
 //! The carving is applied when rendering, not in training: a network trained with it no longer
 //! has to place empty space next to the person itself, and some such runs left holes in the
 //! person (docs/results.md, "Tried and not kept"). Where the hull says 0 the density is exactly 0, so empty-space
