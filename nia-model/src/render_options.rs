@@ -167,14 +167,14 @@ impl RenderOptions {
                 self.hull_dilate_px.to_string(),
             );
         }
-        if self
+        if let Some(px) = self
             .hull_body_erode_px
-            .is_some_and(|px| px > MAX_HULL_DILATE_PX)
+            .filter(|&px| px > MAX_HULL_DILATE_PX)
         {
             return bad(
                 "hull_body_erode_px",
                 &format!("at most {MAX_HULL_DILATE_PX} pixels"),
-                format!("{:?}", self.hull_body_erode_px),
+                px.to_string(),
             );
         }
         if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {
