@@ -101,23 +101,20 @@ impl SceneEncoding {
                     )));
                 }
                 let masks: Vec<&[f32]> = input.views.iter().map(|v| v.mask.as_slice()).collect();
-                let with_body = match body_erode_px {
-                    Some(erode) => {
-                        let cameras: Vec<_> =
-                            input.views.iter().map(|v| v.camera.clone()).collect();
-                        Some(
-                            masks_with_body(
-                                &masks,
-                                &cameras,
-                                &input.body.vertices,
-                                &input.body.faces,
-                                erode,
-                            )
-                            .map_err(SceneError::from)?,
+                // The scene's cameras are the encoding's (`SceneGeometry::new` took them).
+                let with_body = body_erode_px
+                    .map(|erode| {
+                        let body = &input.body;
+                        masks_with_body(
+                            &masks,
+                            &self.geometry.cameras,
+                            &body.vertices,
+                            &body.faces,
+                            erode,
                         )
-                    }
-                    None => None,
-                };
+                    })
+                    .transpose()
+                    .map_err(SceneError::from)?;
                 let masks: Vec<&[f32]> = match &with_body {
                     Some(m) => m.iter().map(Vec::as_slice).collect(),
                     None => masks,
