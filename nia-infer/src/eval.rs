@@ -22,6 +22,7 @@ use nia_data::dataset::loader::{
     eval_requests, load_scene, LoaderError, Scene, SceneRequest, SceneTarget,
 };
 use nia_data::dataset::protocol::{EvalItem, EvalSplit, ProtocolError};
+use nia_data::dataset::smpl_alignment::RigidCorrection;
 use nia_data::dataset::OpenedDataset;
 use nia_data::metrics::{evaluate, ImageMetrics, ImageView, MetricsError, SsimOptions};
 use nia_data::scene::SceneInput;
@@ -139,8 +140,42 @@ pub struct ImageResult {
     pub seconds: f64,
     /// The hybrid's instruments ([`BlendDiagnostics`]).
     pub diagnostics: BlendDiagnostics,
+    /// How the sources' SMPL fit was moved onto their masks (`[data] smpl_alignment`; absent
+    /// when off).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub smpl_alignment: Option<AlignmentReport>,
     #[serde(skip)]
     pub times: StageTimes,
+}
+
+/// A scene's SMPL alignment ([`nia_data::dataset::smpl_alignment`]) as `metrics.json` lists
+/// it: the fit moved by `x -> R (x - centre) + centre + translation`.
+#[derive(Debug, Clone, Serialize)]
+pub struct AlignmentReport {
+    pub translation_m: [f32; 3],
+    /// `R` as an axis-angle vector, radians.
+    pub rotation: [f32; 3],
+    pub rotation_deg: f32,
+    pub centre_m: [f32; 3],
+    /// The silhouette energy before and after.
+    pub energy_before: f32,
+    pub energy_after: f32,
+    /// Source views whose mask took part.
+    pub views_used: usize,
+}
+
+impl From<&RigidCorrection> for AlignmentReport {
+    fn from(c: &RigidCorrection) -> Self {
+        AlignmentReport {
+            translation_m: c.translation.to_array(),
+            rotation: c.rotation.to_scaled_axis().to_array(),
+            rotation_deg: c.rotation_deg(),
+            centre_m: c.centre.to_array(),
+            energy_before: c.energy_before,
+            energy_after: c.energy_after,
+            views_used: c.views_used,
+        }
+    }
 }
 
 /// Everything about one evaluated image, for writers of pictures.
@@ -348,6 +383,7 @@ pub fn evaluate_images(
             rays: rendered.rays,
             point_evaluations: rendered.point_evaluations,
             colour_evaluations: rendered.colour_evaluations,
+            smpl_alignment: sources.alignment.as_ref().map(AlignmentReport::from),
             seconds,
             diagnostics,
             times,

@@ -109,6 +109,7 @@ impl OpenedSubject {
             body,
             loader: LoaderConfig {
                 box_padding: BoxPadding::nhp(),
+                smpl_alignment: run.data.smpl_alignment,
                 ..LoaderConfig::default()
             },
         })

@@ -182,6 +182,7 @@ fn bad_render_flags_fail_naming_the_flag() {
         ("--hull-body-erode-px", "1000", "256"),
         ("--hull-body-erode-px", "on", "off or a number of pixels"),
         ("--visual-hull", "maybe", "on or off"),
+        ("--smpl-alignment", "maybe", "on or off"),
         ("--supersample", "0", "1 to 8"),
         ("--supersample", "9", "1 to 8"),
         ("--ray-sampler", "box", "band or stratified"),

@@ -200,6 +200,54 @@ fn eval_on_another_synthetic_set_uses_that_sets_split() {
     }
 }
 
+/// `--smpl-alignment on` moves each scene's fit onto its source masks and lists the correction
+/// per image (and the settings once); `off` (the model's default) lists none.
+#[test]
+fn eval_with_smpl_alignment_reports_each_correction() {
+    let out_dir = scratch("eval-align");
+    let flags = "--backend ndarray --no-pictures --limit 2 --smpl-alignment on";
+    ok(&on_model("eval", flags, &[], &out_dir));
+    let metrics = json_file(&out_dir.join("metrics.json"));
+    let robust_m = metrics["smpl_alignment"]["robust_m"].as_f64().unwrap();
+    assert!(
+        (robust_m - 0.03).abs() < 1e-6,
+        "the default settings: {robust_m}"
+    );
+    let images = metrics["images"].as_array().unwrap();
+    assert_eq!(images.len(), 2);
+    for image in images {
+        let a = &image["smpl_alignment"];
+        let views = image["input_views"].as_array().unwrap().len() as u64;
+        assert_eq!(a["views_used"].as_u64(), Some(views), "{a}");
+        let (before, after) = (
+            a["energy_before"].as_f64().unwrap(),
+            a["energy_after"].as_f64().unwrap(),
+        );
+        assert!(after.is_finite() && after <= before, "{a}");
+        let t: Vec<f64> = a["translation_m"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        assert!(
+            t.iter().all(|x| x.abs() <= 0.1),
+            "within the default bound: {a}"
+        );
+        assert!(a["rotation_deg"].as_f64().unwrap() <= 10.0 + 1e-3, "{a}");
+        assert!(image["psnr"].as_f64().unwrap().is_finite());
+    }
+    ok(&on_model(
+        "eval",
+        "--backend ndarray --no-pictures --limit 1",
+        &[],
+        &out_dir,
+    ));
+    let metrics = json_file(&out_dir.join("metrics.json"));
+    assert!(metrics["smpl_alignment"].is_null());
+    assert!(metrics["images"][0].get("smpl_alignment").is_none());
+}
+
 #[test]
 fn novel_pose_eval_reposes_from_the_reference_frame() {
     let out_dir = scratch("eval-pose");

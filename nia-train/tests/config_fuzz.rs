@@ -502,6 +502,9 @@ fn check_invariants(c: &TrainConfig, path: &Path) {
     }
     assert!(c.data.loader_threads >= 1);
     assert!(c.data.smpl_jitter_m.is_finite() && (0.0..=0.2).contains(&c.data.smpl_jitter_m));
+    if let Some(a) = c.data.smpl_alignment {
+        assert!(a.validate().is_ok(), "{}: {a:?}", path.display());
+    }
     let tol = t.colour_gain_tolerance;
     assert!(tol.is_finite() && (0.0..=1.0).contains(&tol));
     let r = &c.render;

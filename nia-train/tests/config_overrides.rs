@@ -1,6 +1,7 @@
 //! `--set section.key=value` overrides of a run config: TOML values and bare words, nested
 //! keys, the order of several, and errors that name the override or the key.
 
+use nia_data::dataset::smpl_alignment::SmplAlignment;
 use nia_model::render_options::RenderOptions;
 use nia_model::sampler::RaySampler;
 use nia_train::config::{ConfigError, TrainConfig};
@@ -88,5 +89,15 @@ fn bad_overrides_name_the_setting_or_the_key() {
         m.contains("model.source_colours_at") && m.contains("`samples` or `surface`"),
         "{m}"
     );
+    // The SMPL alignment's table: a setting out of range names its key, an unknown one too.
+    let (_, m) = message(&["data.smpl_alignment={ robust_m = 0.0 }"]);
+    assert!(
+        m.contains("data.smpl_alignment.robust_m") && m.contains("(0, 1]"),
+        "{m}"
+    );
+    let (_, m) = message(&["data.smpl_alignment={ robust = 0.03 }"]);
+    assert!(m.contains("robust"), "{m}");
+    let aligned = TrainConfig::load_with(&path, &overrides(&["data.smpl_alignment={}"])).unwrap();
+    assert_eq!(aligned.data.smpl_alignment, Some(SmplAlignment::default()));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -25,6 +25,9 @@ use crate::dataset::protocol::{EvalItem, Protocol};
 use crate::dataset::sampling::{
     sample_rays, BoxPadding, RaySamplingConfig, SamplingError, TrainRays,
 };
+use crate::dataset::smpl_alignment::{
+    align_to_masks, AlignmentError, AlignmentView, RigidCorrection, SmplAlignment,
+};
 use crate::dataset::smpl_jitter::jitter_smpl;
 use crate::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use crate::dataset::{DatasetError, Subject, ViewImage};
@@ -57,6 +60,14 @@ pub enum LoaderError {
         "the protocol names subject `{subject}` but no such subject was opened (opened: {opened})"
     )]
     UnknownSubject { subject: String, opened: String },
+    #[error("{subject}: frame {frame}: {source}")]
+    Alignment {
+        subject: String,
+        frame: usize,
+        source: AlignmentError,
+    },
+    #[error("loader setting `smpl_alignment`: {0}")]
+    AlignmentConfig(AlignmentError),
     #[error("loader setting `{field}`: expected {expected}, got {got}")]
     Config {
         field: &'static str,
@@ -91,6 +102,11 @@ pub struct LoaderConfig {
     /// whole images (evaluation) are never jittered.
     #[serde(default)]
     pub smpl_jitter_m: f32,
+    /// Every scene's fitted SMPL moved rigidly onto the person its source masks show
+    /// ([`align_to_masks`]) before anything else reads it (training and evaluation; then the
+    /// jitter). `None`: the stored fit.
+    #[serde(default)]
+    pub smpl_alignment: Option<SmplAlignment>,
     /// The band sampler's occupancy grid (`threshold_m`, `cell_m`) of every training scene's
     /// mesh, built on the worker thread into the process-wide memo
     /// ([`crate::geometry::occupancy_memo::shared_grid`]) while the consumer trains on earlier
@@ -139,6 +155,7 @@ impl Default for LoaderConfig {
             box_padding: BoxPadding::default(),
             visibility_depth_tol_m: DEFAULT_DEPTH_TOL_M,
             smpl_jitter_m: 0.0,
+            smpl_alignment: None,
             band_grid: None,
             body_volume: None,
         }
@@ -214,6 +231,9 @@ pub struct Scene {
     pub sources: Vec<LoadedView>,
     pub target_view: usize,
     pub target: SceneTarget,
+    /// The rigid correction the fit was moved by ([`LoaderConfig::smpl_alignment`]; `None`
+    /// when off).
+    pub alignment: Option<RigidCorrection>,
 }
 
 /// Loads one scene on the calling thread.
@@ -251,38 +271,73 @@ pub fn load_scene(
     }
     let mut params = subject.load_params(frame)?;
     let vertices_path = subject.vertices_path(frame)?;
-    // The body the network reads: for training scenes, the stored fit moved by the SMPL jitter
-    // (`None`: the stored fit). Visibility stays the stored fit's, which the cache holds.
+    let images = request
+        .input_views
+        .iter()
+        .map(|&view| subject.load_view(frame, view).map(|image| (view, image)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let body_box_of = |body: &[Vec3]| {
+        config.box_padding.body_box(body).ok_or_else(|| {
+            DatasetError::field(
+                &vertices_path,
+                "<array>",
+                "a non-empty finite vertex set",
+                "none",
+            )
+        })
+    };
+    // The metrics' region (`mask_at_box`) stays the stored fit's box, as the protocol has it.
+    let fit_box = body_box_of(&vertices)?;
+    // The stored fit moved onto the source masks (`None`: not asked for).
+    let aligned = match &config.smpl_alignment {
+        Some(alignment) => {
+            let views: Vec<AlignmentView<'_>> = images
+                .iter()
+                .map(|(_, image)| AlignmentView {
+                    camera: &image.camera,
+                    mask: &image.mask,
+                })
+                .collect();
+            let correction = align_to_masks(&vertices, &views, alignment).map_err(|source| {
+                LoaderError::Alignment {
+                    subject: subject.name.clone(),
+                    frame,
+                    source,
+                }
+            })?;
+            let mut moved = vertices.clone();
+            correction.apply(&mut moved, &mut params);
+            Some((moved, correction))
+        }
+        None => None,
+    };
+    let (aligned, alignment) = aligned.unzip();
+    let fit = aligned.as_ref().unwrap_or(&vertices);
+    // The body the network reads: for training scenes, the fit moved by the SMPL jitter
+    // (`None`: the fit). Visibility stays the fit's.
     let moved = (request.target == TargetKind::Rays && config.smpl_jitter_m > 0.0).then(|| {
-        let mut moved = vertices.clone();
+        let mut moved = fit.clone();
         let mut rng = Rng::new(request.seed).fork(JITTER_FORK);
         jitter_smpl(&mut moved, &mut params, config.smpl_jitter_m, &mut rng);
         moved
     });
-    let body = moved.as_ref().unwrap_or(&vertices);
-    let body_box = config.box_padding.body_box(body).ok_or_else(|| {
-        DatasetError::field(
-            &vertices_path,
-            "<array>",
-            "a non-empty finite vertex set",
-            "none",
-        )
-    })?;
-    let mut sources = Vec::with_capacity(request.input_views.len());
-    for &view in &request.input_views {
-        let image = subject.load_view(frame, view)?;
+    let body = moved.as_ref().unwrap_or(fit);
+    let body_box = body_box_of(body)?;
+    let mut sources = Vec::with_capacity(images.len());
+    for (view, image) in images {
         let query = VisibilityQuery {
             subject: &subject.name,
             frame,
             view,
             camera: &image.camera,
-            vertices: &vertices,
+            vertices: fit,
             faces: &source.faces,
             depth_tol_m: config.visibility_depth_tol_m,
         };
-        let visibility = match &source.cache {
-            Some(cache) => cache.get_or_compute(&query)?,
-            None => vis_cache::compute(&query)?,
+        // The cache holds the stored fit's visibility; an aligned fit's is computed afresh.
+        let visibility = match (&source.cache, &aligned) {
+            (Some(cache), None) => cache.get_or_compute(&query)?,
+            _ => vis_cache::compute(&query)?,
         };
         sources.push(LoadedView {
             view,
@@ -311,11 +366,11 @@ pub fn load_scene(
             SceneTarget::Rays(rays)
         }
         TargetKind::Image => SceneTarget::Image {
-            mask_at_box: mask_at_box(&target_image.camera, &body_box),
+            mask_at_box: mask_at_box(&target_image.camera, &fit_box),
             image: target_image,
         },
     };
-    let vertices = moved.unwrap_or(vertices);
+    let vertices = moved.or(aligned).unwrap_or(vertices);
     if let (TargetKind::Rays, Some(band)) = (request.target, config.band_grid) {
         // Only a warm-up: a mesh the grid cannot be built for fails again, with its error, where
         // the training step asks for the grid.
@@ -341,6 +396,7 @@ pub fn load_scene(
         sources,
         target_view: request.target_view,
         target,
+        alignment,
     })
 }
 
@@ -463,6 +519,9 @@ impl SceneLoader {
                 expected: ">= 1",
                 got: "0".into(),
             });
+        }
+        if let Some(alignment) = &config.smpl_alignment {
+            alignment.validate().map_err(LoaderError::AlignmentConfig)?;
         }
         let total = requests.len();
         let (ticket_tx, ticket_rx) = mpsc::sync_channel::<()>(config.prefetch);

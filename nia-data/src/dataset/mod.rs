@@ -21,6 +21,7 @@ pub mod monocap;
 pub mod opened;
 pub mod protocol;
 pub mod sampling;
+pub mod smpl_alignment;
 pub mod smpl_jitter;
 pub mod subject;
 pub mod vis_cache;

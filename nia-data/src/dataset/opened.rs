@@ -12,6 +12,7 @@ use crate::body::{BodyError, BodyModel};
 use crate::dataset::loader::{LoaderConfig, SceneSource};
 use crate::dataset::protocol::{EvalSplit, Protocol, ProtocolError, SubjectSplit};
 use crate::dataset::sampling::{BoxPadding, RaySamplingConfig, NHP_BODY_FRACTION, NHP_BORDER_PX};
+use crate::dataset::smpl_alignment::SmplAlignment;
 use crate::dataset::vis_cache::VisibilityCache;
 use crate::dataset::{DatasetConfig, DatasetError, DatasetFormat, Subject};
 use crate::synth::{SynthSection, SynthSpec, BODY_MODEL_FILE, DESCRIPTION_FILE};
@@ -63,6 +64,10 @@ pub struct DataConfig {
     /// [`crate::dataset::smpl_jitter`]).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub smpl_jitter_m: f32,
+    /// Every scene's fitted SMPL moved rigidly onto its source masks, training and evaluation
+    /// (`None`: the stored fit; [`crate::dataset::smpl_alignment`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub smpl_alignment: Option<SmplAlignment>,
     /// `protocol = "subjects"`: the training and test subjects (`[data.split]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub split: Option<SubjectSplit>,
@@ -102,6 +107,7 @@ impl DataConfig {
             body_fraction: Self::default_body_fraction(),
             loader_threads: Self::default_threads(),
             smpl_jitter_m: 0.0,
+            smpl_alignment: None,
             split: None,
         }
     }
@@ -132,6 +138,7 @@ impl DataConfig {
             },
             box_padding: BoxPadding::nhp(),
             smpl_jitter_m: self.smpl_jitter_m,
+            smpl_alignment: self.smpl_alignment,
             ..LoaderConfig::default()
         }
     }

@@ -5,6 +5,7 @@
 //! - [`camera`]: pinhole cameras with OpenCV distortion, projection and pixel conventions.
 //! - [`rays`]: single rays, ray bundles, ray/box clipping and `mask_at_box`.
 //! - [`raster`]: the z-buffer rasteriser.
+//! - [`distance_transform`]: a mask's exact Euclidean distance transform and boundary pixels.
 //! - [`visibility`]: per-vertex visibility in a view by rasterisation.
 //! - [`surface`]: nearest point on a triangle mesh (BVH) with barycentric weights.
 //! - [`occupancy`]: the occupancy grid of a posed mesh (which samples can be skipped).
@@ -15,6 +16,7 @@
 //! - [`sparse`]: voxel boxes, active sites, convolution rulebooks and trilinear corners.
 
 pub mod camera;
+pub mod distance_transform;
 pub mod mesh_memo;
 pub mod occupancy;
 pub mod occupancy_memo;

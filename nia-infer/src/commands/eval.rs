@@ -11,6 +11,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nia_data::dataset::protocol::{EvalSplit, SubjectSplit};
+use nia_data::dataset::smpl_alignment::SmplAlignment;
 use nia_data::dataset::ProtocolName;
 use nia_infer::eval::{eval_items, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult};
 use nia_infer::perceptual::LpipsFiles;
@@ -18,7 +19,7 @@ use nia_infer::pictures::{save_evaluated, ERROR_MAP_MAX};
 use nia_model::render_options::RenderOptions;
 use serde::Serialize;
 
-use crate::model_load::{LoadedModel, LpipsArgs, ModelArgs};
+use crate::model_load::{parse_switch, LoadedModel, LpipsArgs, ModelArgs};
 use crate::output::{progress_bar, write_json, write_text};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -80,6 +81,11 @@ pub struct EvalArgs {
     /// Evaluate only the first N images of the split.
     #[arg(long)]
     pub limit: Option<usize>,
+    /// Each scene's fitted SMPL moved rigidly onto its source views' masks before rendering:
+    /// on (the model's `[data] smpl_alignment` settings, else the defaults) or off (default:
+    /// the model's `[data]` setting, off where it has none).
+    #[arg(long, value_parser = parse_switch)]
+    pub smpl_alignment: Option<bool>,
     #[command(flatten)]
     pub lpips: LpipsArgs,
     /// Skip the grid and blend-weight PNGs.
@@ -127,6 +133,8 @@ struct Metrics<'a> {
     split: &'static str,
     task: &'static str,
     adaptive: RenderOptions,
+    /// The SMPL alignment's settings (`None`: off; each image lists its correction).
+    smpl_alignment: Option<SmplAlignment>,
     /// Novel pose: the source frame given on the command line (`None`: each subject's first).
     reference_frame: Option<usize>,
     samples: usize,
@@ -156,6 +164,15 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         },
     };
     let mut data_config = loaded.data_config(args.data.as_deref(), args.smpl.as_deref());
+    match args.smpl_alignment {
+        Some(true) => {
+            data_config
+                .smpl_alignment
+                .get_or_insert_with(SmplAlignment::default);
+        }
+        Some(false) => data_config.smpl_alignment = None,
+        None => {}
+    }
     if !args.subjects.is_empty() {
         if split != EvalSplit::UnseenSubjects {
             anyhow::bail!("--subjects names held-out people: use it with --split test");
@@ -232,6 +249,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         split: split.name(),
         task: task_name(args.task),
         adaptive,
+        smpl_alignment: data_config.smpl_alignment,
         reference_frame: args.ref_frame,
         samples,
         lpips: lpips.as_ref().map(|(files, _)| files.clone()),

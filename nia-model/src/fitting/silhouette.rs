@@ -6,6 +6,9 @@
 //! vertex outside the mask is pulled in), and each boundary sample is pulled towards its
 //! nearest projected vertex (a mask part no vertex covers pulls the body out).
 
+pub use nia_data::geometry::distance_transform::boundary_pixels;
+use nia_data::geometry::distance_transform::distance_to_mask;
+
 use super::FitError;
 
 /// A mask's distance map and boundary sample.
@@ -18,66 +21,6 @@ pub struct SilhouetteTarget {
     /// `[M]` boundary pixels `(x, y)` (mask pixels with a 4-neighbour outside the mask),
     /// evenly spaced along the scan order, at most the number asked for.
     pub boundary: Vec<[f32; 2]>,
-}
-
-/// Squared distance standing for "no mask pixel on this line" in the 1D transform.
-const FAR: f32 = 1e20;
-
-/// Felzenszwalb and Huttenlocher's 1D squared distance transform of `f` (lower envelope of
-/// parabolas), in place.
-fn edt_1d(f: &mut [f32], v: &mut [usize], z: &mut [f32], out: &mut [f32]) {
-    let n = f.len();
-    let mut k = 0usize;
-    v[0] = 0;
-    z[0] = f32::NEG_INFINITY;
-    z[1] = f32::INFINITY;
-    for q in 1..n {
-        loop {
-            let p = v[k];
-            let s = ((f[q] + (q * q) as f32) - (f[p] + (p * p) as f32)) / (2.0 * (q - p) as f32);
-            if s <= z[k] && k > 0 {
-                k -= 1;
-            } else {
-                k += 1;
-                v[k] = q;
-                z[k] = s;
-                z[k + 1] = f32::INFINITY;
-                break;
-            }
-        }
-    }
-    k = 0;
-    for (q, o) in out.iter_mut().enumerate() {
-        while z[k + 1] < q as f32 {
-            k += 1;
-        }
-        let p = v[k];
-        let d = q as f32 - p as f32;
-        *o = d * d + f[p];
-    }
-    f.copy_from_slice(out);
-}
-
-/// The pixels `(x, y)` of the `w` x `h` region `inside` that border a pixel outside it (or the
-/// picture's edge), row by row.
-pub fn boundary_pixels(
-    w: usize,
-    h: usize,
-    inside: impl Fn(usize, usize) -> bool,
-) -> impl Iterator<Item = (usize, usize)> {
-    (0..h)
-        .flat_map(move |y| (0..w).map(move |x| (x, y)))
-        .filter(move |&(x, y)| {
-            inside(x, y)
-                && (x == 0
-                    || y == 0
-                    || x + 1 == w
-                    || y + 1 == h
-                    || !inside(x - 1, y)
-                    || !inside(x + 1, y)
-                    || !inside(x, y - 1)
-                    || !inside(x, y + 1))
-        })
 }
 
 impl SilhouetteTarget {
@@ -97,33 +40,7 @@ impl SilhouetteTarget {
             )));
         }
         let inside = |x: usize, y: usize| mask[y * w + x] != 0;
-        let mut d: Vec<f32> = mask
-            .iter()
-            .map(|&m| if m != 0 { 0.0 } else { FAR })
-            .collect();
-        let n = w.max(h);
-        let (mut v, mut z, mut out, mut line) = (
-            vec![0usize; n],
-            vec![0.0f32; n + 1],
-            vec![0.0f32; n],
-            vec![0.0f32; n],
-        );
-        for x in 0..w {
-            for y in 0..h {
-                line[y] = d[y * w + x];
-            }
-            edt_1d(&mut line[..h], &mut v, &mut z, &mut out[..h]);
-            for y in 0..h {
-                d[y * w + x] = line[y];
-            }
-        }
-        for y in 0..h {
-            let row = &mut d[y * w..(y + 1) * w];
-            line[..w].copy_from_slice(row);
-            edt_1d(&mut line[..w], &mut v, &mut z, &mut out[..w]);
-            row.copy_from_slice(&line[..w]);
-        }
-        let distance: Vec<f32> = d.iter().map(|&s| s.min(FAR).sqrt()).collect();
+        let distance = distance_to_mask(w, h, |i| mask[i] != 0);
 
         let all: Vec<[f32; 2]> = boundary_pixels(w, h, inside)
             .map(|(x, y)| [x as f32, y as f32])

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use nia_data::dataset::smpl_alignment::AlignmentError;
 use nia_data::dataset::smpl_jitter::MAX_SMPL_JITTER_M;
 use nia_data::dataset::DataConfig;
 use nia_data::synth::SynthSection;
@@ -460,6 +461,14 @@ impl TrainConfig {
                 &format!("a distance in [0, {MAX_SMPL_JITTER_M}] metres"),
                 d.smpl_jitter_m.to_string(),
             ));
+        }
+        if let Some(Err(AlignmentError::Invalid {
+            field,
+            expected,
+            got,
+        })) = d.smpl_alignment.map(|a| a.validate())
+        {
+            return Err(bad(&format!("data.smpl_alignment.{field}"), &expected, got));
         }
         if let Err(e) = self.render.check() {
             return Err(bad(&format!("render.{}", e.key), &e.expected, e.got));
