@@ -320,3 +320,24 @@ fn the_settings_read_with_defaults() {
     assert_eq!(some.iterations, 5);
     assert!(serde_json::from_str::<SmplAlignment>(r#"{"robust": 0.05}"#).is_err());
 }
+
+/// The time of one alignment at this size (three 128-px views, default settings).
+/// Run: `cargo test -p nia-data --test smpl_alignment -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn alignment_time() {
+    let cams = cameras();
+    let m = masks(&cams);
+    let fit = typical_fit();
+    let views = views(&cams, &m);
+    let runs = 20;
+    let start = std::time::Instant::now();
+    for _ in 0..runs {
+        align_to_masks(&fit, &views, &SmplAlignment::default()).unwrap();
+    }
+    let ms = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
+    eprintln!(
+        "alignment: {ms:.1} ms per scene ({} vertices, 3 views of {SIZE} px)",
+        fit.len()
+    );
+}

@@ -32,6 +32,10 @@ use serde::{Deserialize, Serialize};
 use crate::body::SmplParams;
 use crate::geometry::camera::{Camera, PIXEL_CENTRE_OFFSET};
 use crate::geometry::distance_transform::{boundary_pixels, distance_to_mask};
+use crate::geometry::point_grid::PointGrid;
+
+/// Cell of the grid the nearest projected vertex is looked up in, pixels.
+const NEAREST_CELL_PX: f32 = 4.0;
 
 /// The alignment's settings (`[data] smpl_alignment`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -432,17 +436,16 @@ pub fn align_to_masks(
             }
             // Mask boundary pixels: pull their nearest projected vertex.
             let inv_b = 1.0 / term.boundary.len() as f32;
+            let pixels: Vec<Vec2> = projected
+                .iter()
+                .map(|p| p.map_or(Vec2::NAN, |(uv, _, _)| uv))
+                .collect();
+            let grid = PointGrid::new(&pixels, NEAREST_CELL_PX);
             for &b in &term.boundary {
-                let nearest = projected
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, p)| p.map(|(uv, du, dv)| (i, uv, du, dv)))
-                    .min_by(|p, q| {
-                        (p.1 - b)
-                            .length_squared()
-                            .total_cmp(&(q.1 - b).length_squared())
-                    });
-                let Some((i, uv, du, dv)) = nearest else {
+                let Some(i) = grid.nearest(b) else {
+                    continue;
+                };
+                let Some((uv, du, dv)) = projected[i] else {
                     continue;
                 };
                 let e = uv - b;

@@ -12,6 +12,7 @@
 //! - [`mesh_memo`]: values built from a mesh, remembered for the most recently seen meshes.
 //! - [`occupancy_memo`]: grids of recently seen meshes, shared instead of rebuilt.
 //! - [`surface_memo`]: nearest-surface indices of recently seen meshes.
+//! - [`point_grid`]: exact nearest-neighbour queries over 2D points.
 //! - [`orbit`]: a 360-degree camera path on the ring of a dataset's calibrated cameras.
 //! - [`sparse`]: voxel boxes, active sites, convolution rulebooks and trilinear corners.
 
@@ -21,6 +22,7 @@ pub mod mesh_memo;
 pub mod occupancy;
 pub mod occupancy_memo;
 pub mod orbit;
+pub mod point_grid;
 pub mod raster;
 pub mod rays;
 pub mod sparse;
