@@ -241,6 +241,10 @@ fn presets_parse() {
     let quick = nia_train::config::TrainConfig::load(&preset("quickstart.toml")).unwrap();
     assert!(quick.synth.is_some(), "quickstart generates its data");
     assert_eq!(quick.model.d_model, 16, "tiny network");
+    assert!(
+        quick.data.smpl_alignment.is_some(),
+        "flawed data: the fit aligned to the masks"
+    );
     // zju.toml is complete but for the user's data: the only complaint is the missing folder.
     let err = nia_train::config::TrainConfig::load(&preset("zju.toml"));
     match err {
