@@ -20,6 +20,7 @@ pub mod loader;
 pub mod monocap;
 pub mod opened;
 pub mod protocol;
+pub mod requests;
 pub mod sampling;
 pub mod smpl_alignment;
 pub mod smpl_jitter;
