@@ -26,7 +26,7 @@
 //! Only the scene's source views are read, never its target: the correction is what a user
 //! has at test time.
 
-use glam::{Mat3, Quat, Vec2, Vec3};
+use glam::{Quat, Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::body::SmplParams;
@@ -213,10 +213,6 @@ impl RigidCorrection {
 /// A view's mask as `E` reads it.
 struct ViewTerm<'a> {
     camera: &'a Camera,
-    /// `R` of the camera's rows, for the projection's Jacobian.
-    r: Mat3,
-    width: usize,
-    height: usize,
     /// `[H * W]` distance to the mask, pixels.
     distance: Vec<f32>,
     /// `[M]` boundary pixels.
@@ -235,7 +231,7 @@ impl<'a> ViewTerm<'a> {
     /// Distance and its gradient (pixels per pixel) at `uv`, extended past the image's edge by
     /// the distance to it.
     fn distance_at(&self, uv: Vec2) -> (f32, Vec2) {
-        let (w, h) = (self.width, self.height);
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
         let p = uv - Vec2::splat(PIXEL_CENTRE_OFFSET);
         let max = Vec2::new((w - 1) as f32, (h - 1) as f32);
         let c = p.clamp(Vec2::ZERO, max);
@@ -282,7 +278,8 @@ impl<'a> ViewTerm<'a> {
         let du = Vec3::new(fx * iz, s * iz, -(fx * y.x + s * y.y) * iz * iz);
         let dv = Vec3::new(0.0, fy * iz, -fy * y.y * iz * iz);
         // d/dx of (row . (R x + T)) is R^T row.
-        Some((uv, self.r.transpose() * du, self.r.transpose() * dv))
+        let rt = self.camera.r.transpose();
+        Some((uv, rt * du, rt * dv))
     }
 }
 
@@ -343,13 +340,6 @@ impl System {
     }
 }
 
-/// The current motion: `x -> rotation (x - centre) + centre + translation`.
-#[derive(Debug, Clone, Copy)]
-struct State {
-    rotation: Quat,
-    translation: Vec3,
-}
-
 /// The rigid correction of `vertices` ([V] world metres) that best fits the masks of `views`
 /// (module docs). A view with an empty mask takes no part; with none left the correction is
 /// the identity (`views_used` 0). Errors name a mask of the wrong size or a body behind a
@@ -400,9 +390,6 @@ pub fn align_to_masks(
         let sigma = config.robust_m * view.camera.fx() / depth;
         terms.push(ViewTerm {
             camera: view.camera,
-            r: view.camera.r,
-            width: w,
-            height: h,
             distance: distance_to_mask(w, h, |i| view.mask[i]),
             boundary,
             sigma2: sigma * sigma,
@@ -412,12 +399,10 @@ pub fn align_to_masks(
         return Ok(RigidCorrection::identity(centre));
     }
 
-    let evaluate = |state: &State, system: Option<&mut System>| -> f32 {
+    // `E` of the fit moved by `state`, and with `system` its normal equations.
+    let evaluate = |state: &RigidCorrection, system: Option<&mut System>| -> f32 {
         let moved_centre = centre + state.translation;
-        let moved: Vec<Vec3> = sample
-            .iter()
-            .map(|&v| state.rotation * (v - centre) + moved_centre)
-            .collect();
+        let moved: Vec<Vec3> = sample.iter().map(|&v| state.apply_point(v)).collect();
         let mut energy = 0.0f64;
         let mut system = system;
         for term in &terms {
@@ -462,9 +447,9 @@ pub fn align_to_masks(
     };
 
     let max_angle = config.max_rotation_deg.to_radians();
-    let mut state = State {
-        rotation: Quat::IDENTITY,
-        translation: Vec3::ZERO,
+    let mut state = RigidCorrection {
+        views_used: terms.len(),
+        ..RigidCorrection::identity(centre)
     };
     let mut system = System::default();
     let energy_before = evaluate(&state, Some(&mut system));
@@ -476,9 +461,10 @@ pub fn align_to_masks(
         };
         let omega = Vec3::new(delta[0] as f32, delta[1] as f32, delta[2] as f32);
         let step = Vec3::new(delta[3] as f32, delta[4] as f32, delta[5] as f32);
-        let candidate = State {
+        let candidate = RigidCorrection {
             rotation: (Quat::from_scaled_axis(omega) * state.rotation).normalize(),
             translation: state.translation + step,
+            ..state
         };
         let within = candidate.translation.length() <= config.max_translation_m
             && candidate.rotation.angle_between(Quat::IDENTITY) <= max_angle;
@@ -505,11 +491,8 @@ pub fn align_to_masks(
         }
     }
     Ok(RigidCorrection {
-        rotation: state.rotation,
-        centre,
-        translation: state.translation,
         energy_before,
         energy_after: energy,
-        views_used: terms.len(),
+        ..state
     })
 }
