@@ -99,6 +99,7 @@ fn open(dir: &Path, faces: &[[u32; 3]]) -> SceneSource {
         subjects: vec![subject],
         faces: faces.to_vec(),
         cache: None,
+        body_model: None,
     }
 }
 

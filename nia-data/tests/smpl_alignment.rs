@@ -2,10 +2,11 @@
 //! comes back onto it from three source masks, holds against flawed masks, stays within its
 //! bounds, keeps the params in step with the vertices, and refuses bad input by name.
 
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use glam::{Quat, Vec3};
 use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
+use nia_data::dataset::fit_alignment::align_fit;
 use nia_data::dataset::smpl_alignment::{
     align_to_masks, AlignmentError, AlignmentView, RigidCorrection, SmplAlignment,
 };
@@ -217,6 +218,50 @@ fn views_without_a_person_take_no_part() {
     assert_eq!(c.rotation, Quat::IDENTITY);
     let c = align_to_masks(&fit, &[], &SmplAlignment::default()).unwrap();
     assert_eq!((c.views_used, c.translation), (0, Vec3::ZERO));
+}
+
+/// The loader's entry (`fit_alignment::align_fit`) aligns a scene's sources once: the same
+/// fit, params, cameras, masks and settings give the remembered result; a pixel of one mask,
+/// a setting or the params changed give a new one; without a body model the pose refinement
+/// is refused by name.
+#[test]
+fn the_loader_aligns_each_exact_input_once() {
+    let cams = cameras();
+    let mut m = masks(&cams);
+    let fit = typical_fit();
+    let params = SmplParams::default();
+    let config = SmplAlignment::default();
+    let first = align_fit(&fit, &params, None, &views(&cams, &m), &config).unwrap();
+    let again = align_fit(&fit, &params, None, &views(&cams, &m), &config).unwrap();
+    assert!(Arc::ptr_eq(&first, &again), "remembered");
+    let direct = align_to_masks(&fit, &views(&cams, &m), &config).unwrap();
+    assert_eq!(first.rigid, direct);
+    assert_eq!(first.pose, None);
+    let other_settings = SmplAlignment {
+        robust_m: 0.02,
+        ..config
+    };
+    let other = align_fit(&fit, &params, None, &views(&cams, &m), &other_settings).unwrap();
+    assert!(!Arc::ptr_eq(&first, &other));
+    let moved_params = SmplParams {
+        th: Vec3::new(0.0, 0.0, 1e-3),
+        ..SmplParams::default()
+    };
+    let other = align_fit(&fit, &moved_params, None, &views(&cams, &m), &config).unwrap();
+    assert!(!Arc::ptr_eq(&first, &other));
+    let pixel = m[1].iter().position(|&p| p).unwrap();
+    m[1][pixel] = false;
+    let other = align_fit(&fit, &params, None, &views(&cams, &m), &config).unwrap();
+    assert!(
+        !Arc::ptr_eq(&first, &other),
+        "one pixel of one mask changed"
+    );
+    let posing = SmplAlignment {
+        pose_iterations: 5,
+        ..config
+    };
+    let e = align_fit(&fit, &params, None, &views(&cams, &m), &posing).unwrap_err();
+    assert_eq!(field_of(e), "pose_iterations");
 }
 
 fn field_of(e: AlignmentError) -> String {

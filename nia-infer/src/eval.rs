@@ -22,7 +22,6 @@ use nia_data::dataset::loader::{
     eval_requests, load_scene, LoaderError, Scene, SceneRequest, SceneTarget,
 };
 use nia_data::dataset::protocol::{EvalItem, EvalSplit, ProtocolError};
-use nia_data::dataset::smpl_alignment::RigidCorrection;
 use nia_data::dataset::OpenedDataset;
 use nia_data::metrics::{evaluate, ImageMetrics, ImageView, MetricsError, SsimOptions};
 use nia_data::scene::SceneInput;
@@ -162,11 +161,29 @@ pub struct AlignmentReport {
     pub energy_after: f32,
     /// Source views whose mask took part.
     pub views_used: usize,
+    /// The pose refinement after the rigid motion (absent when off).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pose: Option<PoseReport>,
 }
 
-impl From<&RigidCorrection> for AlignmentReport {
-    fn from(c: &RigidCorrection) -> Self {
-        AlignmentReport {
+/// A scene's SMPL pose refinement ([`nia_data::dataset::smpl_pose_refinement`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct PoseReport {
+    /// Mean and largest rotation of the body joints away from the fit, degrees.
+    pub mean_joint_deg: f32,
+    pub max_joint_deg: f32,
+    /// The objective (silhouette energy plus pose prior) before and after.
+    pub energy_before: f32,
+    pub energy_after: f32,
+    /// Accepted steps.
+    pub steps: usize,
+}
+
+impl AlignmentReport {
+    /// The scene's rigid correction and pose refinement; `None` when the alignment was off.
+    pub fn of(scene: &Scene) -> Option<Self> {
+        let c = scene.alignment.as_ref()?;
+        Some(AlignmentReport {
             translation_m: c.translation.to_array(),
             rotation: c.rotation.to_scaled_axis().to_array(),
             rotation_deg: c.rotation_deg(),
@@ -174,7 +191,14 @@ impl From<&RigidCorrection> for AlignmentReport {
             energy_before: c.energy_before,
             energy_after: c.energy_after,
             views_used: c.views_used,
-        }
+            pose: scene.pose_refinement.as_ref().map(|p| PoseReport {
+                mean_joint_deg: p.mean_joint_deg,
+                max_joint_deg: p.max_joint_deg,
+                energy_before: p.energy_before,
+                energy_after: p.energy_after,
+                steps: p.steps,
+            }),
+        })
     }
 }
 
@@ -383,7 +407,7 @@ pub fn evaluate_images(
             rays: rendered.rays,
             point_evaluations: rendered.point_evaluations,
             colour_evaluations: rendered.colour_evaluations,
-            smpl_alignment: sources.alignment.as_ref().map(AlignmentReport::from),
+            smpl_alignment: AlignmentReport::of(sources),
             seconds,
             diagnostics,
             times,

@@ -2,6 +2,7 @@
 //! model's training resolution, the user's SMPL model, and scenes of chosen source views.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::Context;
 use clap::Args;
@@ -83,7 +84,7 @@ pub struct OpenedSubject {
     /// The subject folder.
     pub dir: PathBuf,
     pub source: SceneSource,
-    pub body: BodyModel,
+    pub body: Arc<BodyModel>,
     pub loader: LoaderConfig,
 }
 
@@ -91,8 +92,9 @@ impl OpenedSubject {
     pub fn open(args: &SubjectArgs, run: &RunSettings) -> anyhow::Result<Self> {
         let dir = subject_dir(args, run)?;
         let smpl = smpl_path(args.smpl.as_deref(), run, &dir)?;
-        let body =
-            BodyModel::load(&smpl).with_context(|| format!("{}: SMPL model", smpl.display()))?;
+        let body = Arc::new(
+            BodyModel::load(&smpl).with_context(|| format!("{}: SMPL model", smpl.display()))?,
+        );
         let config = DatasetConfig {
             ratio: args.ratio.or(run.data.ratio),
             smpl_model: Some(smpl),
@@ -105,6 +107,7 @@ impl OpenedSubject {
                 subjects: vec![subject],
                 faces: body.faces.clone(),
                 cache: None,
+                body_model: Some(body.clone()),
             },
             body,
             loader: LoaderConfig {

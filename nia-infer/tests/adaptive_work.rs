@@ -89,6 +89,7 @@ fn case(name: &str) -> Case {
         subjects: vec![subject],
         faces: body.faces.clone(),
         cache: None,
+        body_model: None,
     };
     let request = SceneRequest {
         subject: 0,

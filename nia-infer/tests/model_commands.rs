@@ -237,6 +237,28 @@ fn eval_with_smpl_alignment_reports_each_correction() {
         assert!(a["rotation_deg"].as_f64().unwrap() <= 10.0 + 1e-3, "{a}");
         assert!(image["psnr"].as_f64().unwrap().is_finite());
     }
+    for image in images {
+        assert!(image["smpl_alignment"].get("pose").is_none(), "rigid only");
+    }
+    // The pose refinement after it: each image lists its joints' change.
+    let flags = "--backend ndarray --no-pictures --limit 2 --smpl-pose-iterations 5";
+    ok(&on_model("eval", flags, &[], &out_dir));
+    let metrics = json_file(&out_dir.join("metrics.json"));
+    assert_eq!(
+        metrics["smpl_alignment"]["pose_iterations"].as_u64(),
+        Some(5)
+    );
+    for image in metrics["images"].as_array().unwrap() {
+        let pose = &image["smpl_alignment"]["pose"];
+        let (before, after) = (
+            pose["energy_before"].as_f64().unwrap(),
+            pose["energy_after"].as_f64().unwrap(),
+        );
+        assert!(after.is_finite() && after <= before, "{pose}");
+        let max = pose["max_joint_deg"].as_f64().unwrap();
+        assert!((0.0..=15.0 + 1e-3).contains(&max), "{pose}");
+        assert!(pose["steps"].as_u64().unwrap() <= 5, "{pose}");
+    }
     ok(&on_model(
         "eval",
         "--backend ndarray --no-pictures --limit 1",
@@ -246,6 +268,12 @@ fn eval_with_smpl_alignment_reports_each_correction() {
     let metrics = json_file(&out_dir.join("metrics.json"));
     assert!(metrics["smpl_alignment"].is_null());
     assert!(metrics["images"][0].get("smpl_alignment").is_none());
+    let flags =
+        "--backend ndarray --no-pictures --limit 1 --smpl-alignment off --smpl-pose-iterations 5";
+    let refused = on_model("eval", flags, &[], &out_dir);
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("--smpl-pose-iterations"), "{stderr}");
 }
 
 #[test]

@@ -99,5 +99,17 @@ fn bad_overrides_name_the_setting_or_the_key() {
     assert!(m.contains("robust"), "{m}");
     let aligned = TrainConfig::load_with(&path, &overrides(&["data.smpl_alignment={}"])).unwrap();
     assert_eq!(aligned.data.smpl_alignment, Some(SmplAlignment::default()));
+    let (_, m) = message(&["data.smpl_alignment={ pose_iterations = 20, pose_prior_deg = -1.0 }"]);
+    assert!(
+        m.contains("data.smpl_alignment.pose_prior_deg") && m.contains("(0, 180]"),
+        "{m}"
+    );
+    let posed = TrainConfig::load_with(
+        &path,
+        &overrides(&["data.smpl_alignment={ pose_iterations = 20 }"]),
+    )
+    .unwrap();
+    let posed = posed.data.smpl_alignment.unwrap();
+    assert_eq!((posed.pose_iterations, posed.pose_prior_deg), (20, 40.0));
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -154,6 +154,28 @@ fn rigid(rotation: DMat3, translation: DVec3) -> DMat4 {
     )
 }
 
+/// The pose side of a posed body: what every vertex's skinning reads.
+struct PoseTransforms {
+    /// `[24]` world joint locations, metres.
+    joints: Vec<Vec3>,
+    /// `[24]` skinning transforms (see [`Posed::joint_transforms`]).
+    joint_transforms: Vec<Mat4>,
+    feature: [f32; NUM_POSE_FEATURES],
+    /// Some pose blend shape is active (the feature is not all zero).
+    posed_shape: bool,
+}
+
+/// Some of a posed body's vertices ([`BodyModel::lbs_at`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PosedAt {
+    /// `[indices]` posed world vertices, metres.
+    pub vertices: Vec<Vec3>,
+    /// `[24]` posed world joints, metres.
+    pub joints: Vec<Vec3>,
+    /// `[24]` skinning transforms, as [`Posed::joint_transforms`].
+    pub joint_transforms: Vec<Mat4>,
+}
+
 impl BodyModel {
     /// Pose and place the body (SMPL's LBS followed by ZJU-MoCap's `Rh`, `Th`; module docs).
     ///
@@ -162,8 +184,43 @@ impl BodyModel {
     pub fn lbs(&self, params: &SmplParams) -> Posed {
         let v_shaped = self.shape_vertices(&params.shapes);
         let rest = self.regress_joints_f64(&v_shaped);
-        let rest = |k: usize| rest.get(k).copied().unwrap_or(DVec3::ZERO);
+        let pose = self.pose_transforms(params, &rest);
+        let vertices = (0..v_shaped.len())
+            .into_par_iter()
+            .map(|v| self.skin(v, v_shaped[v], &pose))
+            .collect();
+        Posed {
+            vertices,
+            joints: pose.joints,
+            joint_transforms: pose.joint_transforms,
+            v_shaped,
+            rest_joints: (0..NUM_JOINTS)
+                .map(|k| rest.get(k).copied().unwrap_or(DVec3::ZERO).as_vec3())
+                .collect(),
+        }
+    }
 
+    /// The vertices `indices` of the body posed by `params`, whose shape is `shaped`'s (a
+    /// [`Posed`] of the same betas: its `v_shaped` and `rest_joints` are reused). The same
+    /// numbers as [`BodyModel::lbs`] at those vertices (the rest joints rounded to f32 once);
+    /// indices past the model's vertices are skipped.
+    pub fn lbs_at(&self, params: &SmplParams, shaped: &Posed, indices: &[usize]) -> PosedAt {
+        let rest: Vec<DVec3> = shaped.rest_joints.iter().map(|j| j.as_dvec3()).collect();
+        let pose = self.pose_transforms(params, &rest);
+        let vertices = indices
+            .iter()
+            .filter_map(|&v| shaped.v_shaped.get(v).map(|&p| self.skin(v, p, &pose)))
+            .collect();
+        PosedAt {
+            vertices,
+            joints: pose.joints,
+            joint_transforms: pose.joint_transforms,
+        }
+    }
+
+    /// Steps 3, 5 and 6 of the module docs for `params` with rest joints `rest`.
+    fn pose_transforms(&self, params: &SmplParams, rest: &[DVec3]) -> PoseTransforms {
+        let rest = |k: usize| rest.get(k).copied().unwrap_or(DVec3::ZERO);
         let rotations: Vec<DMat3> = (0..NUM_JOINTS)
             .map(|k| {
                 let p = &params.poses[3 * k..3 * k + 3];
@@ -203,33 +260,28 @@ impl BodyModel {
                 (global * a).as_mat4()
             })
             .collect();
-
-        let vertices = (0..v_shaped.len())
-            .into_par_iter()
-            .map(|v| {
-                let mut p = v_shaped[v];
-                if posed_shape {
-                    let span = v * 3 * NUM_POSE_FEATURES..(v + 1) * 3 * NUM_POSE_FEATURES;
-                    if let Some(dirs) = self.posedirs.get(span) {
-                        for (c, row) in dirs.chunks_exact(NUM_POSE_FEATURES).enumerate() {
-                            let offset: f32 = row.iter().zip(&feature).map(|(&d, &f)| d * f).sum();
-                            p[c] += offset;
-                        }
-                    }
-                }
-                match self.weights.get(v) {
-                    Some(w) => blend_transform(w, &joint_transforms).transform_point3(p),
-                    None => p,
-                }
-            })
-            .collect();
-
-        Posed {
-            vertices,
+        PoseTransforms {
             joints,
             joint_transforms,
-            v_shaped,
-            rest_joints: (0..NUM_JOINTS).map(|k| rest(k).as_vec3()).collect(),
+            feature,
+            posed_shape,
+        }
+    }
+
+    /// Steps 4 and 7 of the module docs for vertex `v` at its shaped rest position `p`.
+    fn skin(&self, v: usize, mut p: Vec3, pose: &PoseTransforms) -> Vec3 {
+        if pose.posed_shape {
+            let span = v * 3 * NUM_POSE_FEATURES..(v + 1) * 3 * NUM_POSE_FEATURES;
+            if let Some(dirs) = self.posedirs.get(span) {
+                for (c, row) in dirs.chunks_exact(NUM_POSE_FEATURES).enumerate() {
+                    let offset: f32 = row.iter().zip(&pose.feature).map(|(&d, &f)| d * f).sum();
+                    p[c] += offset;
+                }
+            }
+        }
+        match self.weights.get(v) {
+            Some(w) => blend_transform(w, &pose.joint_transforms).transform_point3(p),
+            None => p,
         }
     }
 }

@@ -19,8 +19,8 @@ pub mod topology;
 
 pub use error::{BodyError, IN_MEMORY};
 pub use lbs::{
-    blend_transform, inverse_lbs, pose_feature, rodrigues, rodrigues_f64, Posed, SmplParams,
-    INVERSE_LBS_MIN_DET,
+    blend_transform, inverse_lbs, pose_feature, rodrigues, rodrigues_f64, Posed, PosedAt,
+    SmplParams, INVERSE_LBS_MIN_DET,
 };
 pub use motion::{pose_for_motion, MotionKind};
 pub use procedural::{ProceduralBody, ProceduralSpec};

@@ -20,15 +20,17 @@ use std::thread::JoinHandle;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::body::SmplParams;
+use crate::body::{BodyModel, SmplParams};
+use crate::dataset::fit_alignment::align_fit;
 pub use crate::dataset::requests::{eval_requests, train_requests};
 use crate::dataset::sampling::{
     sample_rays, BoxPadding, RaySamplingConfig, SamplingError, TrainRays,
 };
 use crate::dataset::smpl_alignment::{
-    align_to_masks, AlignmentError, AlignmentView, RigidCorrection, SmplAlignment,
+    AlignmentError, AlignmentView, RigidCorrection, SmplAlignment,
 };
 use crate::dataset::smpl_jitter::jitter_smpl;
+use crate::dataset::smpl_pose_refinement::PoseRefinement;
 use crate::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use crate::dataset::{DatasetError, Subject, ViewImage};
 use crate::geometry::occupancy_memo::shared_grid;
@@ -193,6 +195,9 @@ pub struct SceneSource {
     /// [F] SMPL triangles (from the user's model).
     pub faces: Vec<[u32; 3]>,
     pub cache: Option<VisibilityCache>,
+    /// The body model the fits were posed with: the pose refinement
+    /// ([`SmplAlignment::pose_iterations`]) poses it again. `None`: no refinement possible.
+    pub body_model: Option<Arc<BodyModel>>,
 }
 
 /// An input view of a loaded scene: the dataset image (with its camera) and the rasterised
@@ -234,6 +239,8 @@ pub struct Scene {
     /// The rigid correction the fit was moved by ([`LoaderConfig::smpl_alignment`]; `None`
     /// when off).
     pub alignment: Option<RigidCorrection>,
+    /// The pose refinement that followed it (`None` when not asked for).
+    pub pose_refinement: Option<PoseRefinement>,
 }
 
 /// Loads one scene on the calling thread.
@@ -291,6 +298,10 @@ pub fn load_scene(
     // The stored fit moved onto the source masks (`None`: not asked for).
     let aligned = match &config.smpl_alignment {
         Some(alignment) => {
+            let alignment = match request.target {
+                TargetKind::Rays => alignment.for_training(),
+                TargetKind::Image => *alignment,
+            };
             let views: Vec<AlignmentView<'_>> = images
                 .iter()
                 .map(|(_, image)| AlignmentView {
@@ -298,20 +309,26 @@ pub fn load_scene(
                     mask: &image.mask,
                 })
                 .collect();
-            let correction = align_to_masks(&vertices, &views, alignment).map_err(|source| {
-                LoaderError::Alignment {
-                    subject: subject.name.clone(),
-                    frame,
-                    source,
-                }
+            let aligned = align_fit(
+                &vertices,
+                &params,
+                source.body_model.as_deref(),
+                &views,
+                &alignment,
+            )
+            .map_err(|source| LoaderError::Alignment {
+                subject: subject.name.clone(),
+                frame,
+                source,
             })?;
-            let mut moved = vertices.clone();
-            correction.apply(&mut moved, &mut params);
-            Some((moved, correction))
+            params = aligned.params.clone();
+            Some(aligned)
         }
         None => None,
     };
-    let (aligned, alignment) = aligned.unzip();
+    let alignment = aligned.as_ref().map(|a| a.rigid);
+    let pose_refinement = aligned.as_ref().and_then(|a| a.pose.clone());
+    let aligned = aligned.map(|a| a.vertices.clone());
     let fit = aligned.as_ref().unwrap_or(&vertices);
     // The body the network reads: for training scenes, the fit moved by the SMPL jitter
     // (`None`: the fit). Visibility stays the fit's.
@@ -397,6 +414,7 @@ pub fn load_scene(
         target_view: request.target_view,
         target,
         alignment,
+        pose_refinement,
     })
 }
 
@@ -442,6 +460,16 @@ impl SceneLoader {
         }
         if let Some(alignment) = &config.smpl_alignment {
             alignment.validate().map_err(LoaderError::AlignmentConfig)?;
+            if alignment.refines_pose() && source.body_model.is_none() {
+                return Err(LoaderError::AlignmentConfig(AlignmentError::Invalid {
+                    field: "pose_iterations".into(),
+                    expected: "0 when the scene source has no body model".into(),
+                    got: format!(
+                        "{} ({:?} for training)",
+                        alignment.pose_iterations, alignment.train_pose_iterations
+                    ),
+                }));
+            }
         }
         let total = requests.len();
         let (ticket_tx, ticket_rx) = mpsc::sync_channel::<()>(config.prefetch);

@@ -14,6 +14,7 @@
 //! ```
 
 pub mod error;
+pub mod fit_alignment;
 pub mod image_io;
 pub mod inspect;
 pub mod loader;
@@ -22,8 +23,10 @@ pub mod opened;
 pub mod protocol;
 pub mod requests;
 pub mod sampling;
+pub(crate) mod silhouette_energy;
 pub mod smpl_alignment;
 pub mod smpl_jitter;
+pub mod smpl_pose_refinement;
 pub mod subject;
 pub mod vis_cache;
 pub mod zju;

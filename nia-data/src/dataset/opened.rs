@@ -275,15 +275,17 @@ impl OpenedDataset {
             protocol.check_subject(&subject.name, subject.num_cameras(), subject.num_frames())?;
             opened.push(subject);
         }
+        let model = Arc::new(model);
         Ok(OpenedDataset {
             source: Arc::new(SceneSource {
                 subjects: opened,
                 faces: model.faces.clone(),
                 cache: Some(VisibilityCache::new(data.cache_dir())),
+                body_model: Some(model.clone()),
             }),
             protocol,
             loader: data.loader(rays_per_image),
-            body_model: Arc::new(model),
+            body_model: model,
         })
     }
 

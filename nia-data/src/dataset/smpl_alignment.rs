@@ -26,16 +26,12 @@
 //! Only the scene's source views are read, never its target: the correction is what a user
 //! has at test time.
 
-use glam::{Quat, Vec2, Vec3};
+use glam::{Quat, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::body::SmplParams;
-use crate::geometry::camera::{Camera, PIXEL_CENTRE_OFFSET};
-use crate::geometry::distance_transform::{boundary_pixels, distance_to_mask};
-use crate::geometry::point_grid::PointGrid;
-
-/// Cell of the grid the nearest projected vertex is looked up in, pixels.
-const NEAREST_CELL_PX: f32 = 4.0;
+use crate::dataset::silhouette_energy::{NormalEquations, Residual, SilhouetteTerms};
+use crate::geometry::camera::Camera;
 
 /// The alignment's settings (`[data] smpl_alignment`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -59,6 +55,22 @@ pub struct SmplAlignment {
     /// Vertices used (every k-th of the mesh so that at most this many remain).
     #[serde(default = "default_vertex_samples")]
     pub vertex_samples: usize,
+    /// Levenberg-Marquardt iterations of the pose refinement after the rigid alignment
+    /// ([`super::smpl_pose_refinement`]); 0: rigid only.
+    #[serde(default)]
+    pub pose_iterations: usize,
+    /// The same for training scenes (`None`: `pose_iterations`). A model trained on the rigid
+    /// alignment alone still learns the fits' joint errors; the refinement then runs where
+    /// images are rendered.
+    #[serde(default)]
+    pub train_pose_iterations: Option<usize>,
+    /// The pose prior's scale `s`, degrees: a joint turned this far from the fit costs as much
+    /// as one view's vertex term fully saturated.
+    #[serde(default = "default_pose_prior_deg")]
+    pub pose_prior_deg: f32,
+    /// Largest rotation of a joint away from the fit, degrees.
+    #[serde(default = "default_max_joint_deg")]
+    pub max_joint_deg: f32,
 }
 
 fn default_iterations() -> usize {
@@ -79,6 +91,12 @@ fn default_boundary_samples() -> usize {
 fn default_vertex_samples() -> usize {
     2000
 }
+fn default_pose_prior_deg() -> f32 {
+    40.0
+}
+fn default_max_joint_deg() -> f32 {
+    15.0
+}
 
 impl Default for SmplAlignment {
     fn default() -> Self {
@@ -89,6 +107,10 @@ impl Default for SmplAlignment {
             max_rotation_deg: default_max_rotation_deg(),
             boundary_samples: default_boundary_samples(),
             vertex_samples: default_vertex_samples(),
+            pose_iterations: 0,
+            train_pose_iterations: None,
+            pose_prior_deg: default_pose_prior_deg(),
+            max_joint_deg: default_max_joint_deg(),
         }
     }
 }
@@ -116,29 +138,38 @@ fn invalid(
     }
 }
 
+/// `value` in `(0, max]` (NaN is not), else an error naming `field`.
+fn in_range(field: &str, value: f32, max: f32, unit: &str) -> Result<(), AlignmentError> {
+    if value > 0.0 && value <= max {
+        Ok(())
+    } else {
+        Err(invalid(field, format!("{unit} in (0, {max}]"), value))
+    }
+}
+
 impl SmplAlignment {
+    /// The settings a training scene is aligned with: `pose_iterations` replaced by
+    /// `train_pose_iterations` where that is given.
+    pub fn for_training(&self) -> SmplAlignment {
+        SmplAlignment {
+            pose_iterations: self.train_pose_iterations.unwrap_or(self.pose_iterations),
+            ..*self
+        }
+    }
+
+    /// The pose refinement runs for some scenes (training or rendered ones).
+    pub fn refines_pose(&self) -> bool {
+        self.pose_iterations > 0 || self.train_pose_iterations.is_some_and(|n| n > 0)
+    }
+
     /// Every field in its range.
     pub fn validate(&self) -> Result<(), AlignmentError> {
         if !(1..=1000).contains(&self.iterations) {
             return Err(invalid("iterations", "1..=1000", self.iterations));
         }
-        if !(self.robust_m > 0.0 && self.robust_m <= 1.0) {
-            return Err(invalid("robust_m", "metres in (0, 1]", self.robust_m));
-        }
-        if !(self.max_translation_m > 0.0 && self.max_translation_m <= 1.0) {
-            return Err(invalid(
-                "max_translation_m",
-                "metres in (0, 1]",
-                self.max_translation_m,
-            ));
-        }
-        if !(self.max_rotation_deg > 0.0 && self.max_rotation_deg <= 90.0) {
-            return Err(invalid(
-                "max_rotation_deg",
-                "degrees in (0, 90]",
-                self.max_rotation_deg,
-            ));
-        }
+        in_range("robust_m", self.robust_m, 1.0, "metres")?;
+        in_range("max_translation_m", self.max_translation_m, 1.0, "metres")?;
+        in_range("max_rotation_deg", self.max_rotation_deg, 90.0, "degrees")?;
         if !(1..=100_000).contains(&self.boundary_samples) {
             return Err(invalid(
                 "boundary_samples",
@@ -149,6 +180,14 @@ impl SmplAlignment {
         if !(1..=100_000).contains(&self.vertex_samples) {
             return Err(invalid("vertex_samples", "1..=100000", self.vertex_samples));
         }
+        if self.pose_iterations > 1000 {
+            return Err(invalid("pose_iterations", "0..=1000", self.pose_iterations));
+        }
+        if let Some(n) = self.train_pose_iterations.filter(|&n| n > 1000) {
+            return Err(invalid("train_pose_iterations", "0..=1000", n));
+        }
+        in_range("pose_prior_deg", self.pose_prior_deg, 180.0, "degrees")?;
+        in_range("max_joint_deg", self.max_joint_deg, 90.0, "degrees")?;
         Ok(())
     }
 }
@@ -210,136 +249,6 @@ impl RigidCorrection {
     }
 }
 
-/// A view's mask as `E` reads it.
-struct ViewTerm<'a> {
-    camera: &'a Camera,
-    /// `[H * W]` distance to the mask, pixels.
-    distance: Vec<f32>,
-    /// `[M]` boundary pixels.
-    boundary: Vec<Vec2>,
-    /// `sigma^2`, pixels squared.
-    sigma2: f32,
-}
-
-/// The Geman-McClure `rho(s)` and its derivative `rho'(s)` (the reweighting) at `s = r^2`.
-fn geman_mcclure(s: f32, sigma2: f32) -> (f32, f32) {
-    let d = sigma2 + s;
-    (sigma2 * s / d, sigma2 * sigma2 / (d * d))
-}
-
-impl<'a> ViewTerm<'a> {
-    /// Distance and its gradient (pixels per pixel) at `uv`, extended past the image's edge by
-    /// the distance to it.
-    fn distance_at(&self, uv: Vec2) -> (f32, Vec2) {
-        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
-        let p = uv - Vec2::splat(PIXEL_CENTRE_OFFSET);
-        let max = Vec2::new((w - 1) as f32, (h - 1) as f32);
-        let c = p.clamp(Vec2::ZERO, max);
-        let x0 = (c.x.floor() as usize).min(w.saturating_sub(2));
-        let y0 = (c.y.floor() as usize).min(h.saturating_sub(2));
-        let at = |x: usize, y: usize| self.distance[y.min(h - 1) * w + x.min(w - 1)];
-        let (fx, fy) = (c.x - x0 as f32, c.y - y0 as f32);
-        let (d00, d10, d01, d11) = (
-            at(x0, y0),
-            at(x0 + 1, y0),
-            at(x0, y0 + 1),
-            at(x0 + 1, y0 + 1),
-        );
-        let value = d00 * (1.0 - fx) * (1.0 - fy)
-            + d10 * fx * (1.0 - fy)
-            + d01 * (1.0 - fx) * fy
-            + d11 * fx * fy;
-        let mut grad = Vec2::new(
-            (d10 - d00) * (1.0 - fy) + (d11 - d01) * fy,
-            (d01 - d00) * (1.0 - fx) + (d11 - d10) * fx,
-        );
-        let over = p - c;
-        let len = over.length();
-        if len > 0.0 {
-            // Outside the image: the edge's value plus the way out.
-            if over.x != 0.0 {
-                grad.x = 0.0;
-            }
-            if over.y != 0.0 {
-                grad.y = 0.0;
-            }
-            return (value + len, grad + over / len);
-        }
-        (value, grad)
-    }
-
-    /// Pixel of the world point `x` and the Jacobian rows `d(u, v) / dx` (world), or `None`
-    /// behind the camera.
-    fn project(&self, x: Vec3) -> Option<(Vec2, Vec3, Vec3)> {
-        let y = self.camera.world_to_camera(x);
-        let uv = self.camera.project_camera(y)?;
-        let (fx, fy, s) = (self.camera.fx(), self.camera.fy(), self.camera.skew());
-        let iz = 1.0 / y.z;
-        let du = Vec3::new(fx * iz, s * iz, -(fx * y.x + s * y.y) * iz * iz);
-        let dv = Vec3::new(0.0, fy * iz, -fy * y.y * iz * iz);
-        // d/dx of (row . (R x + T)) is R^T row.
-        let rt = self.camera.r.transpose();
-        Some((uv, rt * du, rt * dv))
-    }
-}
-
-/// Normal equations of the 6 parameters `(omega, t)` of a step about the current centre.
-#[derive(Default)]
-struct System {
-    h: [[f64; 6]; 6],
-    g: [f64; 6],
-}
-
-impl System {
-    /// Adds the residual `r` with the world Jacobian row `a` (`dr/dx`) at the point `x`, lever
-    /// `d = x - c'`, weight `w`: `dr/domega = d x a`, `dr/dt = a`.
-    fn add(&mut self, a: Vec3, d: Vec3, r: f32, w: f32) {
-        let da = d.cross(a);
-        let j = [da.x, da.y, da.z, a.x, a.y, a.z].map(f64::from);
-        let (r, w) = (f64::from(r), f64::from(w));
-        for i in 0..6 {
-            self.g[i] += w * j[i] * r;
-            for k in 0..6 {
-                self.h[i][k] += w * j[i] * j[k];
-            }
-        }
-    }
-
-    /// `(H + lambda diag(H)) delta = -g`, by Gaussian elimination with partial pivoting;
-    /// `None` when singular.
-    fn solve(&self, lambda: f64) -> Option<[f64; 6]> {
-        let mut a = [[0.0f64; 7]; 6];
-        let scale = (0..6)
-            .map(|i| self.h[i][i])
-            .fold(0.0f64, f64::max)
-            .max(1e-12);
-        for i in 0..6 {
-            for k in 0..6 {
-                a[i][k] = self.h[i][k];
-            }
-            a[i][i] += lambda * self.h[i][i].max(1e-9 * scale);
-            a[i][6] = -self.g[i];
-        }
-        for col in 0..6 {
-            let pivot = (col..6).max_by(|&p, &q| a[p][col].abs().total_cmp(&a[q][col].abs()))?;
-            if a[pivot][col].abs() < 1e-12 * scale {
-                return None;
-            }
-            a.swap(col, pivot);
-            for row in 0..6 {
-                if row != col {
-                    let f = a[row][col] / a[col][col];
-                    for k in col..7 {
-                        a[row][k] -= f * a[col][k];
-                    }
-                }
-            }
-        }
-        let x: [f64; 6] = std::array::from_fn(|i| a[i][6] / a[i][i]);
-        x.iter().all(|v| v.is_finite()).then_some(x)
-    }
-}
-
 /// The rigid correction of `vertices` ([V] world metres) that best fits the masks of `views`
 /// (module docs). A view with an empty mask takes no part; with none left the correction is
 /// the identity (`views_used` 0). Errors name a mask of the wrong size or a body behind a
@@ -361,89 +270,29 @@ pub fn align_to_masks(
     let stride = vertices.len().div_ceil(config.vertex_samples).max(1);
     let sample: Vec<Vec3> = vertices.iter().step_by(stride).copied().collect();
 
-    let mut terms = Vec::with_capacity(views.len());
-    for (n, view) in views.iter().enumerate() {
-        let (w, h) = (view.camera.width as usize, view.camera.height as usize);
-        if view.mask.len() != w * h || w < 2 || h < 2 {
-            return Err(invalid(
-                format!("views[{n}].mask"),
-                format!("[{h} * {w}] values (the camera's size, at least 2 x 2)"),
-                view.mask.len(),
-            ));
-        }
-        let depth = view.camera.world_to_camera(centre).z;
-        if !(depth > 0.0) {
-            return Err(invalid(
-                format!("views[{n}].camera"),
-                "the body's centre in front of the camera",
-                format!("depth {depth} m"),
-            ));
-        }
-        let all: Vec<Vec2> = boundary_pixels(w, h, |x, y| view.mask[y * w + x])
-            .map(|(x, y)| Vec2::new(x as f32, y as f32) + Vec2::splat(PIXEL_CENTRE_OFFSET))
-            .collect();
-        if all.is_empty() {
-            continue;
-        }
-        let m = config.boundary_samples.min(all.len());
-        let boundary = (0..m).map(|i| all[i * all.len() / m]).collect();
-        let sigma = config.robust_m * view.camera.fx() / depth;
-        terms.push(ViewTerm {
-            camera: view.camera,
-            distance: distance_to_mask(w, h, |i| view.mask[i]),
-            boundary,
-            sigma2: sigma * sigma,
-        });
-    }
+    let terms = SilhouetteTerms::new(views, centre, config)?;
     if terms.is_empty() {
         return Ok(RigidCorrection::identity(centre));
     }
 
-    // `E` of the fit moved by `state`, and with `system` its normal equations.
-    let evaluate = |state: &RigidCorrection, system: Option<&mut System>| -> f32 {
+    // `E` of the fit moved by `state`, and with `system` its normal equations in the step
+    // `(omega, t)` about the moved centre: `dr/domega = (x - c') x a`, `dr/dt = a`.
+    let evaluate = |state: &RigidCorrection, system: Option<&mut NormalEquations>| -> f32 {
         let moved_centre = centre + state.translation;
         let moved: Vec<Vec3> = sample.iter().map(|&v| state.apply_point(v)).collect();
-        let mut energy = 0.0f64;
-        let mut system = system;
-        for term in &terms {
-            let projected: Vec<Option<(Vec2, Vec3, Vec3)>> =
-                moved.iter().map(|&x| term.project(x)).collect();
-            // Vertices outside the mask: pulled in.
-            let inv_v = 1.0 / moved.len() as f32;
-            for (x, p) in moved.iter().zip(&projected) {
-                let Some((uv, du, dv)) = *p else { continue };
-                let (d, grad) = term.distance_at(uv);
-                let (rho, w) = geman_mcclure(d * d, term.sigma2);
-                energy += f64::from(rho * inv_v);
-                if let Some(s) = system.as_deref_mut() {
-                    s.add(du * grad.x + dv * grad.y, *x - moved_centre, d, w * inv_v);
-                }
-            }
-            // Mask boundary pixels: pull their nearest projected vertex.
-            let inv_b = 1.0 / term.boundary.len() as f32;
-            let pixels: Vec<Vec2> = projected
-                .iter()
-                .map(|p| p.map_or(Vec2::NAN, |(uv, _, _)| uv))
-                .collect();
-            let grid = PointGrid::new(&pixels, NEAREST_CELL_PX);
-            for &b in &term.boundary {
-                let Some(i) = grid.nearest(b) else {
-                    continue;
+        match system {
+            None => terms.energy(&moved, None),
+            Some(system) => {
+                let mut sink = |res: Residual| {
+                    let da = (moved[res.index] - moved_centre).cross(res.a);
+                    let a = res.a;
+                    let j = [da.x, da.y, da.z, a.x, a.y, a.z];
+                    let row: [(usize, f32); 6] = std::array::from_fn(|i| (i, j[i]));
+                    system.add(&row, res.r, res.w);
                 };
-                let Some((uv, du, dv)) = projected[i] else {
-                    continue;
-                };
-                let e = uv - b;
-                let (rho, w) = geman_mcclure(e.length_squared(), term.sigma2);
-                energy += f64::from(rho * inv_b);
-                if let Some(s) = system.as_deref_mut() {
-                    let lever = moved[i] - moved_centre;
-                    s.add(du, lever, e.x, w * inv_b);
-                    s.add(dv, lever, e.y, w * inv_b);
-                }
+                terms.energy(&moved, Some(&mut sink))
             }
         }
-        energy as f32
     };
 
     let max_angle = config.max_rotation_deg.to_radians();
@@ -451,7 +300,7 @@ pub fn align_to_masks(
         views_used: terms.len(),
         ..RigidCorrection::identity(centre)
     };
-    let mut system = System::default();
+    let mut system = NormalEquations::new(6);
     let energy_before = evaluate(&state, Some(&mut system));
     let mut energy = energy_before;
     let mut lambda = 1e-3f64;
@@ -481,7 +330,7 @@ pub fn align_to_masks(
             if converged {
                 break;
             }
-            system = System::default();
+            system = NormalEquations::new(6);
             evaluate(&state, Some(&mut system));
         } else {
             lambda *= 10.0;

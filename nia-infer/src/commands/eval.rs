@@ -86,6 +86,10 @@ pub struct EvalArgs {
     /// the model's `[data]` setting, off where it has none).
     #[arg(long, value_parser = parse_switch)]
     pub smpl_alignment: Option<bool>,
+    /// Iterations of the SMPL pose refinement after the rigid alignment (turns the alignment
+    /// on; 0: rigid only; default: the model's `[data] smpl_alignment` setting).
+    #[arg(long)]
+    pub smpl_pose_iterations: Option<usize>,
     #[command(flatten)]
     pub lpips: LpipsArgs,
     /// Skip the grid and blend-weight PNGs.
@@ -172,6 +176,17 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         }
         Some(false) => data_config.smpl_alignment = None,
         None => {}
+    }
+    if let Some(iterations) = args.smpl_pose_iterations {
+        if args.smpl_alignment == Some(false) {
+            anyhow::bail!(
+                "--smpl-pose-iterations refines the alignment: not with --smpl-alignment off"
+            );
+        }
+        data_config
+            .smpl_alignment
+            .get_or_insert_with(SmplAlignment::default)
+            .pose_iterations = iterations;
     }
     if !args.subjects.is_empty() {
         if split != EvalSplit::UnseenSubjects {
