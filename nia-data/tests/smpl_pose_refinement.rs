@@ -227,6 +227,16 @@ fn bad_input_is_refused_by_name() {
     nan[7] = Vec3::NAN;
     let e = refine_pose(model(), &nan, &fit, &views, &posing(20)).unwrap_err();
     assert_eq!(field_of(e), "vertices");
+    let mut bad = fit.clone();
+    bad.poses[40] = f32::NAN;
+    let e = refine_pose(model(), &vertices, &bad, &views, &posing(20)).unwrap_err();
+    assert_eq!(field_of(e), "params");
+    let bad = SmplParams {
+        th: Vec3::new(0.0, f32::INFINITY, 0.0),
+        ..fit.clone()
+    };
+    let e = refine_pose(model(), &vertices, &bad, &views, &posing(20)).unwrap_err();
+    assert_eq!(field_of(e), "params");
     for (config, field) in [
         (
             SmplAlignment {

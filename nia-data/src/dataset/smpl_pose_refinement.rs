@@ -102,6 +102,20 @@ pub fn refine_pose(
             format!("{} vertices", vertices.len()),
         ));
     }
+    let finite = params
+        .poses
+        .iter()
+        .chain(&params.shapes)
+        .all(|x| x.is_finite())
+        && params.rh.is_finite()
+        && params.th.is_finite();
+    if !finite {
+        return Err(invalid(
+            "params",
+            "finite poses, shapes, Rh and Th",
+            "a NaN or infinite value",
+        ));
+    }
     let fit = params.clone();
     let posed = model.lbs(params);
     let offsets: Vec<Vec3> = vertices
