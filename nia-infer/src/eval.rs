@@ -19,7 +19,7 @@ use burn::module::Module;
 use burn::prelude::*;
 use nia_data::body::reposing::Reposer;
 use nia_data::dataset::loader::{
-    eval_requests, load_scene, LoaderError, Scene, SceneRequest, SceneTarget,
+    eval_requests, load_scene, LoaderConfig, LoaderError, Scene, SceneRequest, SceneTarget,
 };
 use nia_data::dataset::protocol::{EvalItem, EvalSplit, ProtocolError};
 use nia_data::dataset::OpenedDataset;
@@ -305,6 +305,9 @@ pub fn evaluate_images(
             i,
             &data.loader,
         )?;
+        // A novel pose's reference keeps its stored fit: the evaluated frame's fit has no
+        // images to be aligned to, and aligning the reference alone breaks what the two fits'
+        // slowly varying errors share (docs/robustness.md).
         let source_scene = if reference == request.frame {
             None
         } else {
@@ -315,7 +318,10 @@ pub fn evaluate_images(
                     ..request.clone()
                 },
                 i,
-                &data.loader,
+                &LoaderConfig {
+                    smpl_alignment: None,
+                    ..data.loader
+                },
             )?)
         };
         let sources = source_scene.as_ref().unwrap_or(&target_scene);

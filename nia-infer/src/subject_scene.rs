@@ -187,6 +187,16 @@ impl OpenedSubject {
 
     /// The scene of `frame` with `views` as sources (images, masks, visibility, SMPL).
     pub fn scene(&self, frame: usize, views: &[usize]) -> anyhow::Result<Scene> {
+        self.scene_with(frame, views, true)
+    }
+
+    /// As [`OpenedSubject::scene`]; `aligned` false skips the run's `[data] smpl_alignment`.
+    pub fn scene_with(
+        &self,
+        frame: usize,
+        views: &[usize],
+        aligned: bool,
+    ) -> anyhow::Result<Scene> {
         self.check_frame("--frame", frame)?;
         self.check_views("--views", views)?;
         let request = SceneRequest {
@@ -197,6 +207,10 @@ impl OpenedSubject {
             target: TargetKind::Image,
             seed: 0,
         };
-        Ok(load_scene(&self.source, &request, 0, &self.loader)?)
+        let loader = LoaderConfig {
+            smpl_alignment: self.loader.smpl_alignment.filter(|_| aligned),
+            ..self.loader
+        };
+        Ok(load_scene(&self.source, &request, 0, &loader)?)
     }
 }

@@ -268,6 +268,16 @@ fn eval_with_smpl_alignment_reports_each_correction() {
     let metrics = json_file(&out_dir.join("metrics.json"));
     assert!(metrics["smpl_alignment"].is_null());
     assert!(metrics["images"][0].get("smpl_alignment").is_none());
+    // A novel pose's reference keeps its stored fit: no image lists an alignment.
+    let flags = "--backend ndarray --no-pictures --task novel_pose --smpl-pose-iterations 5";
+    ok(&on_model("eval", flags, &[], &out_dir));
+    let metrics = json_file(&out_dir.join("metrics.json"));
+    let images = metrics["images"].as_array().unwrap();
+    assert!(!images.is_empty());
+    for image in images {
+        assert!(image.get("smpl_alignment").is_none(), "{image}");
+        assert!(image["psnr"].as_f64().unwrap().is_finite());
+    }
     let flags =
         "--backend ndarray --no-pictures --limit 1 --smpl-alignment off --smpl-pose-iterations 5";
     let refused = on_model("eval", flags, &[], &out_dir);

@@ -139,7 +139,7 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
     opened.check_views("--target", &[args.target])?;
     opened.check_frame("--ref-frame", args.ref_frame)?;
     let poses = poses(args, opened)?;
-    let scene = session.scene(args.ref_frame)?;
+    let scene = session.reference_scene(args.ref_frame)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 

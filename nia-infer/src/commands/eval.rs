@@ -83,7 +83,8 @@ pub struct EvalArgs {
     pub limit: Option<usize>,
     /// Each scene's fitted SMPL moved rigidly onto its source views' masks before rendering:
     /// on (the model's `[data] smpl_alignment` settings, else the defaults) or off (default:
-    /// the model's `[data]` setting, off where it has none).
+    /// the model's `[data]` setting, off where it has none). A novel pose's reference frame
+    /// keeps its stored fit either way.
     #[arg(long, value_parser = parse_switch)]
     pub smpl_alignment: Option<bool>,
     /// Iterations of the SMPL pose refinement after the rigid alignment (turns the alignment
