@@ -306,8 +306,8 @@ pub fn evaluate_images(
             &data.loader,
         )?;
         // A novel pose's reference keeps its stored fit: the evaluated frame's fit has no
-        // images to be aligned to, and aligning the reference alone breaks what the two fits'
-        // slowly varying errors share (docs/robustness.md).
+        // images to be aligned to, and aligning the reference alone lost on every set
+        // measured (docs/robustness.md).
         let source_scene = if reference == request.frame {
             None
         } else {

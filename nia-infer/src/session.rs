@@ -86,8 +86,8 @@ impl RenderSession {
 
     /// The scene of a reference frame that other poses are reposed from: its fit as stored,
     /// not aligned to the masks (`[data] smpl_alignment` skipped). The target poses' fits have
-    /// no images to be aligned to, and a fit's error changes slowly over a sequence: moving
-    /// the reference alone breaks what the two fits' errors share (docs/robustness.md).
+    /// no images to be aligned to, and aligning the reference alone lost on every set
+    /// measured (docs/robustness.md).
     pub fn reference_scene(&self, frame: usize) -> anyhow::Result<Scene> {
         self.opened.scene_with(frame, &self.views, false)
     }
