@@ -720,7 +720,6 @@ fn smpl_alignment_moves_the_fit_onto_the_people() {
                 let refinement = refined.pose_refinement.as_ref().expect("reported");
                 assert!(refinement.energy_after <= refinement.energy_before);
                 assert!(refinement.max_joint_deg <= 15.0 + 1e-3);
-                assert_eq!(refined.params, refinement.params);
                 // The refined params pose the refined vertices (the stored fit was posed by
                 // the same model: no offsets).
                 let again = model.lbs(&refined.params).vertices;

@@ -288,7 +288,7 @@ fn bad_input_is_refused_by_name() {
     let (c, up) = (centroid(v), up_axis(v));
     let out = up.any_orthonormal_vector();
     let away = Camera::look_at(c + out * 3.0, c + out * 6.0, up, 100.0, 100.0, SIZE, SIZE).unwrap();
-    let cams_away = [cams[0].clone(), away];
+    let cams_away = [cams[0], away];
     let e = align_to_masks(&fit, &views(&cams_away, &m[..2]), &config).unwrap_err();
     assert_eq!(field_of(e), "views[1].camera");
 

@@ -81,13 +81,7 @@ pub fn align_fit(
     let model = match (model, config.pose_iterations) {
         (_, 0) => None,
         (Some(model), _) => Some(model),
-        (None, n) => {
-            return Err(AlignmentError::Invalid {
-                field: "pose_iterations".into(),
-                expected: "0 when the scene source has no body model".into(),
-                got: n.to_string(),
-            })
-        }
+        (None, n) => return Err(AlignmentError::no_body_model(n.to_string())),
     };
     let settings = key(params, views, config);
     MEMO.get_or_build(vertices, &[], &settings, || {
@@ -97,9 +91,10 @@ pub fn align_fit(
         rigid.apply(&mut moved, &mut params);
         let pose = match model {
             Some(model) => {
-                let (refined, pose) = refine_pose(model, &moved, &params, views, config)?;
+                let (refined, refined_params, pose) =
+                    refine_pose(model, &moved, &params, views, config)?;
                 moved = refined;
-                params = pose.params.clone();
+                params = refined_params;
                 Some(pose)
             }
             None => None,

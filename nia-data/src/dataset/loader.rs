@@ -327,7 +327,7 @@ pub fn load_scene(
         None => None,
     };
     let alignment = aligned.as_ref().map(|a| a.rigid);
-    let pose_refinement = aligned.as_ref().and_then(|a| a.pose.clone());
+    let pose_refinement = aligned.as_ref().and_then(|a| a.pose);
     let aligned = aligned.map(|a| a.vertices.clone());
     let fit = aligned.as_ref().unwrap_or(&vertices);
     // The body the network reads: for training scenes, the fit moved by the SMPL jitter
@@ -461,14 +461,12 @@ impl SceneLoader {
         if let Some(alignment) = &config.smpl_alignment {
             alignment.validate().map_err(LoaderError::AlignmentConfig)?;
             if alignment.refines_pose() && source.body_model.is_none() {
-                return Err(LoaderError::AlignmentConfig(AlignmentError::Invalid {
-                    field: "pose_iterations".into(),
-                    expected: "0 when the scene source has no body model".into(),
-                    got: format!(
+                return Err(LoaderError::AlignmentConfig(AlignmentError::no_body_model(
+                    format!(
                         "{} ({:?} for training)",
                         alignment.pose_iterations, alignment.train_pose_iterations
                     ),
-                }));
+                )));
             }
         }
         let total = requests.len();

@@ -126,6 +126,17 @@ pub enum AlignmentError {
     },
 }
 
+impl AlignmentError {
+    /// The pose refinement asked for (`got`: the iterations) where no body model is at hand.
+    pub(crate) fn no_body_model(got: String) -> Self {
+        invalid(
+            "pose_iterations",
+            "0 when the scene source has no body model",
+            got,
+        )
+    }
+}
+
 fn invalid(
     field: impl Into<String>,
     expected: impl Into<String>,

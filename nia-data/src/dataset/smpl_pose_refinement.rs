@@ -35,11 +35,9 @@ const PARAMS: usize = 6 + 3 * (NUM_JOINTS - 1);
 /// Skinning weights below this do not enter a vertex's Jacobian row.
 const MIN_SUBTREE_WEIGHT: f32 = 1e-4;
 
-/// What the refinement did.
-#[derive(Debug, Clone, PartialEq)]
+/// What the refinement did (the refined fit itself is [`refine_pose`]'s vertices and params).
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseRefinement {
-    /// The refined parameters (shape untouched).
-    pub params: SmplParams,
     /// The objective (module docs) of the fit as given and after the refinement (never
     /// larger).
     pub energy_before: f32,
@@ -80,8 +78,8 @@ fn joint_changes(params: &SmplParams, fit: &SmplParams) -> Vec<Quat> {
 }
 
 /// Refines the pose of the fit `vertices` ([V] world metres, the model's vertex order) with
-/// parameters `params` onto the masks of `views` (module docs): the refined vertices and what
-/// was done. A view with an empty mask takes no part; with none left the fit is returned as
+/// parameters `params` onto the masks of `views` (module docs): the refined vertices, the
+/// refined parameters (shape untouched) and what was done. A view with an empty mask takes no part; with none left the fit is returned as
 /// it is (`steps` 0). Errors name a vertex count that is not the model's, a mask of the wrong
 /// size or a body behind a camera.
 pub fn refine_pose(
@@ -90,7 +88,7 @@ pub fn refine_pose(
     params: &SmplParams,
     views: &[AlignmentView<'_>],
     config: &SmplAlignment,
-) -> Result<(Vec<Vec3>, PoseRefinement), AlignmentError> {
+) -> Result<(Vec<Vec3>, SmplParams, PoseRefinement), AlignmentError> {
     config.validate()?;
     if vertices.len() != model.v_template.len() || vertices.iter().any(|v| !v.is_finite()) {
         return Err(invalid(
@@ -123,16 +121,15 @@ pub fn refine_pose(
         .zip(&posed.vertices)
         .map(|(v, p)| *v - *p)
         .collect();
-    let unchanged = |steps| PoseRefinement {
-        params: fit.clone(),
+    let unchanged = PoseRefinement {
         energy_before: 0.0,
         energy_after: 0.0,
         mean_joint_deg: 0.0,
         max_joint_deg: 0.0,
-        steps,
+        steps: 0,
     };
     if config.pose_iterations == 0 {
-        return Ok((vertices.to_vec(), unchanged(0)));
+        return Ok((vertices.to_vec(), fit, unchanged));
     }
     let stride = vertices.len().div_ceil(config.vertex_samples).max(1);
     let sample: Vec<usize> = (0..vertices.len()).step_by(stride).collect();
@@ -152,7 +149,7 @@ pub fn refine_pose(
     let start_centre = centroid(&start_points);
     let terms = SilhouetteTerms::new(views, start_centre, config)?;
     if terms.is_empty() {
-        return Ok((vertices.to_vec(), unchanged(0)));
+        return Ok((vertices.to_vec(), fit, unchanged));
     }
 
     // `[samples][24]` skinning weight summed over each joint's subtree.
@@ -313,8 +310,8 @@ pub fn refine_pose(
         .collect();
     Ok((
         refined,
+        state,
         PoseRefinement {
-            params: state,
             energy_before,
             energy_after: energy,
             mean_joint_deg: angles.iter().sum::<f32>() / angles.len() as f32,
