@@ -75,6 +75,10 @@ pub struct ModelArgs {
     /// `[render]` setting).
     #[arg(long)]
     pub supersample: Option<usize>,
+    /// c0's odds in the learned blend multiplied by S at rendering: below 1 the blend leans on
+    /// the source colours (default: the model's `[render]` setting; 1, the paper's blend).
+    #[arg(long)]
+    pub c0_weight_scale: Option<f32>,
     /// Ray sampling: band (around the posed SMPL surface) or stratified (the whole box, the
     /// paper's) (default: the model's training setting).
     #[arg(long, value_parser = parse_sampler_kind)]
@@ -135,6 +139,7 @@ impl ModelArgs {
             ("hull_dilate_px", self.hull_dilate_px.is_some()),
             ("hull_body_erode_px", self.hull_body_erode_px.is_some()),
             ("supersample", self.supersample.is_some()),
+            ("c0_weight_scale", self.c0_weight_scale.is_some()),
         ];
         if let Some(on) = self.skip_empty_space {
             options.skip_empty_space = on;
@@ -159,6 +164,9 @@ impl ModelArgs {
         }
         if let Some(s) = self.supersample {
             options.supersample = s;
+        }
+        if let Some(s) = self.c0_weight_scale {
+            options.c0_weight_scale = s;
         }
         if let Err(e) = options.check() {
             let from_flag = overrides.iter().any(|&(key, set)| set && key == e.key);

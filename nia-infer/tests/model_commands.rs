@@ -286,6 +286,44 @@ fn eval_with_smpl_alignment_reports_each_correction() {
     assert!(stderr.contains("--smpl-pose-iterations"), "{stderr}");
 }
 
+/// `eval --c0-weight-scale S`: the metrics record the setting, c0's share of the blend falls
+/// below the model's own where a view sees (the same images, the same IBR-only composite), and
+/// a scale out of bounds is refused naming the flag.
+#[test]
+fn eval_with_a_c0_weight_scale_leans_on_the_views() {
+    let out_dir = scratch("eval-c0-scale");
+    let run = |extra: &str| {
+        let flags = format!("--backend ndarray --no-pictures --limit 2 {extra}");
+        ok(&on_model("eval", &flags, &[], &out_dir));
+        json_file(&out_dir.join("metrics.json"))
+    };
+    let (plain, scaled) = (run(""), run("--c0-weight-scale 0.25"));
+    assert_eq!(plain["adaptive"]["c0_weight_scale"].as_f64(), Some(1.0));
+    assert_eq!(scaled["adaptive"]["c0_weight_scale"].as_f64(), Some(0.25));
+    let diagnostic =
+        |m: &serde_json::Value, key: &str| m["overall"]["diagnostics"][key].as_f64().unwrap();
+    let (a, b) = (
+        diagnostic(&plain, "c0_weight_seen"),
+        diagnostic(&scaled, "c0_weight_seen"),
+    );
+    assert!(a > 0.0 && b < a, "c0's share where seen: {a} -> {b}");
+    let (a, b) = (
+        diagnostic(&plain, "psnr_ibr"),
+        diagnostic(&scaled, "psnr_ibr"),
+    );
+    assert!((a - b).abs() < 1e-3, "the IBR-only composite: {a} -> {b}");
+    assert!(scaled["overall"]["psnr"].as_f64().unwrap().is_finite());
+    let refused = on_model(
+        "eval",
+        "--backend ndarray --no-pictures --limit 1 --c0-weight-scale 0",
+        &[],
+        &out_dir,
+    );
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("--c0-weight-scale"), "{stderr}");
+}
+
 #[test]
 fn novel_pose_eval_reposes_from_the_reference_frame() {
     let out_dir = scratch("eval-pose");

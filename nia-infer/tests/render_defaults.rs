@@ -28,6 +28,34 @@ fn carving_is_off_unless_asked_for() {
     assert_eq!(options.hull_body_erode_px, Some(2));
 }
 
+/// c0's blend weight is F_B's unless a config, a model file or a flag rescales it: a section
+/// or a model file without the key blends as the paper does; the key reads as written; a value
+/// out of bounds is refused by its key.
+#[test]
+fn the_blend_is_the_papers_unless_c0s_weight_is_rescaled() {
+    assert_eq!(RenderOptions::default().c0_weight_scale, 1.0);
+    assert_eq!(RenderOptions::default().c0_scale(), None);
+    let options: RenderOptions = toml::from_str("skip_empty_space = true").unwrap();
+    assert_eq!(options.c0_scale(), None);
+    let options: RenderOptions = toml::from_str("c0_weight_scale = 0.25").unwrap();
+    assert_eq!(options.c0_scale(), Some(0.25));
+    options.check().unwrap();
+    let settings = RunSettings::from_json(&fixture_run()).unwrap();
+    assert_eq!(
+        settings.render.c0_scale(),
+        None,
+        "the fixture predates the key"
+    );
+    for bad in [0.0, -0.5, 1e-4, 2e3, f32::NAN] {
+        let options = RenderOptions {
+            c0_weight_scale: bad,
+            ..RenderOptions::default()
+        };
+        let err = options.check().unwrap_err();
+        assert_eq!(err.key, "c0_weight_scale", "{bad}");
+    }
+}
+
 /// The committed fixture was trained and evaluated before carving existed: its header's
 /// `[render]` has no `visual_hull`, and it loads without carving, as it was evaluated.
 #[test]

@@ -24,6 +24,8 @@ use nia_data::geometry::occupancy::{OccupancyError, OccupancyGrid};
 use nia_data::geometry::occupancy_memo::shared_grid;
 use serde::{Deserialize, Serialize};
 
+use crate::ibr::c0_weight_scale::{MAX_C0_WEIGHT_SCALE, MIN_C0_WEIGHT_SCALE};
+
 /// Default distance from the SMPL surface within which samples are evaluated, metres. A kept
 /// cell reaches up to a cell diagonal (3.5 cm at the default cell) beyond it, so space up to
 /// 3 cm from the surface is always evaluated and up to 6.5 cm often is. Measured in
@@ -94,6 +96,10 @@ pub struct RenderOptions {
     /// over its square (`RayBundle::through_pixel_footprints`), as a camera integrates over the
     /// pixel's area; s x s times the rays of 1, the paper's one ray through the centre.
     pub supersample: usize,
+    /// c0's odds in F_B's blend multiplied by this at rendering (not in the paper;
+    /// [`crate::ibr::c0_weight_scale`]): below 1 the blend leans on the source colours. 1, the
+    /// default, is the paper's blend.
+    pub c0_weight_scale: f32,
 }
 
 impl Default for RenderOptions {
@@ -108,6 +114,7 @@ impl Default for RenderOptions {
             hull_dilate_px: DEFAULT_HULL_DILATE_PX,
             hull_body_erode_px: None,
             supersample: DEFAULT_SUPERSAMPLE,
+            c0_weight_scale: 1.0,
         }
     }
 }
@@ -177,6 +184,13 @@ impl RenderOptions {
                 px.to_string(),
             );
         }
+        if !(MIN_C0_WEIGHT_SCALE..=MAX_C0_WEIGHT_SCALE).contains(&self.c0_weight_scale) {
+            return bad(
+                "c0_weight_scale",
+                &format!("{MIN_C0_WEIGHT_SCALE} to {MAX_C0_WEIGHT_SCALE} (1: the paper's blend)"),
+                self.c0_weight_scale.to_string(),
+            );
+        }
         if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {
             return bad(
                 "supersample",
@@ -203,6 +217,12 @@ impl RenderOptions {
     /// carving is off.
     pub fn hull(&self) -> Option<usize> {
         self.visual_hull.then_some(self.hull_dilate_px)
+    }
+
+    /// c0's blend-weight scale (`SceneEncoding::with_c0_weight_scale`); `None` at 1, the
+    /// paper's blend.
+    pub fn c0_scale(&self) -> Option<f32> {
+        (self.c0_weight_scale != 1.0).then_some(self.c0_weight_scale)
     }
 
     /// The occupancy grid of the posed mesh (`vertices` [V] world metres) when skipping is on.

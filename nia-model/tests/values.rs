@@ -14,6 +14,7 @@ use nia_data::geometry::rays::{pixel_ray, Aabb, Ray, RayBundle};
 use nia_data::scene::{PointInputs, SceneInput, RAY_BOX_PADDING_M};
 use nia_model::config::SourceColoursAt;
 use nia_model::field::PointTensors;
+use nia_model::ibr::c0_weight_scale::rescale_c0_weight;
 use nia_model::ibr::fetch_source_colours;
 use nia_model::ibr::surface::{surface_colours, SURFACE_ACC_FLOOR};
 use nia_model::renderer::image::{render_image, ImageRenderOptions, RenderedImage};
@@ -716,5 +717,119 @@ fn an_image_does_not_depend_on_its_chunk_size() {
                 assert_close(got, expected, 1e-5, &format!("{what}, chunks of {chunk}"));
             }
         }
+    }
+}
+
+/// `rescale_c0_weight` by hand: `w = (0.5, 0.3, 0.2)` at `s = 0.25` gives c0
+/// `0.125 / 0.625 = 0.2` and the views `0.48, 0.32` (their ratio kept); `s = 1` changes
+/// nothing; a point only c0 colours (`w_0 = 1`) or only the views colour (`w_0 = 0`) keeps its
+/// weights at any scale, extreme scales included; a scale out of bounds, NaN and a lone c0
+/// column are refused.
+#[test]
+fn rescaling_c0s_weight_by_hand() {
+    let dev = device();
+    let weights = |rows: Vec<[f32; 3]>| {
+        let m = rows.len();
+        let flat: Vec<f32> = rows.into_iter().flatten().collect();
+        Tensor::<2>::from_data(TensorData::new(flat, [m, 3]), &dev)
+    };
+    let w = weights(vec![[0.5, 0.3, 0.2], [1.0, 0.0, 0.0], [0.0, 0.7, 0.3]]);
+    let got = values(rescale_c0_weight(w.clone(), 0.25).unwrap());
+    let expected = [0.2, 0.48, 0.32, 1.0, 0.0, 0.0, 0.0, 0.7, 0.3];
+    assert_close(&got, &expected, 1e-6, "s = 0.25");
+    assert_close(
+        &values(rescale_c0_weight(w.clone(), 1.0).unwrap()),
+        &values(w.clone()),
+        1e-7,
+        "s = 1",
+    );
+    for scale in [1e-3, 1e3] {
+        let got = values(rescale_c0_weight(w.clone(), scale).unwrap());
+        assert!(got.iter().all(|v| v.is_finite()), "s = {scale}: finite");
+        assert_close(
+            &got[3..],
+            &expected[3..],
+            1e-6,
+            "w_0 in {0, 1} at an extreme scale",
+        );
+        for row in got.chunks(3) {
+            assert!(
+                (row.iter().sum::<f32>() - 1.0).abs() < 1e-5,
+                "s = {scale}: rows sum to 1"
+            );
+        }
+    }
+    for scale in [0.0, -1.0, 1e-4, 1e4, f32::NAN, f32::INFINITY] {
+        let err = rescale_c0_weight(w.clone(), scale).unwrap_err().to_string();
+        assert!(err.contains("scale"), "s = {scale}: {err}");
+    }
+    let lone = Tensor::<2>::ones([2, 1], &dev);
+    assert!(rescale_c0_weight(lone, 0.5).is_err(), "a c0 column alone");
+}
+
+/// `[render] c0_weight_scale` on a render: the opacity, depth, NeRF colour and IBR-only
+/// composite do not move; every pixel's c0 weight falls below 1 and rises above it (its
+/// weights still sum to its opacity), and the colour is the blend of the rescaled weights.
+#[test]
+fn rescaling_c0s_weight_moves_only_the_blend() {
+    let (_, input, model, encoded) = tiny_encoded();
+    let all = rays_through_view_0(&input);
+    let rays = all.slice(all.len() / 2 - 100..all.len() / 2 + 100);
+    let plain = image_of(&model, &encoded, &rays, 64);
+    let k = plain.blend_channels;
+    let c0_share =
+        |img: &RenderedImage| -> Vec<f32> { img.blend_weights.chunks(k).map(|w| w[0]).collect() };
+    let plain_c0 = c0_share(&plain);
+    let most = plain_c0.iter().copied().fold(0.0f32, f32::max);
+    let acc = plain.acc.iter().copied().fold(0.0f32, f32::max);
+    // The untrained tiny network: opacity up to about 0.1, a quarter of it c0's.
+    assert!(most > 0.01, "some c0 weight to move: {most}, opacity {acc}");
+    let total: f32 = plain_c0.iter().sum();
+    for scale in [0.25f32, 4.0] {
+        let scene = encoded.clone().with_c0_weight_scale(Some(scale));
+        let scaled = image_of(&model, &scene, &rays, 64);
+        for (got, expected, what) in [
+            (&scaled.acc, &plain.acc, "opacity"),
+            (&scaled.depth, &plain.depth, "depth"),
+            (&scaled.rgb0, &plain.rgb0, "NeRF colour"),
+            (&scaled.rgb_ibr, &plain.rgb_ibr, "IBR-only colour"),
+        ] {
+            assert_close(got, expected, 1e-5, &format!("{what} at s = {scale}"));
+        }
+        assert!(
+            scaled.rgb.iter().all(|v| v.is_finite()),
+            "s = {scale}: finite colour"
+        );
+        let scaled_c0 = c0_share(&scaled);
+        let mut moved = 0.0f32;
+        for (p, (&a, &b)) in plain_c0.iter().zip(&scaled_c0).enumerate() {
+            let falls = if scale < 1.0 {
+                b <= a + 1e-6
+            } else {
+                b >= a - 1e-6
+            };
+            assert!(falls, "pixel {p}: c0 weight {a} -> {b} at s = {scale}");
+            moved += (a - b).abs();
+            let sum: f32 = scaled.blend_weights[p * k..(p + 1) * k].iter().sum();
+            assert!(
+                (sum - scaled.acc[p]).abs() < 1e-4,
+                "pixel {p}: weights {sum}, opacity {}",
+                scaled.acc[p]
+            );
+        }
+        // A c0 share near 1/4 moves to about 1/13 at s = 1/4 and to 4/7 at s = 4.
+        assert!(
+            moved > 0.3 * total,
+            "s = {scale}: c0 weights moved by {moved} of {total} in all"
+        );
+        // The colour is the blend of its weights: C0's and the views' parts recombined. Where
+        // c0 loses weight the colour moves toward the IBR-only composite.
+        let changed = scaled
+            .rgb
+            .iter()
+            .zip(&plain.rgb)
+            .filter(|(a, b)| (*a - *b).abs() > 1e-4)
+            .count();
+        assert!(changed > 0, "s = {scale}: the colour changes");
     }
 }

@@ -9,7 +9,8 @@ use rayon::prelude::*;
 use super::heads::view_mean;
 use super::{PointOutput, PointTensors};
 use crate::error::ModelError;
-use crate::ibr::blender::BlendInputs;
+use crate::ibr::blender::{mix, BlendInputs};
+use crate::ibr::c0_weight_scale::rescale_c0_weight;
 use crate::ibr::fetch_source_colours_from;
 use crate::linear_rows::linear_rows;
 use crate::model::NiaModel;
@@ -267,6 +268,15 @@ impl NiaModel {
                 host.blend_colour(&self.blender, inputs)?
             }
             _ => self.blender.colour(self.variant, inputs)?,
+        };
+        // `[render] c0_weight_scale` (inference only): c0's odds in F_B's blend rescaled.
+        let blended = match scene.c0_weight_scale {
+            Some(scale) if self.variant.uses_blender() && !blended.colour.is_autodiff() => {
+                let weights = rescale_c0_weight(blended.blend_weights, scale)?;
+                let c0 = blend_c0.clone().unwrap_or_else(|| c0.clone());
+                mix(weights, c0, source_colours.clone())?
+            }
+            _ => blended,
         };
         let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
         watch.mark(Stage::Blending);

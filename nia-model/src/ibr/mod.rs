@@ -13,6 +13,7 @@
 
 pub mod blender;
 pub mod c0_shuffle;
+pub mod c0_weight_scale;
 pub mod surface;
 pub mod view_statistics;
 

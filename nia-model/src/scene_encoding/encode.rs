@@ -90,6 +90,7 @@ impl NiaModel {
             c0_shuffle: None,
             band,
             visual_hull: None,
+            c0_weight_scale: None,
         };
         // Inference on a CPU backend reads the body volume on the host (fused).
         encoding.with_host_reads(self, on_host)
@@ -142,6 +143,7 @@ impl NiaModel {
             c0_shuffle: scene.c0_shuffle,
             band,
             visual_hull: scene.visual_hull.clone(),
+            c0_weight_scale: scene.c0_weight_scale,
         })
     }
 

@@ -69,6 +69,10 @@ pub struct SceneEncoding {
     /// ([`VisualHull`]), and with empty-space skipping what it carves is not evaluated. `None`
     /// (the default, and in training) is the paper's density.
     pub visual_hull: Option<Arc<VisualHull>>,
+    /// c0's weight in the blend rescaled at inference (`[render] c0_weight_scale`, not in the
+    /// paper; [`crate::ibr::blender::rescale_c0_weight`]). `None` (the default, and in training)
+    /// blends with F_B's weights as they are.
+    pub c0_weight_scale: Option<f32>,
 }
 
 impl SceneEncoding {
@@ -124,6 +128,13 @@ impl SceneEncoding {
             }
         };
         Ok(self)
+    }
+
+    /// This encoding with c0's blend weight rescaled by `scale` at inference (`None`: F_B's
+    /// weights as they are; [`crate::ibr::blender::rescale_c0_weight`]).
+    pub fn with_c0_weight_scale(mut self, scale: Option<f32>) -> Self {
+        self.c0_weight_scale = scale;
+        self
     }
 
     /// This encoding with early ray termination below transmittance `epsilon` (`None`: off).
