@@ -12,7 +12,8 @@
 //!
 //! Switchable here: empty-space skipping (on by default), early ray termination and colour
 //! culling (on by default, bounded error), visual-hull carving (off by default: it changes the
-//! paper's density) and supersampling (one ray per pixel by default, the paper's).
+//! paper's density), supersampling (one ray per pixel by default, the paper's) and c0's weight
+//! in the learned blend (F_B's own by default, the paper's; `ibr::c0_weight_scale`).
 //!
 //! [`RenderOptions::check`] is the one place the bounds are enforced; nia-train's config, every
 //! `nia-infer` flag, the sweep and the viewer go through it.
