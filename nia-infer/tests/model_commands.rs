@@ -71,6 +71,13 @@ fn on_model(command: &str, flags: &str, extra: &[&str], out: &Path) -> Output {
     nia_infer(&args)
 }
 
+/// Runs `eval` on the trained model with `flags`, asserts that it fails, and returns its stderr.
+fn refused_eval(flags: &str, out: &Path) -> String {
+    let refused = on_model("eval", flags, &[], out);
+    assert!(!refused.status.success(), "`eval {flags}` succeeded");
+    String::from_utf8_lossy(&refused.stderr).into_owned()
+}
+
 fn scratch(name: &str) -> PathBuf {
     let dir = trained().dir.join(name);
     let _ = std::fs::remove_dir_all(&dir);
@@ -280,9 +287,7 @@ fn eval_with_smpl_alignment_reports_each_correction() {
     }
     let flags =
         "--backend ndarray --no-pictures --limit 1 --smpl-alignment off --smpl-pose-iterations 5";
-    let refused = on_model("eval", flags, &[], &out_dir);
-    assert!(!refused.status.success());
-    let stderr = String::from_utf8_lossy(&refused.stderr);
+    let stderr = refused_eval(flags, &out_dir);
     assert!(stderr.contains("--smpl-pose-iterations"), "{stderr}");
 }
 
@@ -313,14 +318,8 @@ fn eval_with_a_c0_weight_scale_leans_on_the_views() {
     );
     assert!((a - b).abs() < 1e-3, "the IBR-only composite: {a} -> {b}");
     assert!(scaled["overall"]["psnr"].as_f64().unwrap().is_finite());
-    let refused = on_model(
-        "eval",
-        "--backend ndarray --no-pictures --limit 1 --c0-weight-scale 0",
-        &[],
-        &out_dir,
-    );
-    assert!(!refused.status.success());
-    let stderr = String::from_utf8_lossy(&refused.stderr);
+    let flags = "--backend ndarray --no-pictures --limit 1 --c0-weight-scale 0";
+    let stderr = refused_eval(flags, &out_dir);
     assert!(stderr.contains("--c0-weight-scale"), "{stderr}");
 }
 
