@@ -56,6 +56,45 @@ fn overrides_write_over_the_file() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A tagged enum given another kind than the preset's takes its own fields (the tiny preset
+/// samples stratified, which has no `margin_m`); keys under the same kind merge as sections do.
+#[test]
+fn a_sampler_of_another_kind_takes_its_own_fields() {
+    let dir = common::scratch("overrides", "kind");
+    let path = common::tiny_config(&dir, 2, 5, "");
+    let band = |list: &[&str]| match TrainConfig::load_with(&path, &overrides(list))
+        .unwrap()
+        .model
+        .ray_sampler
+    {
+        RaySampler::Band { margin_m, cell_m } => (margin_m, cell_m),
+        other => panic!("expected the band sampler, got {other:?}"),
+    };
+    let (margin_m, cell_m) = band(&["model.ray_sampler={ kind = \"band\", margin_m = 0.08 }"]);
+    assert_eq!(margin_m, 0.08);
+    assert_eq!(cell_m, nia_model::render_options::DEFAULT_OCCUPANCY_CELL_M);
+    let (margin_m, cell_m) = band(&[
+        "model.ray_sampler={ kind = \"band\", margin_m = 0.08 }",
+        "model.ray_sampler.cell_m=0.03",
+    ]);
+    assert_eq!(
+        (margin_m, cell_m),
+        (0.08, 0.03),
+        "same kind: the keys merge"
+    );
+    let err = TrainConfig::load_with(
+        &path,
+        &overrides(&["model.ray_sampler={ kind = \"band\", margin = 0.08 }"]),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("model.ray_sampler") && err.contains("margin"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn bad_overrides_name_the_setting_or_the_key() {
     let dir = common::scratch("overrides", "bad");

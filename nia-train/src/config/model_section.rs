@@ -69,11 +69,24 @@ fn merge_keys(
             ));
         };
         match value {
-            serde_json::Value::Object(inner) if slot.is_object() => {
+            // A tagged enum (`ray_sampler = { kind = "band", margin_m = 0.08 }`) given another
+            // kind than the preset's is a new value: its fields are not the preset's.
+            serde_json::Value::Object(inner) if slot.is_object() && !changes_kind(slot, &inner) => {
                 merge_keys(slot, inner, &format!("{path}.{key}"))?
             }
             value => *slot = value,
         }
     }
     Ok(())
+}
+
+/// Whether `keys` name a `kind` other than the one of the tagged enum `slot`.
+fn changes_kind(
+    slot: &serde_json::Value,
+    keys: &serde_json::Map<String, serde_json::Value>,
+) -> bool {
+    match (slot.get("kind"), keys.get("kind")) {
+        (Some(was), Some(now)) => was != now,
+        _ => false,
+    }
 }
