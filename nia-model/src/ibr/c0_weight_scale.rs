@@ -9,8 +9,9 @@
 //! 1 % under), and the source-only composite beats the blend by 0.1-0.6 dB. Showing F_B a
 //! wrong c0 on every seen training point (`train.c0_shuffle = 1`) lowers the share only to
 //! 0.33; training without the SMPL jitter leaves it at 0.36, without the cameras' colour
-//! responses at 0.40: F_B hedges against the views for a reason in the flawed training data
-//! that is not yet found (docs/robustness.md, "c0's share of the blend").
+//! responses at 0.40. No single flaw of the training data teaches the hedge, and about half of
+//! it is the training recipe's (the colour-gain loss and the SMPL jitter; docs/robustness.md,
+//! "c0's share of the blend" and "What teaches F_B to hedge").
 //!
 //! The rescaling is F_B's own blend with the prior odds of c0 changed: every point's weights
 //! `w` over `[c0, c_1..c_N]` become

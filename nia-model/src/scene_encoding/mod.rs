@@ -70,7 +70,7 @@ pub struct SceneEncoding {
     /// (the default, and in training) is the paper's density.
     pub visual_hull: Option<Arc<VisualHull>>,
     /// c0's weight in the blend rescaled at inference (`[render] c0_weight_scale`, not in the
-    /// paper; [`crate::ibr::blender::rescale_c0_weight`]). `None` (the default, and in training)
+    /// paper; [`crate::ibr::c0_weight_scale::rescale_c0_weight`]). `None` (the default, and in training)
     /// blends with F_B's weights as they are.
     pub c0_weight_scale: Option<f32>,
 }
@@ -131,7 +131,7 @@ impl SceneEncoding {
     }
 
     /// This encoding with c0's blend weight rescaled by `scale` at inference (`None`: F_B's
-    /// weights as they are; [`crate::ibr::blender::rescale_c0_weight`]).
+    /// weights as they are; [`crate::ibr::c0_weight_scale::rescale_c0_weight`]).
     pub fn with_c0_weight_scale(mut self, scale: Option<f32>) -> Self {
         self.c0_weight_scale = scale;
         self
