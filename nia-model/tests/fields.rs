@@ -11,7 +11,8 @@ use nia_data::rng::Rng;
 use nia_model::field::attention::ViewCrossAttentionConfig;
 use nia_model::field::heads::{view_mean, ColourHeadConfig, DensityHead, DensityHeadConfig};
 use nia_model::field::positional_encoding::PositionalEncodingConfig;
-use nia_model::ibr::blender::{blend, BlendInputs, Blender, BlenderConfig};
+use nia_model::ibr::blender::{blend, mix, BlendInputs, Blender, BlenderConfig};
+use nia_model::ibr::c0_weight_scale::rescale_c0_weight;
 use nia_model::ibr::{
     cosine_weights, fetch_source_colours, sample_views, simple_average_weights, PixelFeatureConfig,
 };
@@ -934,25 +935,139 @@ fn host_network_matches_the_tensor_heads_and_blender() {
                 view_dir_features: tensor(random(&mut rng, n * m * 4, -1.0, 1.0), [n, m, 4], &dev),
                 visibility: tensor(random(&mut rng, n * m, 0.0, 1.0), [n, m], &dev),
             };
-            let got = host.blend_colour(&blender, x.clone()).unwrap();
-            let want = blender.colour(Variant::Full, x).unwrap();
-            assert_eq!(got.blend_weights.dims(), [m, n + 1], "{case}");
-            let weights = values(got.blend_weights);
-            assert_finite(&weights, &case);
-            assert_close(
-                &weights,
-                &values(want.blend_weights),
-                VALUE_TOL,
-                &format!("{case}: blend weights"),
-            );
-            assert_close(
-                &values(got.colour),
-                &values(want.colour),
-                VALUE_TOL,
-                &format!("{case}: colour"),
-            );
+            // Without and with c0's odds rescaled (`[render] c0_weight_scale`): the host pass
+            // against the tensor blend, rescaling, second mix and IBR-only colour.
+            for scale in [None, Some(0.25f32)] {
+                let case = format!("{case}, c0 scale {scale:?}");
+                let (got, got_ibr) = host.blend_colour(&blender, x.clone(), scale).unwrap();
+                let mut want = blender.colour(Variant::Full, x.clone()).unwrap();
+                if let Some(scale) = scale {
+                    let weights = rescale_c0_weight(want.blend_weights, scale).unwrap();
+                    want = mix(weights, x.c0.clone(), x.source_colours.clone()).unwrap();
+                }
+                assert_eq!(got.blend_weights.dims(), [m, n + 1], "{case}");
+                let weights = values(got.blend_weights);
+                assert_finite(&weights, &case);
+                let want_ibr = ibr_only_reference(
+                    &values(want.blend_weights.clone()),
+                    &values(x.source_colours.clone()),
+                    n,
+                    m,
+                );
+                assert_close(
+                    &weights,
+                    &values(want.blend_weights),
+                    VALUE_TOL,
+                    &format!("{case}: blend weights"),
+                );
+                assert_close(
+                    &values(got.colour),
+                    &values(want.colour),
+                    VALUE_TOL,
+                    &format!("{case}: colour"),
+                );
+                assert_close(
+                    &values(got_ibr),
+                    &want_ibr,
+                    VALUE_TOL,
+                    &format!("{case}: IBR-only colour"),
+                );
+            }
         }
     }
+}
+
+/// The IBR-only colour written out: `sum_n v_n c_n / sum_n v_n`, `v_n = w_n + IBR_ONLY_FLOOR`
+/// (weights `[M, N + 1]`, colours `[N, M, 3]`; output `[M, 3]`).
+fn ibr_only_reference(weights: &[f32], colours: &[f32], n: usize, m: usize) -> Vec<f32> {
+    use nia_model::ibr::blend_host::IBR_ONLY_FLOOR;
+    let mut out = vec![0.0f32; m * 3];
+    for i in 0..m {
+        let mut total = 0.0f64;
+        let mut sum = [0.0f64; 3];
+        for view in 0..n {
+            let v = (weights[i * (n + 1) + view + 1] + IBR_ONLY_FLOOR) as f64;
+            total += v;
+            for ch in 0..3 {
+                sum[ch] += v * colours[(view * m + i) * 3 + ch] as f64;
+            }
+        }
+        for ch in 0..3 {
+            out[i * 3 + ch] = (sum[ch] / total) as f32;
+        }
+    }
+    out
+}
+
+/// The host blend at extreme logits: weights stay finite and sum to 1, a logit far above the
+/// others takes all the weight, c0's rescaling keeps a c0-only point mostly on c0, the IBR-only
+/// colour of a c0-only point is the plain mean of the views, and bad scales and shapes are
+/// errors. NaN logits stay NaN (never hidden).
+#[test]
+fn host_blend_survives_extreme_logits_and_refuses_bad_input() {
+    use nia_model::ibr::blend_host::blend_on_host;
+    let (n, m) = (2usize, 4usize);
+    // Token-major [N + 1, M]: point 0 all on c0 (1e30 against -1e30), point 1 all on view 2,
+    // point 2 equal huge logits, point 3 zeros.
+    let logits = vec![
+        1e30, -1e30, 3e38, 0.0, // c0
+        -1e30, -1e30, 3e38, 0.0, // view 1
+        -1e30, 1e30, 3e38, 0.0, // view 2
+    ];
+    let c0 = vec![0.5f32; m * 3];
+    let mut colours = vec![0.0f32; n * m * 3];
+    for i in 0..m {
+        for ch in 0..3 {
+            colours[i * 3 + ch] = 0.2; // view 1
+            colours[(m + i) * 3 + ch] = 0.8; // view 2
+        }
+    }
+    for scale in [None, Some(1e-3f32), Some(0.25), Some(1e3)] {
+        let out = blend_on_host(&logits, &c0, &colours, n, m, scale).unwrap();
+        let case = format!("scale {scale:?}");
+        assert_finite(&out.blend_weights, &case);
+        assert_finite(&out.colour, &case);
+        assert_finite(&out.ibr_colour, &case);
+        for w in out.blend_weights.chunks(n + 1) {
+            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6, "{case}: {w:?}");
+        }
+        // Point 1 puts everything on view 2 whatever the scale (c0's weight is 0).
+        assert!(
+            (out.blend_weights[(n + 1) + 2] - 1.0).abs() < 1e-6,
+            "{case}"
+        );
+        assert!((out.colour[3] - 0.8).abs() < 1e-6, "{case}");
+        // Point 0 is c0-only: its IBR-only colour is the plain mean of the views.
+        assert!((out.ibr_colour[0] - 0.5).abs() < 1e-6, "{case}");
+        // Without rescaling, point 0 is all c0 and point 2's equal logits split evenly.
+        if scale.is_none() {
+            assert!((out.blend_weights[0] - 1.0).abs() < 1e-6, "{case}");
+            for k in 0..3 {
+                assert!(
+                    (out.blend_weights[2 * (n + 1) + k] - 1.0 / 3.0).abs() < 1e-6,
+                    "{case}"
+                );
+            }
+        }
+    }
+    // A c0 weight of 1 stays 1 under any scale: s / (s + 0).
+    let out = blend_on_host(&logits, &c0, &colours, n, m, Some(1e-3)).unwrap();
+    assert!((out.blend_weights[0] - 1.0).abs() < 1e-6);
+    // Point 3 (zeros): w = 1/3 each; at s = 0.25, w_0' = (1/12) / (1/12 + 2/3) = 1/9.
+    let out = blend_on_host(&logits, &c0, &colours, n, m, Some(0.25)).unwrap();
+    assert!((out.blend_weights[3 * (n + 1)] - 1.0 / 9.0).abs() < 1e-6);
+    let mut nan = logits.clone();
+    nan[3] = f32::NAN;
+    let out = blend_on_host(&nan, &c0, &colours, n, m, None).unwrap();
+    assert!(out.blend_weights[3 * (n + 1)].is_nan() && out.colour[9].is_nan());
+    for bad in [0.0f32, 1e4, f32::NAN] {
+        let err = blend_on_host(&logits, &c0, &colours, n, m, Some(bad)).unwrap_err();
+        assert!(err.to_string().contains("scale"), "{err}");
+    }
+    let err = blend_on_host(&logits[1..], &c0, &colours, n, m, None).unwrap_err();
+    assert!(err.to_string().contains("logits"), "{err}");
+    let err = blend_on_host(&logits, &c0, &colours[3..], n, m, None).unwrap_err();
+    assert!(err.to_string().contains("source_colours"), "{err}");
 }
 
 /// [`HostMlp`]'s contract: the tapped activation is the ReLU after the asked layer, the

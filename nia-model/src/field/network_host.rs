@@ -5,8 +5,9 @@
 //! cache, where the tensor path allocates, zeroes, copies and revisits every layer's output on
 //! the calling thread ([`crate::host_mlp`]). F_B's tokens and per-point part are laid out on
 //! the host as [`Blender::tokens`] lays them out (with the view statistics' weighted means and
-//! variances), and the activations after the stacks (softplus, sigmoid, the blend's softmax)
-//! stay tensor operations. [`crate::SceneEncoding::with_host_reads`] reads
+//! variances); after F_B the softmax, c0's rescaled odds, the mix and the IBR-only colour
+//! run in one host pass too ([`crate::ibr::blend_host`]). The activations of F_sigma and F_c0
+//! (softplus, sigmoid) stay tensor operations. [`crate::SceneEncoding::with_host_reads`] reads
 //! the weights once per scene; the tensor path stays the reference, the path with gradients and
 //! the one on the GPU (`nia-model/tests/fields.rs` and `tests/model.rs` compare them).
 
@@ -17,7 +18,8 @@ use super::heads::{ColourHead, ColourHeadOutput, DensityHead};
 use rayon::prelude::*;
 
 use crate::host_mlp::{FirstLayerAddend, HostMlp, ROWS_PER_TASK};
-use crate::ibr::blender::{blend, BlendInputs, Blender, PointColour, TOKEN_EXTRA_DIM};
+use crate::ibr::blend_host::blend_on_host;
+use crate::ibr::blender::{BlendInputs, Blender, PointColour, TOKEN_EXTRA_DIM};
 use crate::ibr::view_statistics::STATISTICS_FLOOR;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
@@ -113,15 +115,18 @@ impl HostNetwork {
     }
 
     /// [`Blender::colour`] for the variants with F_B ((e) full, (a) no body), its logits from
-    /// [`Self::blend_logits`].
+    /// [`Self::blend_logits`], then the softmax, c0's odds times `c0_weight_scale` (if any),
+    /// the mix and the IBR-only colour in one host pass ([`blend_on_host`]).
     ///
     /// # Shapes
-    /// - as [`BlendInputs`]; output colour `[M, 3]`, blend weights `[M, N + 1]`
+    /// - as [`BlendInputs`]; output colour `[M, 3]` and blend weights `[M, N + 1]`, and the
+    ///   IBR-only colour `[M, 3]`
     pub fn blend_colour(
         &self,
         blender: &Blender,
         inputs: BlendInputs,
-    ) -> Result<PointColour, ShapeError> {
+        c0_weight_scale: Option<f32>,
+    ) -> Result<(PointColour, Tensor<2>), ShapeError> {
         blender.check_inputs(
             &inputs.pixel_feature,
             &inputs.view_dir_features,
@@ -130,27 +135,43 @@ impl HostNetwork {
             &inputs.confidence,
             Some((&inputs.c0, &inputs.source_colours)),
         )?;
-        let blend_logits = self.blend_logits(blender.view_statistics, &inputs)?;
-        blend(blend_logits, inputs.c0, inputs.source_colours)
+        let [n, m, _] = inputs.source_colours.dims();
+        let device = inputs.c0.device();
+        let c0 = host_values_of("host F_B c0", inputs.c0.clone())?;
+        let c = host_values_of("host F_B c_n", inputs.source_colours.clone())?;
+        let logits = self.blend_logits_token_major(blender.view_statistics, &inputs, &c0, &c)?;
+        let out = blend_on_host(&logits, &c0, &c, n, m, c0_weight_scale)?;
+        let tensor = |values: Vec<f32>, width: usize| {
+            Tensor::<2>::from_data(TensorData::new(values, [m, width]), &device)
+        };
+        Ok((
+            PointColour {
+                colour: tensor(out.colour, 3),
+                blend_weights: tensor(out.blend_weights, n + 1),
+            },
+            tensor(out.ibr_colour, 3),
+        ))
     }
 
     /// F_B's blend logits w_0..w_N from its inputs, the tokens and the per-point part laid out
     /// on the host exactly as [`Blender::tokens`] lays them out (module docs of
     /// [`crate::ibr::blender`]), in parallel, then the layers. The inputs must have passed
-    /// [`Blender::check_inputs`].
+    /// [`Blender::check_inputs`]; `c0` and `c` are their c0 and c_n read back.
     ///
     /// # Shapes
-    /// - as [`BlendInputs`] (N views, M points); output `[M, N + 1]`
-    pub fn blend_logits(
+    /// - as [`BlendInputs`] (N views, M points); `c0`: `[M, 3]`; `c`: `[N, M, 3]`
+    /// - output: `[N + 1, M]`, token-major
+    pub fn blend_logits_token_major(
         &self,
         view_statistics: bool,
         inputs: &BlendInputs,
-    ) -> Result<Tensor<2>, ShapeError> {
+        c0: &[f32],
+        c: &[f32],
+    ) -> Result<Vec<f32>, ShapeError> {
         let [n, m, d] = inputs.pixel_feature.dims();
-        let device = inputs.c0.device();
         let t = n + 1;
         if m == 0 {
-            return Ok(Tensor::zeros([0, t], &device));
+            return Ok(Vec::new());
         }
         let read = |what: &str, x: Tensor<3>| host_values_of(what, x);
         let p = read("host F_B p_n", inputs.pixel_feature.clone())?;
@@ -158,13 +179,6 @@ impl HostNetwork {
         let o = host_values_of("host F_B o_n", inputs.visibility.clone())?;
         let h = host_values_of("host F_B h", inputs.h.clone())?;
         let psi = host_values_of("host F_B psi", inputs.confidence.clone())?;
-        let (c0, c) = match view_statistics {
-            true => (
-                host_values_of("host F_B c0", inputs.c0.clone())?,
-                read("host F_B c_n", inputs.source_colours.clone())?,
-            ),
-            false => (Vec::new(), Vec::new()),
-        };
         let d_h = h.len() / m;
         let colour_dim = if view_statistics { 3 } else { 0 };
         let d_token = d + TOKEN_EXTRA_DIM + colour_dim;
@@ -245,7 +259,7 @@ impl HostNetwork {
                     let stats = &mut row[d_h + 1..];
                     let (p_stats, c_stats) = stats.split_at_mut(2 * d);
                     weighted_mean_and_variance(&p, d, m, i, &omega, p_stats);
-                    weighted_mean_and_variance(&c, 3, m, i, &omega, c_stats);
+                    weighted_mean_and_variance(c, 3, m, i, &omega, c_stats);
                 }
             });
 
@@ -263,7 +277,7 @@ impl HostNetwork {
             }),
             None,
         )?;
-        Ok(Tensor::<2>::from_data(TensorData::new(logits.output, [t, m]), &device).transpose())
+        Ok(logits.output)
     }
 }
 

@@ -9,6 +9,7 @@ use rayon::prelude::*;
 use super::heads::view_mean;
 use super::{PointOutput, PointTensors};
 use crate::error::ModelError;
+use crate::ibr::blend_host::IBR_ONLY_FLOOR;
 use crate::ibr::blender::{mix, BlendInputs};
 use crate::ibr::c0_weight_scale::rescale_c0_weight;
 use crate::ibr::fetch_source_colours_from;
@@ -262,23 +263,28 @@ impl NiaModel {
             view_dir_features,
             visibility,
         };
-        // F_B on the host at inference on the CPU backends; the fixed rules as they are.
-        let blended = match host {
+        // F_B on the host at inference on the CPU backends, with everything after its logits
+        // in one host pass; the fixed rules as they are.
+        let (blended, ibr_colour) = match host {
             Some(host) if self.variant.uses_blender() && !inputs.h.is_autodiff() => {
-                host.blend_colour(&self.blender, inputs)?
+                host.blend_colour(&self.blender, inputs, scene.c0_weight_scale)?
             }
-            _ => self.blender.colour(self.variant, inputs)?,
-        };
-        // `[render] c0_weight_scale` (inference only): c0's odds in F_B's blend rescaled.
-        let blended = match scene.c0_weight_scale {
-            Some(scale) if self.variant.uses_blender() && !blended.colour.is_autodiff() => {
-                let weights = rescale_c0_weight(blended.blend_weights, scale)?;
-                let c0 = blend_c0.clone().unwrap_or_else(|| c0.clone());
-                mix(weights, c0, source_colours.clone())?
+            _ => {
+                let blended = self.blender.colour(self.variant, inputs)?;
+                // `[render] c0_weight_scale` (inference only): c0's odds in F_B's blend
+                // rescaled.
+                let blended = match scene.c0_weight_scale {
+                    Some(scale) if self.variant.uses_blender() && !blended.colour.is_autodiff() => {
+                        let weights = rescale_c0_weight(blended.blend_weights, scale)?;
+                        let c0 = blend_c0.clone().unwrap_or_else(|| c0.clone());
+                        mix(weights, c0, source_colours.clone())?
+                    }
+                    _ => blended,
+                };
+                let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
+                (blended, ibr_colour)
             }
-            _ => blended,
         };
-        let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
         watch.mark(Stage::Blending);
         Ok(PointOutput {
             sigma,
@@ -329,10 +335,6 @@ impl DensityPass {
         }
     }
 }
-
-/// Weight a view keeps in [`ibr_only_colour`] whatever its blend weight, so a point that puts all
-/// weight on c0 gets the plain mean of the source colours instead of 0/0.
-const IBR_ONLY_FLOOR: f32 = 1e-6;
 
 /// [`NiaModel::point_tensors`]' upload: `inputs` on the scene's device, with the body volume
 /// read on the host where the scene keeps a host copy of it.

@@ -34,6 +34,17 @@ pub const MIN_C0_WEIGHT_SCALE: f32 = 1e-3;
 /// Largest accepted scale.
 pub const MAX_C0_WEIGHT_SCALE: f32 = 1e3;
 
+/// Refuses a scale outside `[MIN_C0_WEIGHT_SCALE, MAX_C0_WEIGHT_SCALE]` (NaN too).
+pub(crate) fn check_c0_weight_scale(scale: f32) -> Result<(), ShapeError> {
+    match (MIN_C0_WEIGHT_SCALE..=MAX_C0_WEIGHT_SCALE).contains(&scale) {
+        true => Ok(()),
+        false => Err(ShapeError::value(
+            "c0 weight rescaling `scale`",
+            format!("{MIN_C0_WEIGHT_SCALE} to {MAX_C0_WEIGHT_SCALE}, got {scale}"),
+        )),
+    }
+}
+
 /// The blend weights with c0's odds multiplied by `scale` (module docs); rows still sum to 1.
 /// `scale` must lie in `[MIN_C0_WEIGHT_SCALE, MAX_C0_WEIGHT_SCALE]` (else an error; NaN too);
 /// the denominator is then at least `min(scale, 1)` for weights in `[0, 1]`, so no row divides
@@ -51,12 +62,7 @@ pub fn rescale_c0_weight(blend_weights: Tensor<2>, scale: f32) -> Result<Tensor<
             got: vec![m, k],
         });
     }
-    if !(MIN_C0_WEIGHT_SCALE..=MAX_C0_WEIGHT_SCALE).contains(&scale) {
-        return Err(ShapeError::value(
-            "c0 weight rescaling `scale`",
-            format!("{MIN_C0_WEIGHT_SCALE} to {MAX_C0_WEIGHT_SCALE}, got {scale}"),
-        ));
-    }
+    check_c0_weight_scale(scale)?;
     // Weights a softmax made lie in [0, 1]; clamping keeps a rounding excursion from turning
     // the denominator's `1 - w_0` negative.
     let w0 = blend_weights.clone().slice([0..m, 0..1]).clamp(0.0, 1.0); // [M, 1]

@@ -11,6 +11,7 @@
 //! map covers the same image extent). Points outside a view (or behind its camera, which the
 //! CPU precompute maps far outside [-1, 1]) read zeros.
 
+pub mod blend_host;
 pub mod blender;
 pub mod c0_shuffle;
 pub mod c0_weight_scale;

@@ -29,16 +29,13 @@ use glam::Vec3;
 use nia_data::geometry::rays::RayBundle;
 use nia_data::scene::projection_grid;
 
+use super::blend_host::IBR_ONLY_FLOOR;
 use super::fetch_source_colours_from;
 use crate::error::ModelError;
 use crate::scene_encoding::SceneEncoding;
 
 /// Opacity below which a ray has no surface point of its own (x_s = middle of the interval).
 pub const SURFACE_ACC_FLOOR: f32 = 1e-4;
-
-/// Weight every view keeps in the IBR-only composite, so a ray whose blend is all c0 gets the
-/// plain mean of the source colours instead of 0/0.
-const IBR_ONLY_FLOOR: f32 = 1e-6;
 
 /// The expected surface point of each ray: `o + d * depth / acc` where `acc` >=
 /// [`SURFACE_ACC_FLOOR`], the middle of `[near, far]` otherwise.
