@@ -37,9 +37,10 @@ pub struct ModelArgs {
     /// Samples per ray (default: the training setting stored in the model file).
     #[arg(long)]
     pub samples: Option<usize>,
-    /// Rays per network call; bounds memory (about chunk x samples points in flight).
-    /// Default: 1024 on the CPU; on a GPU as many as keep a call within 65,536 points
-    /// (8192 rays of 64 samples with early termination), fewer calls for the GPU to wait on.
+    /// Rays per network call; bounds memory (about chunk x samples points in flight, a
+    /// depth segment's with early termination). Default: as many as keep a call within
+    /// 16,384 points on the CPU (4096 rays of 32 samples with early termination, 1024 without)
+    /// and 65,536 on a GPU (8192 rays of 64 samples with early termination): fewer calls.
     #[arg(long)]
     pub chunk: Option<usize>,
     /// Empty-space skipping: on or off (default: the model's `[render]` setting, on).

@@ -20,8 +20,8 @@ use nia_train::config::TrainConfig;
 use nia_train::events::TrainEvent;
 
 /// Eval in nia-infer and at the end of training render the same rays with the same weights
-/// (including BatchNorm's running statistics); only the chunking differs (1024 rays vs the
-/// training batch), which may reorder float sums.
+/// (including BatchNorm's running statistics) in the same default chunk; the tolerance allows
+/// float sums reordered between the two processes.
 const EVAL_REPRODUCE_TOL_DB: f64 = 1e-6;
 const EVAL_REPRODUCE_TOL_SSIM: f64 = 1e-7;
 /// The bound for an exported model against its checkpoint.

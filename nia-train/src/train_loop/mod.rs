@@ -28,7 +28,7 @@ use nia_infer::eval::{
 use nia_infer::pictures::{comparison_grid, save_evaluated};
 use nia_model::body_volume::NUM_SCALES;
 use nia_model::loss::psnr_from_mse;
-use nia_model::renderer::call_size::rays_per_call_or;
+use nia_model::renderer::call_size::rays_per_call;
 use nia_model::sampler::RaySampler;
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::ModelError;
@@ -253,7 +253,7 @@ pub fn train(
                 EvalSplit::UnseenSubjects,
                 Some(t.validation_images),
             )?;
-            let chunk = rays_per_call_or(&device, t.samples, &config.render, t.rays_per_step);
+            let chunk = rays_per_call(&device, t.samples, &config.render);
             let total = items.len();
             let done_steps = done;
             on_event(TrainEvent::Progress {
@@ -337,7 +337,7 @@ pub fn train(
             EvalOptions {
                 task: EvalTask::NovelView,
                 samples: t.samples,
-                chunk: t.rays_per_step,
+                chunk: rays_per_call(&device, t.samples, &config.render),
                 timed: false,
                 render: config.render,
                 lpips: lpips.clone(),
