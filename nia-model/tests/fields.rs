@@ -936,7 +936,8 @@ fn host_network_matches_the_tensor_heads_and_blender() {
                 visibility: tensor(random(&mut rng, n * m, 0.0, 1.0), [n, m], &dev),
             };
             // Without and with c0's odds rescaled (`[render] c0_weight_scale`): the host pass
-            // against the tensor blend, rescaling, second mix and IBR-only colour.
+            // and the tensor path's one mix against the tensor blend, rescaling, second mix
+            // and IBR-only colour written out.
             for scale in [None, Some(0.25f32)] {
                 let case = format!("{case}, c0 scale {scale:?}");
                 let (got, got_ibr) = host.blend_colour(&blender, x.clone(), scale).unwrap();
@@ -956,13 +957,13 @@ fn host_network_matches_the_tensor_heads_and_blender() {
                 );
                 assert_close(
                     &weights,
-                    &values(want.blend_weights),
+                    &values(want.blend_weights.clone()),
                     VALUE_TOL,
                     &format!("{case}: blend weights"),
                 );
                 assert_close(
                     &values(got.colour),
-                    &values(want.colour),
+                    &values(want.colour.clone()),
                     VALUE_TOL,
                     &format!("{case}: colour"),
                 );
@@ -972,6 +973,21 @@ fn host_network_matches_the_tensor_heads_and_blender() {
                     VALUE_TOL,
                     &format!("{case}: IBR-only colour"),
                 );
+                // The tensor path's one-mix form (the GPU's) against the same reference.
+                let tensor = blender
+                    .colour_with_c0_scale(Variant::Full, x.clone(), scale)
+                    .unwrap();
+                for (what, got, want) in [
+                    ("weights", &tensor.blend_weights, &want.blend_weights),
+                    ("colour", &tensor.colour, &want.colour),
+                ] {
+                    assert_close(
+                        &values(got.clone()),
+                        &values(want.clone()),
+                        VALUE_TOL,
+                        &format!("{case}: tensor one-mix {what}"),
+                    );
+                }
             }
         }
     }

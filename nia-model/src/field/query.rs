@@ -10,8 +10,7 @@ use super::heads::view_mean;
 use super::{PointOutput, PointTensors};
 use crate::error::ModelError;
 use crate::ibr::blend_host::IBR_ONLY_FLOOR;
-use crate::ibr::blender::{mix, BlendInputs};
-use crate::ibr::c0_weight_scale::rescale_c0_weight;
+use crate::ibr::blender::BlendInputs;
 use crate::ibr::fetch_source_colours_from;
 use crate::linear_rows::linear_rows;
 use crate::model::NiaModel;
@@ -270,17 +269,12 @@ impl NiaModel {
                 host.blend_colour(&self.blender, inputs, scene.c0_weight_scale)?
             }
             _ => {
-                let blended = self.blender.colour(self.variant, inputs)?;
                 // `[render] c0_weight_scale` (inference only): c0's odds in F_B's blend
-                // rescaled.
-                let blended = match scene.c0_weight_scale {
-                    Some(scale) if self.variant.uses_blender() && !blended.colour.is_autodiff() => {
-                        let weights = rescale_c0_weight(blended.blend_weights, scale)?;
-                        let c0 = blend_c0.clone().unwrap_or_else(|| c0.clone());
-                        mix(weights, c0, source_colours.clone())?
-                    }
-                    _ => blended,
-                };
+                // rescaled before its one mix.
+                let scale = scene.c0_weight_scale.filter(|_| !inputs.h.is_autodiff());
+                let blended = self
+                    .blender
+                    .colour_with_c0_scale(self.variant, inputs, scale)?;
                 let ibr_colour = ibr_only_colour(blended.blend_weights.clone(), source_colours);
                 (blended, ibr_colour)
             }

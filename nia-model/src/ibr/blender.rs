@@ -32,6 +32,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
+use super::c0_weight_scale::rescale_c0_weight;
 use super::view_statistics::{mean_and_variance, view_weights};
 use super::{cosine_weights, simple_average_weights};
 use crate::linear_rows::linear_rows;
@@ -305,9 +306,10 @@ impl Blender {
     pub fn logits(&self, tokens: Tensor<3>, point: Tensor<2>) -> Tensor<2> {
         let [t, m, _] = tokens.dims();
         let point = self.point_input.forward(point).unsqueeze_dim::<3>(0); // [1, M, d_hidden]
-        let first = relu(linear_rows(&self.token_input, tokens) + point); // [N + 1, M, d_hidden]
-                                                                          // Layers 2..8 on the tokens as rows of one matrix: one matmul per layer instead of a
-                                                                          // batch of N + 1 (the weights are shared).
+                                                                           // [N + 1, M, d_hidden]
+        let first = relu(linear_rows(&self.token_input, tokens) + point);
+        // Layers 2..8 on the tokens as rows of one matrix: one matmul per layer instead of a
+        // batch of N + 1 (the weights are shared).
         let width = first.dims()[2];
         let mut x = first.reshape([t * m, width]);
         let last = self.layers.len() - 1;
@@ -326,6 +328,21 @@ impl Blender {
     /// # Shapes
     /// - see [`BlendInputs`]; output colour `[M, 3]`, blend weights `[M, N + 1]`
     pub fn colour(&self, variant: Variant, inputs: BlendInputs) -> Result<PointColour, ShapeError> {
+        self.colour_with_c0_scale(variant, inputs, None)
+    }
+
+    /// [`Self::colour`] with c0's odds in F_B's softmax multiplied by `c0_weight_scale`
+    /// before the mix (inference only, `[render] c0_weight_scale`: [`rescale_c0_weight`]);
+    /// the fixed rules of (b)-(d) ignore it.
+    ///
+    /// # Shapes
+    /// - as [`Self::colour`]
+    pub fn colour_with_c0_scale(
+        &self,
+        variant: Variant,
+        inputs: BlendInputs,
+        c0_weight_scale: Option<f32>,
+    ) -> Result<PointColour, ShapeError> {
         let [n, m] = inputs.visibility.dims();
         ShapeError::check("blend `c0` [M, 3]", &inputs.c0.dims(), &[Some(m), Some(3)])?;
         if n == 0 {
@@ -379,8 +396,12 @@ impl Blender {
                     inputs.confidence,
                     Some((inputs.c0.clone(), inputs.source_colours.clone())),
                 )?;
-                let blend_logits = self.logits(tokens, point);
-                blend(blend_logits, inputs.c0, inputs.source_colours)
+                let weights = stable_softmax(self.logits(tokens, point), 1);
+                let weights = match c0_weight_scale {
+                    Some(scale) => rescale_c0_weight(weights, scale)?,
+                    None => weights,
+                };
+                mix(weights, inputs.c0, inputs.source_colours)
             }
         }
     }
