@@ -115,7 +115,7 @@ impl HostNetwork {
     }
 
     /// [`Blender::colour`] for the variants with F_B ((e) full, (a) no body), its logits from
-    /// [`Self::blend_logits`], then the softmax, c0's odds times `c0_weight_scale` (if any),
+    /// [`Self::blend_logits_token_major`], then the softmax, c0's odds times `c0_weight_scale` (if any),
     /// the mix and the IBR-only colour in one host pass ([`blend_on_host`]).
     ///
     /// # Shapes
@@ -161,7 +161,7 @@ impl HostNetwork {
     /// # Shapes
     /// - as [`BlendInputs`] (N views, M points); `c0`: `[M, 3]`; `c`: `[N, M, 3]`
     /// - output: `[N + 1, M]`, token-major
-    pub fn blend_logits_token_major(
+    pub(crate) fn blend_logits_token_major(
         &self,
         view_statistics: bool,
         inputs: &BlendInputs,

@@ -305,8 +305,8 @@ impl Blender {
     /// - output `[M, N + 1]`
     pub fn logits(&self, tokens: Tensor<3>, point: Tensor<2>) -> Tensor<2> {
         let [t, m, _] = tokens.dims();
-        let point = self.point_input.forward(point).unsqueeze_dim::<3>(0); // [1, M, d_hidden]
-                                                                           // [N + 1, M, d_hidden]
+        // point: [1, M, d_hidden]; first: [N + 1, M, d_hidden]
+        let point = self.point_input.forward(point).unsqueeze_dim::<3>(0);
         let first = relu(linear_rows(&self.token_input, tokens) + point);
         // Layers 2..8 on the tokens as rows of one matrix: one matmul per layer instead of a
         // batch of N + 1 (the weights are shared).
@@ -396,12 +396,15 @@ impl Blender {
                     inputs.confidence,
                     Some((inputs.c0.clone(), inputs.source_colours.clone())),
                 )?;
-                let weights = stable_softmax(self.logits(tokens, point), 1);
-                let weights = match c0_weight_scale {
-                    Some(scale) => rescale_c0_weight(weights, scale)?,
-                    None => weights,
-                };
-                mix(weights, inputs.c0, inputs.source_colours)
+                let blend_logits = self.logits(tokens, point);
+                match c0_weight_scale {
+                    None => blend(blend_logits, inputs.c0, inputs.source_colours),
+                    Some(scale) => {
+                        let weights = stable_softmax(blend_logits, 1);
+                        let weights = rescale_c0_weight(weights, scale)?;
+                        mix(weights, inputs.c0, inputs.source_colours)
+                    }
+                }
             }
         }
     }
