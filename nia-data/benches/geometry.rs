@@ -8,6 +8,7 @@
 
 use glam::Vec3;
 use nia_data::geometry::camera::Camera;
+use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::geometry::raster::{rasterize, rasterize_into};
 use nia_data::geometry::rays::{mask_at_box, near_far, Aabb, Ray};
 use nia_data::geometry::surface::SurfaceIndex;
@@ -168,6 +169,23 @@ fn main() {
         None,
     );
 
+    // The occupancy grids (docs/speed.md): the renderer's (3 cm from the surface, 2 cm
+    // cells), the band sampler's in training (5 cm, 2 cm cells) and 1 cm cells. `build` finds
+    // the mesh's index in the memo after the first repetition (as a training scene finds the
+    // one its loader built), so the BVH's own build is timed below, not here.
+    for (threshold, cell) in [(0.03f32, 0.02f32), (0.05, 0.02), (0.03, 0.01)] {
+        let what = format!("{:.0} cm, {:.0} cm cells", threshold * 100.0, cell * 100.0);
+        report(
+            &format!("occupancy face by face {what}"),
+            time(|| OccupancyGrid::build_face_by_face(&vertices, &faces, threshold, cell).unwrap()),
+            None,
+        );
+        report(
+            &format!("occupancy build {what}"),
+            time(|| OccupancyGrid::build(&vertices, &faces, threshold, cell).unwrap()),
+            None,
+        );
+    }
     report(
         "SurfaceIndex::new (BVH build)",
         time(|| SurfaceIndex::new(&vertices, &faces).unwrap()),

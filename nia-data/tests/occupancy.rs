@@ -133,3 +133,112 @@ fn bad_settings_are_refused() {
         Err(OccupancyError::TooLarge { .. })
     ));
 }
+
+/// A name, vertices and faces.
+type NamedMesh = (&'static str, Vec<Vec3>, Vec<[u32; 3]>);
+
+/// A body with thin limbs, a closed cavity (a sphere inside a sphere: the shell between them
+/// is inside, the hollow is not reachable from outside) and a triangle soup.
+fn assorted_meshes() -> Vec<NamedMesh> {
+    let body = ProceduralBody::new(&ProceduralSpec {
+        grid_step_m: 0.02,
+        target_vertices: 3000,
+        ..ProceduralSpec::default()
+    })
+    .unwrap()
+    .build()
+    .unwrap();
+    let (mut hollow_v, mut hollow_f) = sphere(Vec3::new(0.0, 1.0, 0.0), 0.4, 24, 48);
+    let (inner_v, inner_f) = sphere(Vec3::new(0.05, 1.0, 0.0), 0.2, 12, 24);
+    let base = hollow_v.len() as u32;
+    hollow_v.extend(inner_v);
+    hollow_f.extend(inner_f.iter().map(|f| f.map(|i| i + base)));
+    let mut rng = Rng::new(7);
+    let mut soup_v = Vec::new();
+    let mut soup_f = Vec::new();
+    for t in 0..400u32 {
+        let c = Vec3::new(rng.uniform(), rng.uniform() * 1.5, rng.uniform() * 0.5);
+        for _ in 0..3 {
+            soup_v.push(c + 0.08 * Vec3::new(rng.normal(), rng.normal(), rng.normal()));
+        }
+        soup_f.push([3 * t, 3 * t + 1, 3 * t + 2]);
+    }
+    // A degenerate face (three equal points) and a sliver.
+    soup_v.extend([Vec3::splat(0.3), Vec3::splat(0.3), Vec3::splat(0.3)]);
+    soup_f.push([1200, 1201, 1202]);
+    vec![
+        ("body", body.v_template.clone(), body.faces.clone()),
+        ("hollow sphere", hollow_v, hollow_f),
+        ("triangle soup", soup_v, soup_f),
+    ]
+}
+
+#[test]
+fn cell_by_cell_build_marks_exactly_the_cells_of_the_face_by_face_build() {
+    for (name, v, f) in assorted_meshes() {
+        for (threshold, cell) in [(0.03, 0.02), (0.05, 0.02), (0.03, 0.01), (0.0, 0.015)] {
+            let fast = OccupancyGrid::build(&v, &f, threshold, cell).unwrap();
+            let reference = OccupancyGrid::build_face_by_face(&v, &f, threshold, cell).unwrap();
+            assert_eq!(fast.dims(), reference.dims(), "{name} {threshold} {cell}");
+            assert!(
+                fast == reference,
+                "{name} at {threshold} m, {cell} m cells: the grids differ"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_inside_of_a_closed_shell_is_kept_and_a_sealed_hollow_too() {
+    // The hollow inside the inner sphere is not connected to the border: it is kept, like any
+    // inside. Space between the spheres is inside the outer one: kept.
+    let (_, v, f) = assorted_meshes().swap_remove(1);
+    let grid = OccupancyGrid::build(&v, &f, 0.02, 0.02).unwrap();
+    assert!(grid.occupied(Vec3::new(0.05, 1.0, 0.0)));
+    assert!(grid.occupied(Vec3::new(-0.3, 1.0, 0.0)));
+    assert!(!grid.occupied(Vec3::new(-0.5, 1.0, 0.0)));
+    assert!(!grid.occupied(Vec3::new(0.0, 1.5, 0.0)));
+}
+
+#[test]
+fn a_non_finite_vertex_is_refused_by_name() {
+    let (mut v, f) = sphere(Vec3::ZERO, 0.3, 16, 32);
+    v[5].y = f32::NAN;
+    for build in [OccupancyGrid::build, OccupancyGrid::build_face_by_face] {
+        let err = build(&v, &f, 0.03, 0.02).unwrap_err();
+        assert!(
+            matches!(err, OccupancyError::NonFiniteVertex { vertex: 5, .. }),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("vertex 5"), "{err}");
+    }
+}
+
+#[test]
+fn any_within_agrees_with_the_nearest_distance() {
+    let (_, v, f) = assorted_meshes().swap_remove(0);
+    let index = SurfaceIndex::new(&v, &f).unwrap();
+    let mut rng = Rng::new(11);
+    let (mut near, mut far) = (0, 0);
+    for _ in 0..20_000 {
+        // Around a vertex, up to 15 cm off it, asked for up to 10 cm.
+        let anchor = v[rng.below(v.len())];
+        let p = anchor
+            + 0.15
+                * rng.uniform()
+                * Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize_or_zero();
+        let r = rng.uniform() * 0.1;
+        let expected = index.nearest_within(p, r).is_some();
+        assert_eq!(index.any_within(p, r), expected, "{p} at {r} m");
+        if expected {
+            near += 1;
+        } else {
+            far += 1;
+        }
+    }
+    assert!(near > 1000 && far > 1000, "{near} near, {far} far");
+    assert!(!index.any_within(Vec3::NAN, 1.0));
+    assert!(!index.any_within(Vec3::ZERO, -1.0));
+    assert!(!index.any_within(Vec3::ZERO, f32::NAN));
+    assert!(index.any_within(v[0], 0.0));
+}

@@ -3,11 +3,13 @@
 //!
 //! Built once per frame (and per target pose) from the posed mesh in a few milliseconds:
 //! 1. a cell is marked when its centre is within `threshold + half a cell diagonal` of a
-//!    triangle (exact point-triangle distance, tested for the cells of each triangle's grown
-//!    bounding box). Conservative: a point within `threshold` of the surface is within half a
-//!    diagonal of its cell's centre, so its cell is marked; a marked cell reaches at most
-//!    `threshold` + a cell diagonal from the surface;
-//! 2. the unmarked cells connected to the grid's border (6-neighbourhood flood fill) are
+//!    triangle (exact point-triangle distance). Each cell asks the mesh's nearest-surface BVH
+//!    whether any triangle is that close, a query that stops at the first one; blocks of
+//!    cells with no triangle near any of their centres are passed over with one query.
+//!    Conservative: a point within `threshold` of the surface is within half a diagonal of
+//!    its cell's centre, so its cell is marked; a marked cell reaches at most `threshold` + a
+//!    cell diagonal from the surface;
+//! 2. the unmarked cells connected to the grid's border (6-neighbourhood span fill) are
 //!    outside; the unmarked cells the fill does not reach are inside the body and are marked
 //!    too (the body's inside is never skipped, whatever its size).
 //!
@@ -17,7 +19,8 @@
 use glam::Vec3;
 
 use crate::geometry::rays::Aabb;
-use crate::geometry::surface::closest_point_on_triangle;
+use crate::geometry::surface::{closest_point_on_triangle, AnyWithinHint, Reach, SurfaceIndex};
+use crate::geometry::surface_memo::shared_surface;
 
 /// Error building an occupancy grid.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -28,8 +31,10 @@ pub enum OccupancyError {
         value: f32,
         expected: &'static str,
     },
-    #[error("occupancy grid: the mesh has no finite vertices")]
+    #[error("occupancy grid: the mesh has no vertices")]
     EmptyMesh,
+    #[error("occupancy grid: vertex {vertex} is {value}, expected finite coordinates (metres)")]
+    NonFiniteVertex { vertex: usize, value: String },
     #[error("occupancy grid: face {face} names vertex {vertex}, but the mesh has {vertices}")]
     Face {
         face: usize,
@@ -39,6 +44,10 @@ pub enum OccupancyError {
     #[error("occupancy grid: {cells} cells at {cell_m} m cells is over the {max} limit (use larger cells)")]
     TooLarge { cells: u64, cell_m: f32, max: u64 },
 }
+
+/// Cells along each edge of the blocks that [`OccupancyGrid::build`] passes over when no face
+/// is near.
+const BLOCK: usize = 2;
 
 /// Most cells a grid may have (a 2 m body at 1 cm cells is about 1.2e6).
 pub const MAX_CELLS: u64 = 64 << 20;
@@ -61,7 +70,46 @@ pub struct OccupancyGrid {
 impl OccupancyGrid {
     /// The grid of the mesh (`vertices` [V] world metres, `faces` [F]) keeping every point
     /// within `threshold_m` of its surface or inside it, at `cell_m` cells.
+    ///
+    /// Marks cell by cell: each cell asks the mesh's [`SurfaceIndex`] (the one
+    /// [`shared_surface`] remembers for this mesh, which the scene's nearest-surface queries use
+    /// too) whether any face lies within reach of its centre. The same test as
+    /// [`Self::build_face_by_face`], and the same grid (a test compares them).
     pub fn build(
+        vertices: &[Vec3],
+        faces: &[[u32; 3]],
+        threshold_m: f32,
+        cell_m: f32,
+    ) -> Result<Self, OccupancyError> {
+        let mut grid = Self::unmarked(vertices, faces, threshold_m, cell_m)?;
+        match (faces.is_empty(), shared_surface(vertices, faces)) {
+            (true, _) => {}
+            (false, Ok(index)) => grid.mark_cell_by_cell(&index),
+            // The checks above leave the index nothing to refuse; were it to, the faces still
+            // mark the grid.
+            (false, Err(_)) => grid.mark_face_by_face(vertices, faces),
+        }
+        grid.fill_inside();
+        Ok(grid)
+    }
+
+    /// [`Self::build`] face by face: each face tests the cells of its bounding box grown by the
+    /// reach. The reference the tests compare [`Self::build`] with (and the benches time).
+    pub fn build_face_by_face(
+        vertices: &[Vec3],
+        faces: &[[u32; 3]],
+        threshold_m: f32,
+        cell_m: f32,
+    ) -> Result<Self, OccupancyError> {
+        let mut grid = Self::unmarked(vertices, faces, threshold_m, cell_m)?;
+        grid.mark_face_by_face(vertices, faces);
+        grid.fill_inside();
+        Ok(grid)
+    }
+
+    /// The grid's cells over the mesh's box, none marked, after checking the settings and
+    /// the faces.
+    fn unmarked(
         vertices: &[Vec3],
         faces: &[[u32; 3]],
         threshold_m: f32,
@@ -90,10 +138,14 @@ impl OccupancyGrid {
                 });
             }
         }
+        if let Some((vertex, v)) = vertices.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(OccupancyError::NonFiniteVertex {
+                vertex,
+                value: format!("{v}"),
+            });
+        }
         let bounds = Aabb::from_points(vertices).ok_or(OccupancyError::EmptyMesh)?;
-        let half_diagonal = cell_m * 3f32.sqrt() * 0.5;
-        let reach = threshold_m + half_diagonal;
-        let reach2 = reach * reach;
+        let reach = threshold_m + Self::half_diagonal(cell_m);
         // One spare cell beyond the reach on every side keeps the border unmarked (the flood
         // fill starts there).
         let origin = bounds.min - Vec3::splat(reach + cell_m);
@@ -111,39 +163,98 @@ impl OccupancyGrid {
                 max: MAX_CELLS,
             });
         }
-        let mut grid = OccupancyGrid {
+        Ok(OccupancyGrid {
             origin,
             cell: cell_m,
             dims,
             occupied: vec![false; cells as usize],
             threshold: threshold_m,
-        };
-        for face in faces {
-            let [a, b, c] = face.map(|v| vertices[v as usize]);
-            if !(a.is_finite() && b.is_finite() && c.is_finite()) {
-                continue;
-            }
-            let lo = a.min(b).min(c) - Vec3::splat(reach);
-            let hi = a.max(b).max(c) + Vec3::splat(reach);
-            let (l, h) = (grid.cell_of_clamped(lo), grid.cell_of_clamped(hi));
-            for z in l[2]..=h[2] {
-                for y in l[1]..=h[1] {
-                    for x in l[0]..=h[0] {
-                        let i = grid.index(x, y, z);
-                        if grid.occupied[i] {
-                            continue;
-                        }
-                        let centre = grid.centre(x, y, z);
-                        let (q, _) = closest_point_on_triangle(centre, a, b, c);
-                        if (q - centre).length_squared() <= reach2 {
-                            grid.occupied[i] = true;
+        })
+    }
+
+    fn half_diagonal(cell_m: f32) -> f32 {
+        cell_m * 3f32.sqrt() * 0.5
+    }
+
+    /// A cell is marked when its centre is within this distance of a face, metres.
+    fn reach(&self) -> f32 {
+        self.threshold + Self::half_diagonal(self.cell)
+    }
+
+    /// Marks every cell whose centre has a face within reach, asking `index` cell by cell.
+    /// Blocks of [`BLOCK`]^3 cells ask first whether any face is within reach of any of their
+    /// centres (the reach plus the block's half diagonal, with a margin for rounding, from the
+    /// block's middle); a block with none is passed over. Each query tries the face that
+    /// answered the last one first.
+    fn mark_cell_by_cell(&mut self, index: &SurfaceIndex) {
+        /// Metres added to a block's reach: far above f32 rounding at body scale, far below a
+        /// cell.
+        const MARGIN_M: f32 = 1e-4;
+        let reach = self.reach();
+        let reach2 = reach * reach;
+        let [nx, ny, nz] = self.dims;
+        let mut hint = AnyWithinHint::default();
+        for bz in (0..nz).step_by(BLOCK) {
+            for by in (0..ny).step_by(BLOCK) {
+                for bx in (0..nx).step_by(BLOCK) {
+                    let (ex, ey, ez) = (
+                        (bx + BLOCK).min(nx),
+                        (by + BLOCK).min(ny),
+                        (bz + BLOCK).min(nz),
+                    );
+                    let first = self.centre(bx, by, bz);
+                    let last = self.centre(ex - 1, ey - 1, ez - 1);
+                    let half = 0.5 * (last - first).length();
+                    let middle = 0.5 * (first + last);
+                    let any_near = |r: f32, hint: &mut AnyWithinHint| {
+                        index.any_within_squared(middle, r * r, hint) == Reach::Within
+                    };
+                    if !any_near(reach + half + MARGIN_M, &mut hint) {
+                        continue;
+                    }
+                    for z in bz..ez {
+                        for y in by..ey {
+                            for x in bx..ex {
+                                if index.any_within_squared(self.centre(x, y, z), reach2, &mut hint)
+                                    == Reach::Within
+                                {
+                                    let i = self.index(x, y, z);
+                                    self.occupied[i] = true;
+                                }
+                            }
                         }
                     }
                 }
             }
         }
-        grid.fill_inside();
-        Ok(grid)
+    }
+
+    /// Marks every cell whose centre has a face within reach, testing for each face the cells
+    /// of its bounding box grown by the reach.
+    fn mark_face_by_face(&mut self, vertices: &[Vec3], faces: &[[u32; 3]]) {
+        let reach = self.reach();
+        let reach2 = reach * reach;
+        for face in faces {
+            let [a, b, c] = face.map(|v| vertices[v as usize]);
+            let lo = a.min(b).min(c) - Vec3::splat(reach);
+            let hi = a.max(b).max(c) + Vec3::splat(reach);
+            let (l, h) = (self.cell_of_clamped(lo), self.cell_of_clamped(hi));
+            for z in l[2]..=h[2] {
+                for y in l[1]..=h[1] {
+                    for x in l[0]..=h[0] {
+                        let i = self.index(x, y, z);
+                        if self.occupied[i] {
+                            continue;
+                        }
+                        let centre = self.centre(x, y, z);
+                        let (q, _) = closest_point_on_triangle(centre, a, b, c);
+                        if (q - centre).length_squared() <= reach2 {
+                            self.occupied[i] = true;
+                        }
+                    }
+                }
+            }
+        }
     }
 
     fn centre(&self, x: usize, y: usize, z: usize) -> Vec3 {
@@ -165,48 +276,56 @@ impl OccupancyGrid {
     }
 
     /// Marks the unmarked cells the border cannot reach (the body's inside).
+    ///
+    /// A span fill: each seed fills its whole run of free cells along x at once, then seeds
+    /// the free runs next to it in the four neighbouring rows (6-neighbourhood).
     fn fill_inside(&mut self) {
         let [nx, ny, nz] = self.dims;
-        let mut outside = vec![false; self.occupied.len()];
-        let mut stack = Vec::new();
+        let plane = nx * ny;
+        let occupied = &self.occupied;
+        let mut outside = vec![false; occupied.len()];
+        let free = |outside: &[bool], i: usize| !occupied[i] && !outside[i];
+        // Seeds: every border cell (one already filled is passed over when popped).
+        let mut stack: Vec<usize> = Vec::new();
         for z in 0..nz {
             for y in 0..ny {
-                for x in 0..nx {
-                    let border =
-                        x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1;
-                    let i = self.index(x, y, z);
-                    if border && !self.occupied[i] && !outside[i] {
-                        outside[i] = true;
-                        stack.push((x, y, z));
-                    }
+                let row = z * plane + y * nx;
+                if z == 0 || y == 0 || z + 1 == nz || y + 1 == ny {
+                    stack.extend(row..row + nx);
+                } else {
+                    stack.extend([row, row + nx - 1]);
                 }
             }
         }
-        while let Some((x, y, z)) = stack.pop() {
-            let mut visit = |x: usize, y: usize, z: usize| {
-                let i = (z * ny + y) * nx + x;
-                if !self.occupied[i] && !outside[i] {
-                    outside[i] = true;
-                    stack.push((x, y, z));
+        while let Some(i) = stack.pop() {
+            if !free(&outside, i) {
+                continue;
+            }
+            let row = i - i % nx;
+            let (y, z) = ((i / nx) % ny, i / plane);
+            let (mut l, mut r) = (i, i);
+            while l > row && free(&outside, l - 1) {
+                l -= 1;
+            }
+            while r + 1 < row + nx && free(&outside, r + 1) {
+                r += 1;
+            }
+            outside[l..=r].fill(true);
+            let neighbours = [
+                (y > 0).then(|| l - nx),
+                (y + 1 < ny).then(|| l + nx),
+                (z > 0).then(|| l - plane),
+                (z + 1 < nz).then(|| l + plane),
+            ];
+            for start in neighbours.into_iter().flatten() {
+                let mut in_run = false;
+                for k in start..=start + (r - l) {
+                    let f = free(&outside, k);
+                    if f && !in_run {
+                        stack.push(k);
+                    }
+                    in_run = f;
                 }
-            };
-            if x > 0 {
-                visit(x - 1, y, z);
-            }
-            if x + 1 < nx {
-                visit(x + 1, y, z);
-            }
-            if y > 0 {
-                visit(x, y - 1, z);
-            }
-            if y + 1 < ny {
-                visit(x, y + 1, z);
-            }
-            if z > 0 {
-                visit(x, y, z - 1);
-            }
-            if z + 1 < nz {
-                visit(x, y, z + 1);
             }
         }
         for (o, out) in self.occupied.iter_mut().zip(&outside) {
