@@ -278,6 +278,9 @@ impl LoadedModel {
             index: args.device,
         }
         .device()?;
+        if let Some(note) = backend.start_up_note() {
+            eprintln!("{note}");
+        }
         let mut model = file.load(path, &device)?;
         model.ray_sampler = args.ray_sampler(model.ray_sampler)?;
         Ok(LoadedModel {

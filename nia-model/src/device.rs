@@ -51,6 +51,21 @@ impl Backend {
         matches!(self, Backend::Wgpu)
     }
 
+    /// What a user should know before this backend's first calls in a process, for the
+    /// binaries to print (`None` on the CPU backends). On wgpu each new kernel shape is
+    /// compiled and its matrix products tuned on first use: on an NVIDIA H200 with empty
+    /// caches a paper-size first forward took 61-77 s, a later process 17 s (docs/speed.md).
+    pub fn start_up_note(self) -> Option<&'static str> {
+        match self {
+            Backend::Ndarray | Backend::Flex => None,
+            Backend::Wgpu => Some(
+                "wgpu: the first calls of a process compile and tune GPU kernels, a minute or \
+                 more on a machine new to nia-rs; later processes reuse cubecl's choices in \
+                 ~/.cache/cubecl and the driver's shader cache",
+            ),
+        }
+    }
+
     /// The inference device of this backend.
     pub fn device(self) -> Result<Device, BackendUnavailable> {
         match self {
@@ -208,6 +223,17 @@ mod tests {
             .device()
             .unwrap_err();
         assert!(err.to_string().contains("single device"), "{err}");
+    }
+
+    #[test]
+    fn only_the_gpu_backend_warns_of_its_start_up() {
+        assert_eq!(Backend::Flex.start_up_note(), None);
+        assert_eq!(Backend::Ndarray.start_up_note(), None);
+        let note = Backend::Wgpu.start_up_note().unwrap();
+        assert!(
+            note.starts_with("wgpu:") && note.contains("~/.cache/cubecl"),
+            "{note}"
+        );
     }
 }
 

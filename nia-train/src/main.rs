@@ -216,6 +216,14 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
         }];
     }
     pin_default_device(config.train.backend);
+    if let Some(note) = config
+        .train
+        .device_specs()
+        .iter()
+        .find_map(|spec| spec.backend.start_up_note())
+    {
+        eprintln!("{note}");
+    }
     let out = args
         .out
         .unwrap_or_else(|| PathBuf::from("runs").join(config_stem(&config_path)));

@@ -314,6 +314,9 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         index: args.device,
     }
     .device()?;
+    if let Some(note) = backend.start_up_note() {
+        eprintln!("{note}");
+    }
     let config = if args.tiny {
         ModelConfig::tiny()
     } else {
