@@ -214,10 +214,13 @@ pub struct EvaluatedImage<'a> {
     pub rendered: &'a RenderedImage,
 }
 
-/// The evaluation images of `split` among the opened subjects, at most `limit` of them.
+/// The evaluation images of `split` among the opened subjects for `task`, at most `limit` of
+/// them. A novel pose leaves out the images of each subject's reference frame (the sources
+/// themselves) before the limit, so `limit` counts images that are evaluated.
 pub fn eval_items(
     data: &OpenedDataset,
     split: EvalSplit,
+    task: EvalTask,
     limit: Option<usize>,
 ) -> Result<Vec<EvalItem>, EvalError> {
     let subjects = &data.source.subjects;
@@ -241,10 +244,13 @@ pub fn eval_items(
             .map(|s| (s.num_cameras(), s.num_frames()))
             .unwrap_or((0, 0))
     })?;
-    Ok(match limit {
-        Some(n) => items.into_iter().take(n).collect(),
-        None => items,
-    })
+    let evaluated = items.into_iter().filter(|item| match task {
+        EvalTask::NovelView => true,
+        EvalTask::NovelPose { .. } => {
+            reference_frame(data, split, &item.subject, task) != item.frame
+        }
+    });
+    Ok(evaluated.take(limit.unwrap_or(usize::MAX)).collect())
 }
 
 /// The frame novel-pose items of `subject` take their sources from.

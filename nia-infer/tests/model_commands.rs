@@ -326,12 +326,14 @@ fn eval_with_a_c0_weight_scale_leans_on_the_views() {
 #[test]
 fn novel_pose_eval_reposes_from_the_reference_frame() {
     let out_dir = scratch("eval-pose");
-    let flags = "--backend ndarray --task novel_pose --no-pictures";
+    // `--limit` counts evaluated images: the split's first images are of the reference frame,
+    // which a novel pose leaves out before the limit (before, this evaluated none).
+    let flags = "--backend ndarray --task novel_pose --no-pictures --limit 2";
     ok(&on_model("eval", flags, &[], &out_dir));
     let metrics = json_file(&out_dir.join("metrics.json"));
     assert_eq!(metrics["task"], "novel_pose");
     let images = metrics["images"].as_array().unwrap();
-    assert!(!images.is_empty());
+    assert_eq!(images.len(), 2);
     for image in images {
         assert_ne!(
             image["frame"], image["reference_frame"],
@@ -355,7 +357,13 @@ fn exported_file_renders_what_the_checkpoint_renders() {
     let spec = run.synth.as_ref().map(|s| s.spec());
     let protocol = run.data.protocol(spec.as_ref()).unwrap();
     let data = OpenedDataset::open_split(&run.data, protocol, EvalSplit::UnseenSubjects).unwrap();
-    let items = eval_items(&data, EvalSplit::UnseenSubjects, Some(2)).unwrap();
+    let items = eval_items(
+        &data,
+        EvalSplit::UnseenSubjects,
+        EvalTask::NovelView,
+        Some(2),
+    )
+    .unwrap();
     let options = EvalOptions {
         task: EvalTask::NovelView,
         samples: 8,

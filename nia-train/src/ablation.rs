@@ -153,8 +153,8 @@ pub fn run(
         .map_err(|e| AblationError::Setup(e.into()))?
         .autodiff();
     let split = EvalSplit::UnseenSubjects;
-    let items =
-        eval_items(&data.dataset, split, None).map_err(|e| AblationError::Setup(e.into()))?;
+    let items = eval_items(&data.dataset, split, EvalTask::NovelView, None)
+        .map_err(|e| AblationError::Setup(e.into()))?;
     if items.is_empty() {
         return Err(AblationError::NothingToEvaluate);
     }

@@ -204,7 +204,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     }
     let root = data_config.root.clone();
     let data = loaded.open_split(&data_config, split)?;
-    let items = eval_items(&data, split, args.limit)?;
+    let items = eval_items(&data, split, task, args.limit)?;
     if items.is_empty() {
         anyhow::bail!(
             "{}: the `{}` split has no images to evaluate",

@@ -98,7 +98,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         let data = loaded
             .open_split(&data_config, split)
             .with_context(|| format!("at ratio {ratio}"))?;
-        let items = eval_items(&data, split, Some(args.limit))?;
+        let items = eval_items(&data, split, EvalTask::NovelView, Some(args.limit))?;
         for &views in &args.view_counts {
             if let Some(item) = items.iter().find(|i| i.input_views.len() < views) {
                 anyhow::bail!(

@@ -251,6 +251,7 @@ pub fn train(
             let items = eval_items(
                 &data.dataset,
                 EvalSplit::UnseenSubjects,
+                EvalTask::NovelView,
                 Some(t.validation_images),
             )?;
             let chunk = rays_per_call(&device, t.samples, &config.render);
@@ -316,7 +317,7 @@ pub fn train(
     }
     if t.evaluate_at_end {
         let split = EvalSplit::UnseenSubjects;
-        let items = eval_items(&data.dataset, split, None)?;
+        let items = eval_items(&data.dataset, split, EvalTask::NovelView, None)?;
         let pictures = options.out.join("evaluation");
         std::fs::create_dir_all(&pictures)
             .map_err(|e| EvalError::Output(format!("creating {}: {e}", pictures.display())))?;
