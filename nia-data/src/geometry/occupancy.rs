@@ -204,12 +204,11 @@ impl OccupancyGrid {
                     );
                     let first = self.centre(bx, by, bz);
                     let last = self.centre(ex - 1, ey - 1, ez - 1);
-                    let half = 0.5 * (last - first).length();
+                    let block_reach = reach + 0.5 * (last - first).length() + MARGIN_M;
                     let middle = 0.5 * (first + last);
-                    let any_near = |r: f32, hint: &mut AnyWithinHint| {
-                        index.any_within_squared(middle, r * r, hint) == Reach::Within
-                    };
-                    if !any_near(reach + half + MARGIN_M, &mut hint) {
+                    if index.any_within_squared(middle, block_reach * block_reach, &mut hint)
+                        != Reach::Within
+                    {
                         continue;
                     }
                     for z in bz..ez {
