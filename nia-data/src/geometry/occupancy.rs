@@ -19,7 +19,7 @@
 use glam::Vec3;
 
 use crate::geometry::rays::Aabb;
-use crate::geometry::surface::{closest_point_on_triangle, AnyWithinHint, Reach, SurfaceIndex};
+use crate::geometry::surface::{closest_point_on_triangle, AnyWithinHint, SurfaceIndex};
 use crate::geometry::surface_memo::shared_surface;
 
 /// Error building an occupancy grid.
@@ -206,16 +206,13 @@ impl OccupancyGrid {
                     let last = self.centre(ex - 1, ey - 1, ez - 1);
                     let block_reach = reach + 0.5 * (last - first).length() + MARGIN_M;
                     let middle = 0.5 * (first + last);
-                    if index.any_within_squared(middle, block_reach * block_reach, &mut hint)
-                        != Reach::Within
-                    {
+                    if !index.any_within_squared(middle, block_reach * block_reach, &mut hint) {
                         continue;
                     }
                     for z in bz..ez {
                         for y in by..ey {
                             for x in bx..ex {
                                 if index.any_within_squared(self.centre(x, y, z), reach2, &mut hint)
-                                    == Reach::Within
                                 {
                                     let i = self.index(x, y, z);
                                     self.occupied[i] = true;

@@ -16,16 +16,6 @@ pub(crate) struct AnyWithinHint {
     last: Option<u32>,
 }
 
-/// What [`SurfaceIndex::any_within_squared`] found.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum Reach {
-    /// A face within the distance.
-    Within,
-    /// No face within the distance; every face is at least `lower_bound2.sqrt()` away (up to
-    /// rounding: callers keep a margin).
-    Beyond { lower_bound2: f32 },
-}
-
 impl SurfaceIndex {
     /// Whether some face lies within `max_dist` metres of `p` (inclusive): the test
     /// `nearest_within(p, max_dist).is_some()` answers, but it stops at the first face found
@@ -36,37 +26,25 @@ impl SurfaceIndex {
             return false;
         }
         let mut hint = AnyWithinHint::default();
-        matches!(
-            self.any_within_squared(p, max_dist * max_dist, &mut hint),
-            Reach::Within
-        )
+        self.any_within_squared(p, max_dist * max_dist, &mut hint)
     }
 
-    /// [`Self::any_within`] for the squared distance `r2`: [`Reach::Within`] when some face's
-    /// closest point `q` has `(q - p).length_squared() <= r2` (that exact f32 test, so a caller
-    /// that tested faces one by one gets the same answers); otherwise a lower bound on the
-    /// distance from `p` to the mesh, which lets the caller pass over points near `p`. `hint`
-    /// remembers the face that answered last and is tried first: neighbouring queries are
-    /// often answered by the same face. A non-finite `p` or a negative or NaN `r2` is
-    /// [`Reach::Beyond`] with a bound of 0.
-    pub(crate) fn any_within_squared(&self, p: Vec3, r2: f32, hint: &mut AnyWithinHint) -> Reach {
-        const NOTHING_KNOWN: Reach = Reach::Beyond { lower_bound2: 0.0 };
+    /// [`Self::any_within`] for the squared distance `r2`: whether some face's closest point
+    /// `q` has `(q - p).length_squared() <= r2` (that exact f32 test, so a caller that tested
+    /// faces one by one gets the same answers). `hint` remembers the face that answered last
+    /// and is tried first: neighbouring queries are often answered by the same face. `false`
+    /// for a non-finite `p` or a negative or NaN `r2`.
+    pub(crate) fn any_within_squared(&self, p: Vec3, r2: f32, hint: &mut AnyWithinHint) -> bool {
         if !(p.is_finite() && r2 >= 0.0) {
-            return NOTHING_KNOWN;
+            return false;
         }
-        let distance2 = |t: usize| {
+        let within = |t: usize| {
             let tri = &self.tris[t];
             let (q, _) = closest_point_on_triangle(p, tri[0], tri[1], tri[2]);
-            (q - p).length_squared()
+            (q - p).length_squared() <= r2
         };
-        // Every face not yet tested lies in a subtree that is pruned or still to visit; the
-        // smallest distance of the faces tested and the boxes pruned bounds the mesh's.
-        let mut lower2 = f32::INFINITY;
-        if let Some(t) = hint.last {
-            let d2 = distance2(t as usize);
-            if d2 <= r2 {
-                return Reach::Within;
-            }
+        if hint.last.is_some_and(|t| within(t as usize)) {
+            return true;
         }
         // Boxes are pruned against a slightly larger bound: a box holds its triangles exactly,
         // but the closest point on a triangle is computed with rounding, which must not make a
@@ -76,35 +54,21 @@ impl SurfaceIndex {
         let mut stack = [0u32; STACK_DEPTH];
         let mut top = 0usize;
         let mut node = 0usize;
-        let root2 = nodes[0].dist2(p);
-        if !(root2 <= prune2) {
-            return Reach::Beyond {
-                lower_bound2: root2,
-            };
+        if !(nodes[0].dist2(p) <= prune2) {
+            return false;
         }
         loop {
             let n = &nodes[node];
             if n.count > 0 {
                 let start = n.index as usize;
-                for t in start..start + n.count as usize {
-                    let d2 = distance2(t);
-                    if d2 <= r2 {
-                        hint.last = Some(t as u32);
-                        return Reach::Within;
-                    }
-                    lower2 = lower2.min(d2);
+                if let Some(t) = (start..start + n.count as usize).find(|&t| within(t)) {
+                    hint.last = Some(t as u32);
+                    return true;
                 }
             } else {
                 let left = n.index as usize;
                 let (dl, dr) = (nodes[left].dist2(p), nodes[left + 1].dist2(p));
-                let (near_left, near_right) = (dl <= prune2, dr <= prune2);
-                if !near_left {
-                    lower2 = lower2.min(dl);
-                }
-                if !near_right {
-                    lower2 = lower2.min(dr);
-                }
-                match (near_left, near_right) {
+                match (dl <= prune2, dr <= prune2) {
                     (true, true) => {
                         // The nearer child first: where a face is close, it is found sooner.
                         let (near, far) = if dl <= dr {
@@ -131,9 +95,7 @@ impl SurfaceIndex {
                 }
             }
             if top == 0 {
-                return Reach::Beyond {
-                    lower_bound2: lower2,
-                };
+                return false;
             }
             top -= 1;
             node = stack[top] as usize;

@@ -24,7 +24,7 @@ mod any_within;
 mod build;
 mod closest;
 
-pub(crate) use any_within::{AnyWithinHint, Reach};
+pub(crate) use any_within::AnyWithinHint;
 use build::{build, BuildRef};
 pub use closest::{closest_point_on_triangle, interpolate_scalar, interpolate_weights};
 
