@@ -34,6 +34,19 @@ fn sphere(c: Vec3, r: f32, rings: usize, segments: usize) -> (Vec<Vec3>, Vec<[u3
     (v, f)
 }
 
+/// The procedural body's template mesh at about `target_vertices` vertices (2 cm grid).
+fn procedural_body(target_vertices: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let body = ProceduralBody::new(&ProceduralSpec {
+        grid_step_m: 0.02,
+        target_vertices,
+        ..ProceduralSpec::default()
+    })
+    .unwrap()
+    .build()
+    .unwrap();
+    (body.v_template, body.faces)
+}
+
 #[test]
 fn sphere_keeps_the_shell_and_the_inside_and_skips_the_rest() {
     let (r, threshold, cell) = (0.3, 0.05, 0.02);
@@ -72,15 +85,7 @@ fn sphere_keeps_the_shell_and_the_inside_and_skips_the_rest() {
 
 #[test]
 fn body_mesh_points_within_the_threshold_are_always_kept() {
-    let body = ProceduralBody::new(&ProceduralSpec {
-        grid_step_m: 0.02,
-        target_vertices: 1500,
-        ..ProceduralSpec::default()
-    })
-    .unwrap()
-    .build()
-    .unwrap();
-    let (v, f) = (body.v_template.clone(), body.faces.clone());
+    let (v, f) = procedural_body(1500);
     let threshold = 0.04;
     let grid = OccupancyGrid::build(&v, &f, threshold, 0.02).unwrap();
     let index = SurfaceIndex::new(&v, &f).unwrap();
@@ -140,14 +145,7 @@ type NamedMesh = (&'static str, Vec<Vec3>, Vec<[u32; 3]>);
 /// A body with thin limbs, a closed cavity (a sphere inside a sphere: the shell between them
 /// is inside, the hollow is not reachable from outside) and a triangle soup.
 fn assorted_meshes() -> Vec<NamedMesh> {
-    let body = ProceduralBody::new(&ProceduralSpec {
-        grid_step_m: 0.02,
-        target_vertices: 3000,
-        ..ProceduralSpec::default()
-    })
-    .unwrap()
-    .build()
-    .unwrap();
+    let (body_v, body_f) = procedural_body(3000);
     let (mut hollow_v, mut hollow_f) = sphere(Vec3::new(0.0, 1.0, 0.0), 0.4, 24, 48);
     let (inner_v, inner_f) = sphere(Vec3::new(0.05, 1.0, 0.0), 0.2, 12, 24);
     let base = hollow_v.len() as u32;
@@ -167,7 +165,7 @@ fn assorted_meshes() -> Vec<NamedMesh> {
     soup_v.extend([Vec3::splat(0.3), Vec3::splat(0.3), Vec3::splat(0.3)]);
     soup_f.push([1200, 1201, 1202]);
     vec![
-        ("body", body.v_template.clone(), body.faces.clone()),
+        ("body", body_v, body_f),
         ("hollow sphere", hollow_v, hollow_f),
         ("triangle soup", soup_v, soup_f),
     ]

@@ -82,12 +82,13 @@ impl OccupancyGrid {
         cell_m: f32,
     ) -> Result<Self, OccupancyError> {
         let mut grid = Self::unmarked(vertices, faces, threshold_m, cell_m)?;
-        match (faces.is_empty(), shared_surface(vertices, faces)) {
-            (true, _) => {}
-            (false, Ok(index)) => grid.mark_cell_by_cell(&index),
-            // The checks above leave the index nothing to refuse; were it to, the faces still
-            // mark the grid.
-            (false, Err(_)) => grid.mark_face_by_face(vertices, faces),
+        if !faces.is_empty() {
+            match shared_surface(vertices, faces) {
+                Ok(index) => grid.mark_cell_by_cell(&index),
+                // The checks above leave the index nothing to refuse; were it to, the faces
+                // still mark the grid.
+                Err(_) => grid.mark_face_by_face(vertices, faces),
+            }
         }
         grid.fill_inside();
         Ok(grid)
