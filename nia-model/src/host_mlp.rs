@@ -15,6 +15,7 @@
 use burn::nn::Linear;
 use rayon::prelude::*;
 
+use crate::host_buffer::zeroed;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
@@ -213,8 +214,8 @@ impl HostMlp {
         };
         let d_out = self.layers[last].d_out;
         let widest = self.layers.iter().map(|l| l.d_out).max().unwrap_or(0);
-        let mut output = vec![0.0f32; rows * d_out];
-        let mut tapped = tap_width.map(|w| vec![0.0f32; rows * w]);
+        let mut output = zeroed(rows * d_out);
+        let mut tapped = tap_width.map(|w| zeroed(rows * w));
 
         let task = |t: usize, out: &mut [f32], mut tap_out: Option<&mut [f32]>| {
             let row0 = t * ROWS_PER_TASK;

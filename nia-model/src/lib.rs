@@ -17,7 +17,7 @@
 //! [`render_options`] (the `[render]` section), [`error`], [`loss`] (NIA eq. 6), [`lpips`]
 //! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints) and the tensor
 //! helpers ([`shape`], [`softmax`], [`linear_rows`], [`host_mlp`] (linear stacks fused on
-//! the host), [`readback`], [`timing`], [`device`]).
+//! the host), [`host_buffer`], [`readback`], [`timing`], [`device`]).
 
 pub mod blocked_rows;
 pub mod body_volume;
@@ -27,6 +27,7 @@ pub mod encoder;
 pub mod error;
 pub mod field;
 pub mod fitting;
+pub mod host_buffer;
 pub mod host_mlp;
 pub mod ibr;
 pub mod linear_rows;

@@ -25,6 +25,7 @@ use rayon::prelude::*;
 use super::network::BodyVolume;
 use super::trilinear::{TrilinearCorners, CORNERS};
 use super::BodyVolumeError;
+use crate::host_buffer::zeroed;
 use crate::host_mlp::HostLinear;
 use crate::readback::host_values;
 
@@ -188,7 +189,7 @@ impl HostVolume {
                 )
             })?;
         let reduced_width = self.reduced_width;
-        let mut out = vec![0.0f32; rows * d];
+        let mut out = zeroed(rows * d);
         out.par_chunks_mut(POINTS_PER_TASK * d)
             .enumerate()
             .for_each(|(task, block)| {
@@ -250,7 +251,7 @@ impl HostVolume {
         let n = self.num_views;
         let total = self.channels();
         let raw = self.raw_channels();
-        let mut out = vec![0.0f32; n * m * total];
+        let mut out = zeroed(n * m * total);
         // Rows of `total` channels: (view, point) pairs, in tasks of consecutive points.
         out.par_chunks_mut(POINTS_PER_TASK * total)
             .enumerate()

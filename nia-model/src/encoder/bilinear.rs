@@ -25,6 +25,7 @@ use burn::tensor::ops::GridSampleOptions;
 use rayon::prelude::*;
 
 use crate::blocked_rows::select_rows;
+use crate::host_buffer::zeroed;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
 
@@ -234,7 +235,7 @@ const POINTS_PER_TASK: usize = 128;
 /// - output: `[N, M, C]` row-major
 fn host_read(rows: &[f32], dims: [usize; 4], grid: &[f32], m: usize) -> Vec<f32> {
     let [n, c, h, w] = dims;
-    let mut out = vec![0.0f32; n * m * c];
+    let mut out = zeroed(n * m * c);
     out.par_chunks_mut(POINTS_PER_TASK * c)
         .enumerate()
         .for_each(|(task, block)| {

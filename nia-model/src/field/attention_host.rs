@@ -15,8 +15,9 @@ use burn::prelude::*;
 use rayon::prelude::*;
 
 use super::attention::ViewCrossAttention;
+use crate::host_buffer::zeroed;
 use crate::host_mlp::HostLinear;
-use crate::readback::host_values_of;
+use crate::readback::host_view_of;
 use crate::shape::ShapeError;
 
 /// Points per parallel task (its three projections of N x 128 rows stay in cache).
@@ -48,8 +49,8 @@ impl ViewCrossAttention {
             return Err(ShapeError::empty("attention views N"));
         }
         let device = body_feature.device();
-        let s = host_values_of("attention `body_feature`", body_feature)?;
-        let l = host_values_of("attention `pixel_feature`", pixel_feature)?;
+        let s = host_view_of("attention `body_feature`", body_feature)?;
+        let l = host_view_of("attention `pixel_feature`", pixel_feature)?;
         let out = self.view_mean_of_values(&s, &l, n, m)?;
         Ok(Tensor::from_data(TensorData::new(out, [m, d]), &device))
     }
@@ -81,7 +82,7 @@ impl ViewCrossAttention {
         let phi_k = HostLinear::read("attention phi_k", &self.phi_k)?;
         let phi_v = HostLinear::read("attention phi_v", &self.phi_v)?;
         let scale = 1.0 / (self.d_model as f32).sqrt();
-        let mut out = vec![0.0f32; m * d];
+        let mut out = zeroed(m * d);
         out.par_chunks_mut(POINTS_PER_TASK * d)
             .enumerate()
             .for_each(|(task, block)| {

@@ -17,11 +17,12 @@ use burn::tensor::activation::{sigmoid, softplus};
 use super::heads::{ColourHead, ColourHeadOutput, DensityHead};
 use rayon::prelude::*;
 
+use crate::host_buffer::zeroed;
 use crate::host_mlp::{FirstLayerAddend, HostMlp, ROWS_PER_TASK};
 use crate::ibr::blend_host::blend_on_host;
 use crate::ibr::blender::{BlendInputs, Blender, PointColour, TOKEN_EXTRA_DIM};
 use crate::ibr::view_statistics::STATISTICS_FLOOR;
-use crate::readback::host_values_of;
+use crate::readback::host_view_of;
 use crate::shape::ShapeError;
 use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 
@@ -71,7 +72,7 @@ impl HostNetwork {
     pub fn density(&self, mean_feature: Tensor<2>) -> Result<Tensor<1>, ShapeError> {
         let [m, _] = mean_feature.dims();
         let device = mean_feature.device();
-        let x = host_values_of("host F_sigma input", mean_feature)?;
+        let x = host_view_of("host F_sigma input", mean_feature)?;
         let raw = self.density.forward("host F_sigma", &x, m, None, None)?;
         let raw = Tensor::<1>::from_data(TensorData::new(raw.output, [m]), &device);
         Ok(softplus(raw.add_scalar(self.density_shift), 1.0))
@@ -94,7 +95,7 @@ impl HostNetwork {
             &[Some(m)],
         )?;
         let device = mean_feature.device();
-        let x = host_values_of(
+        let x = host_view_of(
             "host F_c0 input",
             Tensor::cat(vec![mean_feature, dir_encoding], 1),
         )?;
@@ -137,8 +138,8 @@ impl HostNetwork {
         )?;
         let [n, m, _] = inputs.source_colours.dims();
         let device = inputs.c0.device();
-        let c0 = host_values_of("host F_B c0", inputs.c0.clone())?;
-        let c = host_values_of("host F_B c_n", inputs.source_colours.clone())?;
+        let c0 = host_view_of("host F_B c0", inputs.c0.clone())?;
+        let c = host_view_of("host F_B c_n", inputs.source_colours.clone())?;
         let logits = self.blend_logits_token_major(blender.view_statistics, &inputs, &c0, &c)?;
         let out = blend_on_host(&logits, &c0, &c, n, m, c0_weight_scale)?;
         let tensor = |values: Vec<f32>, width: usize| {
@@ -173,12 +174,12 @@ impl HostNetwork {
         if m == 0 {
             return Ok(Vec::new());
         }
-        let read = |what: &str, x: Tensor<3>| host_values_of(what, x);
+        let read = |what: &str, x: Tensor<3>| host_view_of(what, x);
         let p = read("host F_B p_n", inputs.pixel_feature.clone())?;
         let d_hat = read("host F_B d_hat_n", inputs.view_dir_features.clone())?;
-        let o = host_values_of("host F_B o_n", inputs.visibility.clone())?;
-        let h = host_values_of("host F_B h", inputs.h.clone())?;
-        let psi = host_values_of("host F_B psi", inputs.confidence.clone())?;
+        let o = host_view_of("host F_B o_n", inputs.visibility.clone())?;
+        let h = host_view_of("host F_B h", inputs.h.clone())?;
+        let psi = host_view_of("host F_B psi", inputs.confidence.clone())?;
         let d_h = h.len() / m;
         let colour_dim = if view_statistics { 3 } else { 0 };
         let d_token = d + TOKEN_EXTRA_DIM + colour_dim;
@@ -186,7 +187,7 @@ impl HostNetwork {
         let inv_n = 1.0 / n as f32;
 
         // Tokens, token-major [N + 1, M, d_token]: token 0 is c0's.
-        let mut tokens = vec![0.0f32; t * m * d_token];
+        let mut tokens = zeroed(t * m * d_token);
         tokens
             .par_chunks_mut(ROWS_PER_TASK * d_token)
             .enumerate()
@@ -234,7 +235,7 @@ impl HostNetwork {
             });
 
         // The per-point part [M, d_point]: [h, psi (, mean p, var p, mean c, var c)].
-        let mut point = vec![0.0f32; m * d_point];
+        let mut point = zeroed(m * d_point);
         point
             .par_chunks_mut(ROWS_PER_TASK * d_point)
             .enumerate()

@@ -14,7 +14,7 @@ use crate::ibr::blender::BlendInputs;
 use crate::ibr::fetch_source_colours_from;
 use crate::linear_rows::linear_rows;
 use crate::model::NiaModel;
-use crate::readback::host_values_of;
+use crate::readback::host_view_of;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::{Stage, StageTimes, Stopwatch};
 
@@ -178,9 +178,9 @@ impl NiaModel {
             }
             (Some((read, Some(host))), true) => {
                 let [n, m, _] = read.dims();
-                let read = host_values_of("body volume read", read)?;
+                let read = host_view_of("body volume read", read)?;
                 let s = host.reduce(&read, &self.body_reduce)?; // [N, M, d]
-                let l = host_values_of("pixel features l_n", l.clone())?;
+                let l = host_view_of("pixel features l_n", l.clone())?;
                 let mean = self.attention.view_mean_of_values(&s, &l, n, m)?;
                 let d = mean.len() / m.max(1);
                 Tensor::from_data(TensorData::new(mean, [m, d]), &l_device)
