@@ -1047,10 +1047,23 @@ fn body_volume_network_on_wgpu_matches_ndarray() {
                 .iter()
                 .zip(g)
                 .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+            // Where they differ, for a failure that does not come back at once (docs/testing.md,
+            // "One intermittent failure"): how many values, and the first few.
+            let off: Vec<(usize, f32, f32)> = r
+                .iter()
+                .zip(g)
+                .enumerate()
+                .filter(|(_, (a, b))| (*a - *b).abs() > NETWORK_WGPU_TOL * scale)
+                .map(|(k, (a, b))| (k, *a, *b))
+                .collect();
             assert!(
                 diff <= NETWORK_WGPU_TOL * scale,
                 "{method:?} blocks {block:?}, output {i} (scales, then d vertex features, \
-                 d weight): max |wgpu - ndarray| {diff} of max |value| {scale}"
+                 d weight): max |wgpu - ndarray| {diff} of max |value| {scale}; {} of {} \
+                 values off, the first (index, ndarray, wgpu): {:?}",
+                off.len(),
+                r.len(),
+                &off[..off.len().min(12)]
             );
         }
     }
