@@ -907,6 +907,34 @@ fn host_network_matches_the_tensor_heads_and_blender() {
             assert_eq!(sigma.len(), m, "{case}");
             assert_finite(&sigma, &case);
             assert_close(&sigma, &sigma_ref, VALUE_TOL, &format!("{case}: sigma"));
+            // gamma(d) written on the host into F_c0's input rows, against the tensor encoding.
+            let pe = PositionalEncodingConfig::new().init(&dev);
+            let dirs: Vec<f32> = (0..m)
+                .flat_map(|_| {
+                    let v = random(&mut rng, 3, -1.0, 1.0);
+                    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-3);
+                    [v[0] / n, v[1] / n, v[2] / n]
+                })
+                .collect();
+            let dirs = tensor(dirs, [m, 3], &dev);
+            let of_dirs = host
+                .colour_of_directions(mean_z.clone(), dirs.clone(), &pe)
+                .unwrap();
+            let of_dirs_ref = colour
+                .forward(mean_z.clone(), pe.forward(dirs).unwrap())
+                .unwrap();
+            for (what, got, want) in [
+                ("c0", of_dirs.c0, of_dirs_ref.c0),
+                ("psi", of_dirs.confidence, of_dirs_ref.confidence),
+                ("h", of_dirs.h, of_dirs_ref.h),
+            ] {
+                assert_close(
+                    &values(got),
+                    &values(want),
+                    VALUE_TOL,
+                    &format!("{case}: {what} from directions"),
+                );
+            }
             let heads = host.colour(mean_z.clone(), gamma.clone()).unwrap();
             let heads_ref = colour.forward(mean_z, gamma).unwrap();
             assert_eq!(heads.h.dims(), [m, d_hidden], "{case}");

@@ -15,6 +15,7 @@ use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, softplus};
 
 use super::heads::{ColourHead, ColourHeadOutput, DensityHead};
+use super::positional_encoding::PositionalEncoding;
 use rayon::prelude::*;
 
 use crate::host_buffer::zeroed;
@@ -99,15 +100,58 @@ impl HostNetwork {
             "host F_c0 input",
             Tensor::cat(vec![mean_feature, dir_encoding], 1),
         )?;
+        self.colour_rows(&x, m, &device)
+    }
+
+    /// [`Self::colour`] with gamma(d) written on the host, each row's encoding straight after
+    /// its mean feature in F_c0's input (the tensor encoding and the concatenation ran on the
+    /// calling thread).
+    ///
+    /// # Shapes
+    /// - `mean_feature`: `[M, d]`; `dirs`: `[M, 3]` unit directions
+    /// - outputs: as [`Self::colour`]
+    pub fn colour_of_directions(
+        &self,
+        mean_feature: Tensor<2>,
+        dirs: Tensor<2>,
+        encoding: &PositionalEncoding,
+    ) -> Result<ColourHeadOutput, ShapeError> {
+        let [m, d] = mean_feature.dims();
+        ShapeError::check("host F_c0 `dirs` [M, 3]", &dirs.dims(), &[Some(m), Some(3)])?;
+        let device = mean_feature.device();
+        let mean = host_view_of("host F_c0 mean feature", mean_feature)?;
+        let dirs = host_view_of("host F_c0 directions", dirs)?;
+        let width = d + encoding.output_dim();
+        let mut x = zeroed(m * width);
+        x.par_chunks_mut(ROWS_PER_TASK * width)
+            .enumerate()
+            .for_each(|(task, block)| {
+                for (r, row) in block.chunks_mut(width).enumerate() {
+                    let i = task * ROWS_PER_TASK + r;
+                    let (feature, gamma) = row.split_at_mut(d);
+                    feature.copy_from_slice(&mean[i * d..(i + 1) * d]);
+                    encoding.encode_to([dirs[3 * i], dirs[3 * i + 1], dirs[3 * i + 2]], gamma);
+                }
+            });
+        self.colour_rows(&x, m, &device)
+    }
+
+    /// F_c0 on its input rows `[M, d + d_direction]` and the heads' activations.
+    fn colour_rows(
+        &self,
+        x: &[f32],
+        m: usize,
+        device: &Device,
+    ) -> Result<ColourHeadOutput, ShapeError> {
         let out = self
             .colour
-            .forward("host F_c0", &x, m, None, Some(H_LAYER))?;
+            .forward("host F_c0", x, m, None, Some(H_LAYER))?;
         let tapped = out.tapped.ok_or_else(|| {
             ShapeError::value("host F_c0", "h, the third layer's activation".into())
         })?;
         let d_h = self.colour.width_after(H_LAYER).unwrap_or(0);
-        let h = Tensor::<2>::from_data(TensorData::new(tapped, [m, d_h]), &device);
-        let out = Tensor::<2>::from_data(TensorData::new(out.output, [m, 4]), &device);
+        let h = Tensor::<2>::from_data(TensorData::new(tapped, [m, d_h]), device);
+        let out = Tensor::<2>::from_data(TensorData::new(out.output, [m, 4]), device);
         Ok(ColourHeadOutput {
             c0: sigmoid(out.clone().slice(s![.., 0..3])),
             confidence: sigmoid(out.slice(s![.., 3..4])),

@@ -60,14 +60,21 @@ impl PositionalEncoding {
 
     /// Appends gamma(p) (`output_dim()` values) to `out`, in plain Rust.
     pub fn encode_into(&self, p: [f32; 3], out: &mut Vec<f32>) {
-        out.reserve(self.output_dim());
-        if self.include_input {
-            out.extend_from_slice(&p);
-        }
-        for k in 0..self.num_frequencies {
+        let start = out.len();
+        out.resize(start + self.output_dim(), 0.0);
+        self.encode_to(p, &mut out[start..]);
+    }
+
+    /// Writes gamma(p) into `out`, whose length must be `output_dim()`, in plain Rust.
+    pub fn encode_to(&self, p: [f32; 3], out: &mut [f32]) {
+        let (input, bands) = out.split_at_mut(3 * usize::from(self.include_input));
+        input.copy_from_slice(&p[..input.len()]);
+        for (k, band) in bands.chunks_exact_mut(6).enumerate() {
             let w = Self::frequency(k);
-            out.extend(p.iter().map(|&x| (w * x).sin()));
-            out.extend(p.iter().map(|&x| (w * x).cos()));
+            for (c, &x) in p.iter().enumerate() {
+                band[c] = (w * x).sin();
+                band[3 + c] = (w * x).cos();
+            }
         }
     }
 

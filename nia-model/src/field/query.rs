@@ -240,11 +240,14 @@ impl NiaModel {
         } = density;
         let source_colours = fetch_source_colours_from(&scene.image_rows, proj_grid)?; // [N, M, 3]
         watch.mark(Stage::Sampling);
-        let gamma = self.direction_encoding.forward(dirs)?;
         let host = scene.host_network.as_deref();
         let heads = match host {
-            Some(host) if !mean_z.is_autodiff() => host.colour(mean_z, gamma)?,
-            _ => self.colour.forward(mean_z, gamma)?,
+            Some(host) if !mean_z.is_autodiff() => {
+                host.colour_of_directions(mean_z, dirs, &self.direction_encoding)?
+            }
+            _ => self
+                .colour
+                .forward(mean_z, self.direction_encoding.forward(dirs)?)?,
         };
         let c0 = heads.c0.clone();
         // Shuffling is F_B's augmentation: the fixed rules of (b)-(d) would only average noise.
