@@ -67,9 +67,14 @@ impl PositionalEncoding {
 
     /// Writes gamma(p) into `out`, whose length must be `output_dim()`, in plain Rust.
     pub fn encode_to(&self, p: [f32; 3], out: &mut [f32]) {
+        debug_assert_eq!(out.len(), self.output_dim(), "gamma's output width");
         let (input, bands) = out.split_at_mut(3 * usize::from(self.include_input));
         input.copy_from_slice(&p[..input.len()]);
-        for (k, band) in bands.chunks_exact_mut(6).enumerate() {
+        for (k, band) in bands
+            .chunks_exact_mut(6)
+            .take(self.num_frequencies)
+            .enumerate()
+        {
             let w = Self::frequency(k);
             for (c, &x) in p.iter().enumerate() {
                 band[c] = (w * x).sin();
