@@ -25,15 +25,13 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{binary, Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex, TensorMetadata};
+use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex};
 use burn::prelude::*;
-use burn::tensor::DType;
 use rayon::prelude::*;
 
 use nia_data::geometry::sparse::{Rulebook, KERNEL_VOLUME};
 
-/// flex's tensor primitive.
-type FlexTensor = FloatTensor<Flex>;
+use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 
 /// A rulebook in host memory for the host kernels: the neighbour map and its inverse.
 #[derive(Debug, Clone, PartialEq)]
@@ -103,39 +101,11 @@ pub trait SparseConvKernels: Backend {
     ) -> FloatTensor<Self>;
 }
 
-/// `t` as a contiguous f32 tensor (as it is when it already is one, else converted or copied).
-fn contiguous_f32(t: FlexTensor) -> FlexTensor {
-    let t = if t.dtype() == DType::F32 {
-        t
-    } else {
-        FlexTensor::from_data(t.into_data().convert::<f32>())
-    };
-    if t.is_contiguous() {
-        t
-    } else {
-        t.to_contiguous()
-    }
-}
-
-/// The f32 values of a tensor from [`contiguous_f32`].
-fn values(t: &FlexTensor) -> &[f32] {
-    t.as_slice::<f32>()
-        .expect("contiguous_f32 gives a contiguous f32 tensor")
-}
-
-fn dims3(t: &FlexTensor) -> [usize; 3] {
-    t.shape().dims::<3>()
-}
-
-fn flex_tensor(values: Vec<f32>, dims: [usize; 3]) -> FlexTensor {
-    FlexTensor::from_data(TensorData::new(values, dims))
-}
-
 impl SparseConvKernels for Flex {
     fn conv_forward(features: FlexTensor, weight: FlexTensor, rules: &HostRules) -> FlexTensor {
         let (x, w) = (contiguous_f32(features), contiguous_f32(weight));
-        let [n, _, ci] = dims3(&x);
-        let co = dims3(&w)[2];
+        let [n, _, ci] = dims::<3>(&x);
+        let co = dims::<3>(&w)[2];
         let out = blocked_gather_product(
             values(&x),
             rules.n_in,
@@ -151,8 +121,8 @@ impl SparseConvKernels for Flex {
 
     fn conv_grad_input(grad: FlexTensor, weight: FlexTensor, rules: &HostRules) -> FlexTensor {
         let (g, w) = (contiguous_f32(grad), contiguous_f32(weight));
-        let [n, _, co] = dims3(&g);
-        let ci = dims3(&w)[1];
+        let [n, _, co] = dims::<3>(&g);
+        let ci = dims::<3>(&w)[1];
         // W'[k * C_out + c_out, c_in] = W[k, c_in, c_out]: every offset's block transposed.
         let w = values(&w);
         let mut wt = vec![0.0f32; w.len()];
@@ -182,8 +152,8 @@ impl SparseConvKernels for Flex {
 
     fn conv_grad_weight(features: FlexTensor, grad: FlexTensor, rules: &HostRules) -> FlexTensor {
         let (x, g) = (contiguous_f32(features), contiguous_f32(grad));
-        let [n, _, ci] = dims3(&x);
-        let co = dims3(&g)[2];
+        let [n, _, ci] = dims::<3>(&x);
+        let co = dims::<3>(&g)[2];
         let out = gathered_outer_sum(values(&x), rules, n, ci, values(&g), co);
         flex_tensor(out, [KERNEL_VOLUME, ci, co])
     }
@@ -250,18 +220,8 @@ impl<B: Backend + SparseConvKernels, C: CheckpointStrategy> SparseConvBackend fo
     }
 }
 
-/// Whether `device` is flex, with or without autodiff: where [`sparse_conv_host`] runs.
-pub fn runs_on_host(device: &Device) -> bool {
-    use burn_dispatch::DispatchDevice;
-    match device.as_dispatch() {
-        DispatchDevice::Flex(_) => true,
-        DispatchDevice::Autodiff(d) => matches!(d.clone().inner(), DispatchDevice::Flex(_)),
-        _ => false,
-    }
-}
-
 /// The sparse convolution by the host kernels of this module (the device must be flex, with or
-/// without autodiff: [`runs_on_host`]).
+/// without autodiff: [`crate::host_op::runs_on_host`]).
 ///
 /// # Shapes
 /// - features: `[N, P_in, C_in]`

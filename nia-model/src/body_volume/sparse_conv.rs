@@ -21,11 +21,12 @@ use burn::prelude::*;
 
 use std::sync::Arc;
 
-use super::host_conv::{runs_on_host, sparse_conv_host, HostRules};
+use super::host_conv::{sparse_conv_host, HostRules};
 use super::view_rows::ViewRows;
 use super::BodyVolumeError;
 use crate::blocked_rows::{scatter_add_rows, select_rows};
 use crate::device::computes_on_cpu;
+use crate::host_op::runs_on_host;
 use nia_data::geometry::sparse::{Rulebook, RulebookKind, KERNEL_VOLUME};
 
 /// PyTorch's (and spconv's) default convolution init: Kaiming uniform with `a = sqrt(5)`, i.e.

@@ -16,8 +16,9 @@
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::{relu, sigmoid, softplus};
+use burn::tensor::activation::{sigmoid, softplus};
 
+use crate::linear_host::linear;
 use crate::shape::ShapeError;
 
 /// Number of linear layers of F_sigma and F_c0 (paper).
@@ -91,10 +92,7 @@ impl DensityHead {
         let last = self.layers.len() - 1;
         let mut x = mean_feature;
         for (i, layer) in self.layers.iter().enumerate() {
-            x = layer.forward(x);
-            if i < last {
-                x = relu(x);
-            }
+            x = linear(layer, x, i < last);
         }
         let sigma = softplus(x.add_scalar(self.density_shift), 1.0);
         Ok(sigma.reshape([m]))
@@ -163,10 +161,11 @@ impl ColourHead {
             &[d + d_dir],
             &[Some(d_in)],
         )?;
-        let mut x = relu(self.layers[0].forward(Tensor::cat(vec![mean_feature, dir_encoding], 1)));
-        x = relu(self.layers[1].forward(x));
-        let h = relu(self.layers[2].forward(x));
-        let out = self.layers[3].forward(h.clone());
+        let x = Tensor::cat(vec![mean_feature, dir_encoding], 1);
+        let x = linear(&self.layers[0], x, true);
+        let x = linear(&self.layers[1], x, true);
+        let h = linear(&self.layers[2], x, true);
+        let out = linear(&self.layers[3], h.clone(), false);
         let c0 = sigmoid(out.clone().slice(s![.., 0..3]));
         let confidence = sigmoid(out.slice(s![.., 3..4]));
         Ok(ColourHeadOutput { c0, confidence, h })

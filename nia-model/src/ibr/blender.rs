@@ -35,6 +35,7 @@ use burn::tensor::activation::relu;
 use super::c0_weight_scale::rescale_c0_weight;
 use super::view_statistics::{mean_and_variance, view_weights};
 use super::{cosine_weights, simple_average_weights};
+use crate::linear_host::linear;
 use crate::linear_rows::linear_rows;
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
@@ -306,7 +307,7 @@ impl Blender {
     pub fn logits(&self, tokens: Tensor<3>, point: Tensor<2>) -> Tensor<2> {
         let [t, m, _] = tokens.dims();
         // point: [1, M, d_hidden]; first: [N + 1, M, d_hidden]
-        let point = self.point_input.forward(point).unsqueeze_dim::<3>(0);
+        let point = linear(&self.point_input, point, false).unsqueeze_dim::<3>(0);
         let first = relu(linear_rows(&self.token_input, tokens) + point);
         // Layers 2..8 on the tokens as rows of one matrix: one matmul per layer instead of a
         // batch of N + 1 (the weights are shared).
@@ -314,10 +315,7 @@ impl Blender {
         let mut x = first.reshape([t * m, width]);
         let last = self.layers.len() - 1;
         for (i, layer) in self.layers.iter().enumerate() {
-            x = layer.forward(x);
-            if i < last {
-                x = relu(x);
-            }
+            x = linear(layer, x, i < last);
         }
         // [(N + 1) M, 1] -> [M, N + 1]
         x.reshape([t, m]).transpose()
