@@ -46,6 +46,7 @@ pub mod softmax;
 pub mod store;
 pub mod timing;
 pub mod variant;
+pub mod weighted_rows;
 
 pub use config::ModelConfig;
 pub use error::ModelError;

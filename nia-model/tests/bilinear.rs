@@ -88,6 +88,20 @@ fn check_on(dev: &Device, what: &str) {
     let (maps_got, grid_got) = grads_of(false);
     let (maps_ref, grid_ref) = grads_of(true);
     assert_close(&maps_got, &maps_ref, 1e-5, &format!("{what}: d/d maps"));
+    // With a grid that carries no gradient, as the network's reads have (on flex: the weighted
+    // gather of `nia_model::weighted_rows`, its own backward), the same d/d maps.
+    let maps = tensor(maps_values(), [N, C, H, W], &ad).require_grad();
+    let proj = tensor(grid.clone(), [N, m, 2], &ad);
+    let g = (sample(maps.clone(), proj).unwrap() * tensor(upstream.clone(), [N, m, C], &ad))
+        .sum()
+        .backward();
+    let maps_untracked = values(maps.grad(&g).unwrap());
+    assert_close(
+        &maps_untracked,
+        &maps_ref,
+        1e-5,
+        &format!("{what}: d/d maps, grid without gradient"),
+    );
     assert!(grid_got.iter().all(|g| g.is_finite()), "{what}: d/d grid");
     // d/d grid agrees wherever the reference is defined the same way: burn's reference
     // differentiates the corners that fall outside as well (their zero value), so compare
@@ -172,6 +186,8 @@ fn grid_gradient_is_the_finite_difference() {
 #[test]
 fn non_finite_coordinates_read_zero() {
     non_finite_coordinates_read_zero_on(&device());
+    // flex: the weighted gather's taps, computed on the host.
+    non_finite_coordinates_read_zero_on(&Device::flex());
 }
 
 /// The same on wgpu, whose read tests the map's bounds as its own kernels do.

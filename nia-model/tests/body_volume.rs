@@ -539,6 +539,37 @@ fn trilinear_matches_dense_grid_sample() {
         }
         // Rows and corners laid out for different reads are an error, not a wrong read.
         assert!(sample_with(&rows_for(CornerRead::ByCorner), &corner_tensors, 7).is_err());
+        // On flex the read is one weighted gather with its own backward
+        // (`nia_model::weighted_rows`): the values and the features' gradient of ndarray's
+        // tensor read.
+        let upstream = normals(&mut rng, n * points.len() * c);
+        let read_with_gradient = |device: &Device| {
+            let ad = device.clone().autodiff();
+            let f = tensor3(features.clone(), [n, p, c], &ad).require_grad();
+            let corner_tensors = TrilinearTensors::upload(&corners, &ad);
+            let out = sample(f.clone(), &corner_tensors).unwrap();
+            let g = (out.clone() * tensor3(upstream.clone(), [n, points.len(), c], &ad))
+                .sum()
+                .backward();
+            let host = corner_tensors.host.is_some();
+            (values(out), values(f.grad(&g).unwrap()), host)
+        };
+        let (flex_out, flex_grad, flex_host) = read_with_gradient(&Device::flex());
+        let (nd_out, nd_grad, nd_host) = read_with_gradient(&dev);
+        assert!(flex_host && !nd_host);
+        assert_eq!(nd_out, got);
+        for (what, a, b) in [
+            ("values", &flex_out, &nd_out),
+            ("gradient", &flex_grad, &nd_grad),
+        ] {
+            let scale = b.iter().fold(1e-6f32, |s, v| s.max(v.abs()));
+            for (x, y) in a.iter().zip(b.iter()) {
+                assert!(
+                    (x - y).abs() <= 1e-6 * scale,
+                    "flex {what} {x} vs ndarray {y}"
+                );
+            }
+        }
         let sites = &scale.sites;
         let grid = densify(&features, n, c, sites);
         let per_view = c * dims.iter().product::<usize>();

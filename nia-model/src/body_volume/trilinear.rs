@@ -12,7 +12,10 @@
 //! ([`nia_data::geometry::sparse::TrilinearCorners`]); here they are uploaded in the layout of
 //! the backend's read ([`CornerRead`]) and used: `[N, P_s, C] -> [N, M, C]`, differentiable in
 //! the features: row gathers from the features with a zero row appended ([`SiteRows`]) and a
-//! weighted sum over the corners.
+//! weighted sum over the corners. On flex that read is one weighted gather with its own
+//! backward from corners kept in host memory ([`crate::weighted_rows`]).
+
+use std::sync::Arc;
 
 use burn::prelude::*;
 
@@ -23,6 +26,8 @@ use super::view_rows::per_view_rows;
 use super::BodyVolumeError;
 use crate::blocked_rows::select_rows;
 use crate::device::computes_on_cpu;
+use crate::host_op::runs_on_host;
+use crate::weighted_rows::{weighted_rows, Taps};
 pub use nia_data::geometry::sparse::{TrilinearCorners, CORNERS};
 
 /// How [`sample`] reads the 8 corners of a block of points.
@@ -98,6 +103,9 @@ pub struct TrilinearTensors {
     pub weight: Tensor<2>,
     /// The read the layout is for.
     pub read: CornerRead,
+    /// On flex, for [`CornerRead::Stacked`]: the corners in host memory, which [`sample`] reads
+    /// as one weighted gather with its own backward ([`crate::weighted_rows`]).
+    pub host: Option<Arc<TrilinearCorners>>,
     /// M.
     pub num_points: usize,
     /// P_s.
@@ -129,6 +137,8 @@ impl TrilinearTensors {
             index: index.reshape(shape),
             weight: Tensor::from_data(TensorData::new(weight, shape), device),
             read,
+            host: (read == CornerRead::Stacked && runs_on_host(device))
+                .then(|| Arc::new(corners.clone())),
             num_points: m,
             num_sites: corners.num_sites,
         }
@@ -273,6 +283,15 @@ pub fn sample_with(
     let device = rows.rows.device();
     if m == 0 {
         return Ok(Tensor::zeros([n, 0, c], &device));
+    }
+    if let (Some(host), true) = (&corners.host, runs_on_host(&device)) {
+        // Stacked rows (the reads agree, checked above): row `v (P_s + 1) + site`.
+        let taps = Taps {
+            views: n,
+            view_stride: p_s + 1,
+            ..Taps::new(CORNERS, host.index.clone(), host.weight.clone())
+        };
+        return Ok(weighted_rows(rows.rows.clone(), taps).reshape([n, m, c]));
     }
     let block = points_per_block.max(1);
     let parts = (0..m)

@@ -16,7 +16,10 @@
 //! read, the copy of the paper-width maps took most of a 512x512 render). The corner indices
 //! are computed on the device from the grid, so nothing is read back to the host, and the
 //! weights stay differentiable in the grid (the surface read's gradient in the expected depth,
-//! see `ibr::surface`). Every backend runs the same tensor operations.
+//! see `ibr::surface`). That tensor read runs on every backend and stays the reference; on flex
+//! (training included) a read whose grid carries no gradient is instead one weighted gather
+//! with its own backward ([`crate::weighted_rows`]), its taps computed on the host from the
+//! grid with the same coordinates and weights.
 
 use std::sync::Arc;
 
@@ -26,8 +29,10 @@ use rayon::prelude::*;
 
 use crate::blocked_rows::select_rows;
 use crate::host_buffer::zeroed;
+use crate::host_op::runs_on_host;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
+use crate::weighted_rows::{weighted_rows, Taps};
 
 /// Reads N maps at M points each: [`ViewRows::new`] then [`ViewRows::sample`]. A caller that
 /// reads the same maps many times (every ray chunk of an image) keeps the [`ViewRows`].
@@ -176,6 +181,12 @@ impl ViewRows {
             let out = host_read(host, self.dims, &grid, m);
             return Ok(Tensor::from_data(TensorData::new(out, [n, m, c]), &device));
         }
+        if runs_on_host(&device) && !proj_grid.is_tracked() {
+            // One weighted gather with its own backward (training on flex).
+            let grid = host_values_of("IBR `proj_grid`", proj_grid)?;
+            let taps = bilinear_taps(self.dims, &grid, m);
+            return Ok(weighted_rows(self.rows.clone(), taps).reshape([n, m, c]));
+        }
         let zero_row = (n * h * w) as f32;
         // Pixel coordinates [N, M] and the first row of each view, as floats: indices up to
         // N H W stay exact in f32 for every map this model reads (below 2^24 pixels in all).
@@ -227,8 +238,32 @@ impl ViewRows {
 /// Points per parallel task of [`host_read`].
 const POINTS_PER_TASK: usize = 128;
 
+/// The four corners of a read at the normalised grid point `(gx, gy)` of an `h x w` map, in
+/// the tensor read's order (x0 y0, x1 y0, x0 y1, x1 y1) and with its coordinates and weights:
+/// each corner's pixel `y w + x` (`None` off the map) and weight.
+#[inline]
+fn corners(gx: f32, gy: f32, h: usize, w: usize) -> [(Option<usize>, f32); 4] {
+    let x = (gx + 1.0) * (w as f32 / 2.0) - 0.5;
+    let y = (gy + 1.0) * (h as f32 / 2.0) - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let (gx, gy) = (-fx + 1.0, -fy + 1.0);
+    [
+        (0.0, 0.0, gx, gy),
+        (1.0, 0.0, fx, gy),
+        (0.0, 1.0, gx, fy),
+        (1.0, 1.0, fx, fy),
+    ]
+    .map(|(dx, dy, wx, wy)| {
+        let (xi, yi) = (x0 + dx, y0 + dy);
+        // Comparisons with NaN are false: a non-finite coordinate is outside.
+        let inside = xi >= 0.0 && xi <= (w - 1) as f32 && yi >= 0.0 && yi <= (h - 1) as f32;
+        (inside.then(|| yi as usize * w + xi as usize), wy * wx)
+    })
+}
+
 /// The fused read: `out[n, m] = sum over the four corners of weight * row`, the corners in the
-/// tensor read's order (x0 y0, x1 y0, x0 y1, x1 y1) and with its coordinates and weights.
+/// tensor read's order and with its coordinates and weights ([`corners`]).
 ///
 /// # Shapes
 /// - `rows`: `[N H W + 1, C]` row-major; `grid`: `[N, M, 2]` row-major
@@ -242,26 +277,9 @@ fn host_read(rows: &[f32], dims: [usize; 4], grid: &[f32], m: usize) -> Vec<f32>
             for (r, acc) in block.chunks_mut(c).enumerate() {
                 let flat = task * POINTS_PER_TASK + r; // view * M + point
                 let view = flat / m;
-                let x = (grid[2 * flat] + 1.0) * (w as f32 / 2.0) - 0.5;
-                let y = (grid[2 * flat + 1] + 1.0) * (h as f32 / 2.0) - 0.5;
-                let (x0, y0) = (x.floor(), y.floor());
-                let (fx, fy) = (x - x0, y - y0);
-                let (gx, gy) = (-fx + 1.0, -fy + 1.0);
-                for (dx, dy, wx, wy) in [
-                    (0.0, 0.0, gx, gy),
-                    (1.0, 0.0, fx, gy),
-                    (0.0, 1.0, gx, fy),
-                    (1.0, 1.0, fx, fy),
-                ] {
-                    let (xi, yi) = (x0 + dx, y0 + dy);
-                    // Comparisons with NaN are false: a non-finite coordinate is outside.
-                    let inside =
-                        xi >= 0.0 && xi <= (w - 1) as f32 && yi >= 0.0 && yi <= (h - 1) as f32;
-                    if !inside {
-                        continue;
-                    }
-                    let weight = wy * wx;
-                    let row = view * h * w + yi as usize * w + xi as usize;
+                for (pixel, weight) in corners(grid[2 * flat], grid[2 * flat + 1], h, w) {
+                    let Some(pixel) = pixel else { continue };
+                    let row = view * h * w + pixel;
                     for (a, &v) in acc.iter_mut().zip(&rows[row * c..(row + 1) * c]) {
                         *a += v * weight;
                     }
@@ -269,6 +287,35 @@ fn host_read(rows: &[f32], dims: [usize; 4], grid: &[f32], m: usize) -> Vec<f32>
             }
         });
     out
+}
+
+/// The taps of a read for [`weighted_rows`]: four per (view, point), row `view M + point`, in
+/// [`corners`]' order; a corner off the map reads the zero row `N H W` with weight 0, as the
+/// tensor read does.
+///
+/// # Shapes
+/// - `grid`: `[N, M, 2]` row-major
+fn bilinear_taps(dims: [usize; 4], grid: &[f32], m: usize) -> Taps {
+    let [n, _, h, w] = dims;
+    let zero_row = (n * h * w) as u32;
+    let mut index = Vec::with_capacity(n * m * 4);
+    let mut weight = Vec::with_capacity(n * m * 4);
+    for flat in 0..n * m {
+        let view = flat / m;
+        for (pixel, wt) in corners(grid[2 * flat], grid[2 * flat + 1], h, w) {
+            match pixel {
+                Some(p) => {
+                    index.push((view * h * w + p) as u32);
+                    weight.push(wt);
+                }
+                None => {
+                    index.push(zero_row);
+                    weight.push(0.0);
+                }
+            }
+        }
+    }
+    Taps::new(4, index, weight)
 }
 
 /// `grid_sample_2d` (bilinear, zero padding, `align_corners = false`): the reference
