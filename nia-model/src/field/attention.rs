@@ -16,8 +16,9 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
+use super::attention_op::view_attention;
+use crate::host_op::runs_on_host;
 use crate::linear_rows::linear_rows;
-
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
 
@@ -81,6 +82,10 @@ impl ViewCrossAttention {
         let queries = linear_rows(&self.phi_k, body_feature.clone());
         let keys = linear_rows(&self.phi_k, pixel_feature.clone());
         let values = linear_rows(&self.phi_v, pixel_feature);
+        if runs_on_host(&body_feature.device()) {
+            // flex: the weighted sum as one host operation with its own backward.
+            return Ok(view_attention(queries, keys, values) + body_feature);
+        }
         // [M, N, N]: row i = view i's body feature against every view's pixel feature. Written
         // as broadcast products and sums over d, not as a batched matmul: with M batches of
         // N x d x N (N = 3) the CPU backends run M tiny GEMMs forward and twice that backward,

@@ -139,7 +139,7 @@ impl ViewCrossAttention {
 }
 
 /// `sum_i a_i b_i` in eight independent lanes (a sequential f32 sum does not vectorise).
-fn dot(a: &[f32], b: &[f32]) -> f32 {
+pub(super) fn dot(a: &[f32], b: &[f32]) -> f32 {
     let mut lanes = [0.0f32; 8];
     let (a8, b8) = (a.chunks_exact(8), b.chunks_exact(8));
     let tail: f32 = a8

@@ -18,6 +18,7 @@
 
 pub mod attention;
 pub mod attention_host;
+pub mod attention_op;
 pub mod heads;
 pub mod network_host;
 pub mod positional_encoding;

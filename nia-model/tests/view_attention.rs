@@ -1,0 +1,125 @@
+//! The view attention's weighted sum as one host operation with its own backward
+//! (`nia_model::field::attention_op`, on flex) against the tensor form (ndarray): values and
+//! the gradients of S, L, phi_k and phi_v, the hard cases and the thread count.
+
+mod common;
+
+use burn::module::Param;
+use burn::nn::Linear;
+use burn::prelude::*;
+use common::{tensor, values};
+use nia_data::rng::Rng;
+use nia_model::field::attention::ViewCrossAttention;
+
+fn random(rng: &mut Rng, n: usize, scale: f32) -> Vec<f32> {
+    (0..n).map(|_| rng.range(-scale, scale)).collect()
+}
+
+/// The attention with the weights `seed` draws, on `device`.
+fn attention(d: usize, seed: u64, device: &Device) -> ViewCrossAttention {
+    let mut rng = Rng::new(seed);
+    let mut layer = || Linear {
+        weight: Param::from_tensor(tensor(random(&mut rng, d * d, 0.5), [d, d], device)),
+        bias: Some(Param::from_tensor(tensor(
+            random(&mut rng, d, 0.1),
+            [d],
+            device,
+        ))),
+    };
+    ViewCrossAttention {
+        phi_k: layer(),
+        phi_v: layer(),
+        d_model: d,
+    }
+}
+
+/// Z and the gradients of `sum(Z * R)` in S, L, phi_k's and phi_v's weights and biases.
+fn run(device: &Device, (m, n, d): (usize, usize, usize), scale: f32) -> Vec<Vec<f32>> {
+    let ad = device.clone().autodiff();
+    let attention = attention(d, 4, &ad);
+    let mut rng = Rng::new(5);
+    let s = tensor(random(&mut rng, m * n * d, scale), [m, n, d], &ad).require_grad();
+    let l = tensor(random(&mut rng, m * n * d, scale), [m, n, d], &ad).require_grad();
+    let r = tensor(random(&mut rng, m * n * d, 1.0), [m, n, d], &ad);
+    let z = attention.forward(s.clone(), l.clone()).unwrap();
+    let grads = (z.clone() * r).sum().backward();
+    let bias = |layer: &Linear| layer.bias.as_ref().unwrap().val();
+    vec![
+        values(z),
+        values(s.grad(&grads).unwrap()),
+        values(l.grad(&grads).unwrap()),
+        values(attention.phi_k.weight.val().grad(&grads).unwrap()),
+        values(bias(&attention.phi_k).grad(&grads).unwrap()),
+        values(attention.phi_v.weight.val().grad(&grads).unwrap()),
+        values(bias(&attention.phi_v).grad(&grads).unwrap()),
+    ]
+}
+
+const WHAT: [&str; 7] = [
+    "Z",
+    "dS",
+    "dL",
+    "d phi_k W",
+    "d phi_k b",
+    "d phi_v W",
+    "d phi_v b",
+];
+
+fn relative_gap(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(0.0f32, |s, v| s.max(v.abs())).max(1e-6);
+    a.iter()
+        .zip(b)
+        .fold(0.0f32, |s, (x, y)| s.max((x - y).abs()))
+        / scale
+}
+
+#[test]
+#[allow(deprecated)] // Device::ndarray(): the reference CPU backend the project keeps
+fn host_attention_matches_the_tensor_form_values_and_gradients() {
+    for shape in [(1, 1, 4), (37, 3, 8), (500, 4, 16)] {
+        let got = run(&Device::flex(), shape, 2.0);
+        let want = run(&Device::ndarray(), shape, 2.0);
+        for ((what, g), w) in WHAT.iter().zip(&got).zip(&want) {
+            assert!(
+                g.iter().all(|v| v.is_finite()),
+                "{shape:?} {what} not finite"
+            );
+            let gap = relative_gap(g, w);
+            assert!(gap <= 2e-5, "{shape:?} {what}: gap {gap}");
+        }
+        // With one view the softmax is 1: Z = phi_v(L) + S and no gradient reaches phi_k.
+        if shape.1 == 1 {
+            assert!(got[3].iter().chain(&got[4]).all(|v| *v == 0.0));
+        }
+    }
+}
+
+#[test]
+#[allow(deprecated)]
+fn huge_scores_saturate_the_softmax_without_overflow() {
+    // Features of 1e3 give scores of about 1e6 / sqrt(d): exp of the unshifted scores would be
+    // infinite; the shifted softmax puts all the weight on the largest and stays finite.
+    let shape = (50, 3, 8);
+    let got = run(&Device::flex(), shape, 1e3);
+    let want = run(&Device::ndarray(), shape, 1e3);
+    for ((what, g), w) in WHAT.iter().zip(&got).zip(&want) {
+        assert!(g.iter().all(|v| v.is_finite()), "{what} not finite");
+        let gap = relative_gap(g, w);
+        assert!(gap <= 1e-4, "{what}: gap {gap}");
+    }
+}
+
+#[test]
+fn host_attention_is_the_same_whatever_the_number_of_threads() {
+    let shape = (3000, 3, 16);
+    let reference = run(&Device::flex(), shape, 2.0);
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let got = pool.install(|| run(&Device::flex(), shape, 2.0));
+        assert_eq!(got, reference, "{threads} threads");
+    }
+}
