@@ -123,6 +123,12 @@ fn train_only_times_the_training_step_alone() {
     );
     assert!(v["first_train_step_s"].as_f64().unwrap() > 0.0);
     assert!(v["check"].is_null());
+    // The forward's stage table is not printed with NaN seconds when the forward is skipped.
+    let out = nia_infer(&TRAIN_TOY);
+    ok(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("stages: not timed (--train-only)"), "{stdout}");
+    assert!(!stdout.contains("NaN"), "{stdout}");
 }
 
 /// `--ray-chunk`: the training step in chunks of 3 of the 8 rays is timed whole (no forward

@@ -550,13 +550,18 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         train_reps_s: train_reps_s.iter().map(|r| r.0).collect(),
         check,
     };
-    println!("| stage | seconds | share |\n|---|---|---|");
-    let staged: f64 = report.stages_s.iter().map(|(_, t)| t).sum();
-    for (name, t) in &report.stages_s {
-        println!(
-            "| {name} | {t:.3} | {:.1}% |",
-            100.0 * t / staged.max(1e-12)
-        );
+    if args.train_only {
+        // The stages are timed in the inference forward, which --train-only skips.
+        println!("stages: not timed (--train-only)");
+    } else {
+        println!("| stage | seconds | share |\n|---|---|---|");
+        let staged: f64 = report.stages_s.iter().map(|(_, t)| t).sum();
+        for (name, t) in &report.stages_s {
+            println!(
+                "| {name} | {t:.3} | {:.1}% |",
+                100.0 * t / staged.max(1e-12)
+            );
+        }
     }
     println!(
         "\nforward: {}; training step: {}",
