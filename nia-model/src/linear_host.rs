@@ -14,8 +14,9 @@
 //! - `dx = g' W^T`, `dW = x^T g'`, `db = sum over rows of g'`, each only for an input that needs
 //!   a gradient.
 //!
-//! The products run on `gemm` as burn-flex's do (rayon's threads from 192^3 multiply-adds);
-//! `db` sums fixed blocks of rows in parallel and adds the blocks' sums in order, so no result
+//! The products run on `gemm` as burn-flex's do (rayon's threads from 192^3 multiply-adds),
+//! except `dW`, a small output of a long product that `gemm` runs on one thread: it and `db`
+//! sum fixed blocks of rows in parallel and add the blocks' sums in order, so no result
 //! depends on the number of threads. Equal to `Linear::forward` (and `relu`) up to float
 //! summation order, values and gradients (`nia-model/tests/linear_host.rs`). Other backends
 //! run burn's `Linear::forward`.
@@ -140,6 +141,18 @@ impl<'a> Strided<'a> {
 
 /// `lhs [m, k] x rhs [k, n]` into a new row-major `[m, n]` buffer.
 fn product(m: usize, n: usize, k: usize, lhs: Strided, rhs: Strided) -> Vec<f32> {
+    product_with(m, n, k, lhs, rhs, parallelism(m, n, k))
+}
+
+/// [`product`] on `threads`.
+fn product_with(
+    m: usize,
+    n: usize,
+    k: usize,
+    lhs: Strided,
+    rhs: Strided,
+    threads: gemm::Parallelism,
+) -> Vec<f32> {
     // The extents the product reads; a mismatch is a bug here, never a read past a slice.
     assert!(
         lhs.holds(m, k) && rhs.holds(k, n),
@@ -174,12 +187,50 @@ fn product(m: usize, n: usize, k: usize, lhs: Strided, rhs: Strided) -> Vec<f32>
                 false,
                 false,
                 false,
-                parallelism(m, n, k),
+                threads,
             );
             out.set_len(len);
         }
     }
     out
+}
+
+/// Rows per block of the weight gradient's partial products.
+const WEIGHT_GRADIENT_ROWS: usize = 2048;
+
+/// `dW = x^T g'` for `x` `[M, k]` and `g'` `[M, n]` row-major. The output is small and the
+/// product long (M rows), which `gemm` cannot spread over threads, so fixed blocks of
+/// [`WEIGHT_GRADIENT_ROWS`] rows give partial products on rayon's threads, added in order: the
+/// result does not depend on the number of threads.
+fn weight_gradient(x: &[f32], g: &[f32], k: usize, n: usize) -> Vec<f32> {
+    let m = if k == 0 { g.len() / n.max(1) } else { x.len() / k };
+    let block = |first: usize| {
+        let rows = WEIGHT_GRADIENT_ROWS.min(m - first);
+        product_with(
+            k,
+            n,
+            rows,
+            Strided::transposed(&x[first * k..(first + rows) * k], k),
+            Strided::rows(&g[first * n..(first + rows) * n], n),
+            gemm::Parallelism::None,
+        )
+    };
+    if m <= WEIGHT_GRADIENT_ROWS {
+        return block(0);
+    }
+    let partials: Vec<Vec<f32>> = (0..m)
+        .step_by(WEIGHT_GRADIENT_ROWS)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(block)
+        .collect();
+    let mut total = partials[0].clone();
+    for p in &partials[1..] {
+        for (a, v) in total.iter_mut().zip(p) {
+            *a += v;
+        }
+    }
+    total
 }
 
 /// `y[i, :] = act(y[i, :] + b)` for the rows of a row-major `[_, b.len()]` buffer.
@@ -313,16 +364,9 @@ impl LinearKernels for Flex {
             );
             flex_tensor(dx, [m, k])
         });
-        let dw = wanted.weight.then(|| {
-            let dw = product(
-                k,
-                n,
-                m,
-                Strided::transposed(values(&x), k),
-                Strided::rows(g, n),
-            );
-            flex_tensor(dw, [k, n])
-        });
+        let dw = wanted
+            .weight
+            .then(|| flex_tensor(weight_gradient(values(&x), g, k, n), [k, n]));
         let db = wanted.bias.then(|| flex_tensor(column_sums(g, n), [n]));
         LinearGradients {
             x: dx,
