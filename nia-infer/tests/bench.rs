@@ -127,7 +127,10 @@ fn train_only_times_the_training_step_alone() {
     let out = nia_infer(&TRAIN_TOY);
     ok(&out);
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(stdout.contains("stages: not timed (--train-only)"), "{stdout}");
+    assert!(
+        stdout.contains("stages: not timed (--train-only)"),
+        "{stdout}"
+    );
     assert!(!stdout.contains("NaN"), "{stdout}");
 }
 

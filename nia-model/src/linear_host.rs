@@ -203,7 +203,11 @@ const WEIGHT_GRADIENT_ROWS: usize = 2048;
 /// [`WEIGHT_GRADIENT_ROWS`] rows give partial products on rayon's threads, added in order: the
 /// result does not depend on the number of threads.
 fn weight_gradient(x: &[f32], g: &[f32], k: usize, n: usize) -> Vec<f32> {
-    let m = if k == 0 { g.len() / n.max(1) } else { x.len() / k };
+    let m = if k == 0 {
+        g.len() / n.max(1)
+    } else {
+        x.len() / k
+    };
     let block = |first: usize| {
         let rows = WEIGHT_GRADIENT_ROWS.min(m - first);
         product_with(

@@ -15,6 +15,7 @@ use burn::prelude::*;
 use rayon::prelude::*;
 
 use super::attention::ViewCrossAttention;
+use super::attention_op::dot;
 use crate::host_buffer::zeroed;
 use crate::host_mlp::HostLinear;
 use crate::readback::host_view_of;
@@ -136,22 +137,4 @@ impl ViewCrossAttention {
             });
         Ok(out)
     }
-}
-
-/// `sum_i a_i b_i` in eight independent lanes (a sequential f32 sum does not vectorise).
-pub(super) fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let mut lanes = [0.0f32; 8];
-    let (a8, b8) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = a8
-        .remainder()
-        .iter()
-        .zip(b8.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (x, y) in a8.zip(b8) {
-        for k in 0..8 {
-            lanes[k] += x[k] * y[k];
-        }
-    }
-    lanes.iter().sum::<f32>() + tail
 }
