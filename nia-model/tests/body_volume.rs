@@ -10,6 +10,7 @@ use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::module::conv3d;
 use burn::tensor::ops::{ConvOptions, GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
+use common::relative_gap;
 use nia_data::geometry::sparse::{
     kernel_offset, strided_dim, voxelize, Rulebook, ScaleGeometry, SiteIndex, TrilinearCorners,
     VoxelBox, CORNERS, KERNEL_VOLUME,
@@ -1211,16 +1212,6 @@ fn network_forward_and_backward_are_finite() {
 /// Host kernels against the tensor path: the same products summed in another order (blocks,
 /// chunks); relative to the largest magnitude of each compared set.
 const HOST_TOL: f32 = 1e-4;
-
-/// `max |a - b| / max(1e-6, max |b|)`.
-fn relative_gap(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    let scale = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
-    a.iter()
-        .zip(b)
-        .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()))
-        / scale
-}
 
 /// The network's scale features and the gradients of `sum_s sum(features_s * r_s)` at the
 /// vertex features and at every convolution weight, on `device` with the rulebooks run by

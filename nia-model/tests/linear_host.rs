@@ -2,36 +2,20 @@
 //! against burn's `Linear::forward` and `relu`: values and the gradients of the input, the
 //! weight and the bias, on flex with and without autodiff.
 
+mod common;
+
 use burn::module::Param;
 use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use common::{relative_gap, tensor, values as read};
+use nia_data::rng::Rng;
 use nia_model::linear_host::linear;
 
-/// `n` values in [-1, 1) from a small linear congruential generator.
+/// `n` values in [-1, 1) drawn from `seed`.
 fn values(n: usize, seed: u64) -> Vec<f32> {
-    let mut s = seed
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    (0..n)
-        .map(|_| {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-        })
-        .collect()
-}
-
-fn tensor<const D: usize>(v: Vec<f32>, dims: [usize; D], device: &Device) -> Tensor<D> {
-    Tensor::from_data(TensorData::new(v, dims), device)
-}
-
-fn read<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .unwrap()
+    let mut rng = Rng::new(seed);
+    (0..n).map(|_| rng.range(-1.0, 1.0)).collect()
 }
 
 /// A layer with the given weights on `device`.
@@ -78,16 +62,6 @@ fn run(
             .map(read)
             .unwrap_or_default(),
     ]
-}
-
-/// Largest |a - b| over the largest |b| (0 for two empty slices).
-fn relative_gap(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    let scale = b.iter().fold(0.0f32, |s, v| s.max(v.abs())).max(1e-6);
-    a.iter()
-        .zip(b)
-        .fold(0.0f32, |s, (x, y)| s.max((x - y).abs()))
-        / scale
 }
 
 #[test]

@@ -7,7 +7,7 @@ mod common;
 use burn::module::Param;
 use burn::nn::Linear;
 use burn::prelude::*;
-use common::{tensor, values};
+use common::{relative_gap, tensor, values};
 use nia_data::rng::Rng;
 use nia_model::field::attention::ViewCrossAttention;
 
@@ -64,15 +64,6 @@ const WHAT: [&str; 7] = [
     "d phi_v W",
     "d phi_v b",
 ];
-
-fn relative_gap(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    let scale = b.iter().fold(0.0f32, |s, v| s.max(v.abs())).max(1e-6);
-    a.iter()
-        .zip(b)
-        .fold(0.0f32, |s, (x, y)| s.max((x - y).abs()))
-        / scale
-}
 
 #[test]
 #[allow(deprecated)] // Device::ndarray(): the reference CPU backend the project keeps

@@ -2,27 +2,17 @@
 //! (`nia_model::weighted_rows`) against the tensor read it replaces on flex (row gathers,
 //! weights, a sum over the taps): values and the table's gradient.
 
+mod common;
+
 use burn::prelude::*;
+use common::{relative_gap, values as read};
+use nia_data::rng::Rng;
 use nia_model::weighted_rows::{weighted_rows, Taps};
 
-/// `n` values in [-1, 1) from a small linear congruential generator.
+/// `n` values in [-1, 1) drawn from `seed`.
 fn values(n: usize, seed: u64) -> Vec<f32> {
-    let mut s = seed.wrapping_mul(6364136223846793005) ^ 0x9e3779b97f4a7c15;
-    (0..n)
-        .map(|_| {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-        })
-        .collect()
-}
-
-fn read<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .unwrap()
+    let mut rng = Rng::new(seed);
+    (0..n).map(|_| rng.range(-1.0, 1.0)).collect()
 }
 
 /// R rows of K taps into a table of T rows; every fifth tap reads the last row (the zero row
@@ -64,15 +54,6 @@ fn run(device: &Device, t: usize, c: usize, taps: &Taps, host: bool) -> (Vec<f32
     let weights = Tensor::<2>::from_data(TensorData::new(values(r * c, 9), [r, c]), device);
     let grads = (out.clone() * weights).sum().backward();
     (read(out), read(table.grad(&grads).unwrap()))
-}
-
-fn relative_gap(a: &[f32], b: &[f32]) -> f32 {
-    assert_eq!(a.len(), b.len());
-    let scale = b.iter().fold(0.0f32, |s, v| s.max(v.abs())).max(1e-6);
-    a.iter()
-        .zip(b)
-        .fold(0.0f32, |s, (x, y)| s.max((x - y).abs()))
-        / scale
 }
 
 #[test]

@@ -217,6 +217,16 @@ pub fn assert_close(got: &[f32], expected: &[f32], tol: f32, what: &str) {
     }
 }
 
+/// `max |a - b| / max(1e-6, max |b|)`: how far `a` is from `b` relative to `b`'s largest value.
+pub fn relative_gap(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+    a.iter()
+        .zip(b)
+        .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()))
+        / scale
+}
+
 /// Asserts that `text` (an error message) names every one of `parts`.
 pub fn assert_mentions(text: &str, parts: &[&str]) {
     for part in parts {
