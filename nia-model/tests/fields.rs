@@ -146,11 +146,7 @@ fn host_attention_view_mean_matches_the_tensor_form() {
         };
         let s = tensor(draw(n * m * d), [n, m, d], &dev); // [N, M, d]
         let l = tensor(draw(n * m * d), [n, m, d], &dev);
-        let reference = values(view_mean(
-            attention
-                .forward(s.clone().swap_dims(0, 1), l.clone().swap_dims(0, 1))
-                .unwrap(),
-        ));
+        let reference = values(view_mean(attention.forward(s.clone(), l.clone()).unwrap()));
         let host = values(attention.view_mean_on_host(s, l).unwrap());
         assert_eq!(host.len(), m * d);
         let tol = 1e-5 * amplitude.max(1.0) * amplitude.max(1.0);
@@ -172,10 +168,10 @@ fn attention_with_one_view_is_value_plus_residual() {
     let d = 8;
     let attention = ViewCrossAttentionConfig::new().with_d_model(d).init(&dev);
     let mut rng = Rng::new(1);
-    let s = tensor(random(&mut rng, 4 * d, -1.0, 1.0), [4, 1, d], &dev);
-    let l = tensor(random(&mut rng, 4 * d, -1.0, 1.0), [4, 1, d], &dev);
+    let s = tensor(random(&mut rng, 4 * d, -1.0, 1.0), [1, 4, d], &dev);
+    let l = tensor(random(&mut rng, 4 * d, -1.0, 1.0), [1, 4, d], &dev);
     let z = attention.forward(s.clone(), l.clone()).unwrap();
-    assert_eq!(z.dims(), [4, 1, d]);
+    assert_eq!(z.dims(), [1, 4, d]);
     let expected = attention.phi_v.forward(l) + s;
     assert_close(&values(z), &values(expected), VALUE_TOL, "Z = phi_v(L) + S");
 }
@@ -188,15 +184,15 @@ fn attention_matches_plain_reference_and_is_view_equivariant() {
     let mut rng = Rng::new(2);
     let s_vals = random(&mut rng, m * n * d, -2.0, 2.0);
     let l_vals = random(&mut rng, m * n * d, -2.0, 2.0);
-    let s = tensor(s_vals.clone(), [m, n, d], &dev);
-    let l = tensor(l_vals, [m, n, d], &dev);
+    let s = tensor(s_vals.clone(), [n, m, d], &dev);
+    let l = tensor(l_vals, [n, m, d], &dev);
     let z = values(attention.forward(s.clone(), l.clone()).unwrap());
 
     // Plain reference from the projections.
     let q = values(attention.phi_k.forward(s.clone()));
     let k = values(attention.phi_k.forward(l.clone()));
     let v = values(attention.phi_v.forward(l.clone()));
-    let idx = |p: usize, view: usize, c: usize| (p * n + view) * d + c;
+    let idx = |p: usize, view: usize, c: usize| (view * m + p) * d + c;
     let mut expected = vec![0.0f32; m * n * d];
     for p in 0..m {
         for i in 0..n {
@@ -222,15 +218,15 @@ fn attention_matches_plain_reference_and_is_view_equivariant() {
     // Swapping views 0 and 2 swaps the outputs.
     let perm = Tensor::<1, Int>::from_data(TensorData::new(vec![2i64, 1, 0], [3]), &dev);
     let z_perm = attention
-        .forward(s.select(1, perm.clone()), l.select(1, perm.clone()))
+        .forward(s.select(0, perm.clone()), l.select(0, perm.clone()))
         .unwrap();
-    let z_back = values(z_perm.select(1, perm));
+    let z_back = values(z_perm.select(0, perm));
     assert_close(&z_back, &z, VALUE_TOL, "view permutation equivariance");
 
     assert!(matches!(
         attention.forward(
             Tensor::zeros([3, 3, d], &dev),
-            Tensor::zeros([3, 2, d], &dev)
+            Tensor::zeros([2, 3, d], &dev)
         ),
         Err(ShapeError::Mismatch { .. })
     ));
@@ -280,11 +276,11 @@ fn heads_shapes_and_ranges() {
         .with_d_hidden(d_h)
         .init(&dev);
     let mut rng = Rng::new(3);
-    let z = tensor(random(&mut rng, m * n * d, -3.0, 3.0), [m, n, d], &dev);
+    let z = tensor(random(&mut rng, m * n * d, -3.0, 3.0), [n, m, d], &dev);
     let mean = view_mean(z.clone());
     assert_close(
         &values(mean.clone()),
-        &values(z.mean_dim(1).reshape([m, d])),
+        &values(z.mean_dim(0).reshape([m, d])),
         VALUE_TOL,
         "view mean",
     );

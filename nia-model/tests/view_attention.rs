@@ -38,9 +38,9 @@ fn run(device: &Device, (m, n, d): (usize, usize, usize), scale: f32) -> Vec<Vec
     let ad = device.clone().autodiff();
     let attention = attention(d, 4, &ad);
     let mut rng = Rng::new(5);
-    let s = tensor(random(&mut rng, m * n * d, scale), [m, n, d], &ad).require_grad();
-    let l = tensor(random(&mut rng, m * n * d, scale), [m, n, d], &ad).require_grad();
-    let r = tensor(random(&mut rng, m * n * d, 1.0), [m, n, d], &ad);
+    let s = tensor(random(&mut rng, m * n * d, scale), [n, m, d], &ad).require_grad();
+    let l = tensor(random(&mut rng, m * n * d, scale), [n, m, d], &ad).require_grad();
+    let r = tensor(random(&mut rng, m * n * d, 1.0), [n, m, d], &ad);
     let z = attention.forward(s.clone(), l.clone()).unwrap();
     let grads = (z.clone() * r).sum().backward();
     let bias = |layer: &Linear| layer.bias.as_ref().unwrap().val();

@@ -55,26 +55,29 @@ impl ViewCrossAttentionConfig {
 impl ViewCrossAttention {
     /// Fuses body and pixel features across the views of each point.
     ///
+    /// Views first, as the per-view reads come: the projections are then products on
+    /// contiguous rows, and no gradient meets a transposed layout.
+    ///
     /// # Shapes
-    /// - `body_feature` S: `[M, N, d]`
-    /// - `pixel_feature` L: `[M, N, d]`
-    /// - output Z: `[M, N, d]`
+    /// - `body_feature` S: `[N, M, d]`
+    /// - `pixel_feature` L: `[N, M, d]`
+    /// - output Z: `[N, M, d]`
     pub fn forward(
         &self,
         body_feature: Tensor<3>,
         pixel_feature: Tensor<3>,
     ) -> Result<Tensor<3>, ShapeError> {
-        let [m, n, d] = body_feature.dims();
+        let [n, m, d] = body_feature.dims();
         let d_model = Some(self.d_model);
         ShapeError::check(
-            "attention `body_feature` S [M, N, d]",
-            &[m, n, d],
+            "attention `body_feature` S [N, M, d]",
+            &[n, m, d],
             &[None, None, d_model],
         )?;
         ShapeError::check(
-            "attention `pixel_feature` L [M, N, d]",
+            "attention `pixel_feature` L [N, M, d]",
             &pixel_feature.dims(),
-            &[Some(m), Some(n), d_model],
+            &[Some(n), Some(m), d_model],
         )?;
         if n == 0 {
             return Err(ShapeError::empty("attention views N"));
@@ -86,19 +89,19 @@ impl ViewCrossAttention {
             // flex: the weighted sum as one host operation with its own backward.
             return Ok(view_attention(queries, keys, values) + body_feature);
         }
-        // [M, N, N]: row i = view i's body feature against every view's pixel feature. Written
+        // [N_i, N_j, M]: view i's body feature against every view j's pixel feature. Written
         // as broadcast products and sums over d, not as a batched matmul: with M batches of
         // N x d x N (N = 3) the CPU backends run M tiny GEMMs forward and twice that backward,
         // which took more of the training step than all of the MLPs' GEMMs.
-        let scores = (queries.unsqueeze_dim::<4>(2) * keys.unsqueeze_dim::<4>(1)) // [M, N, N, d]
+        let scores = (queries.unsqueeze_dim::<4>(1) * keys.unsqueeze_dim::<4>(0)) // [N, N, M, d]
             .sum_dim(3)
-            .reshape([m, n, n])
+            .reshape([n, n, m])
             .div_scalar((self.d_model as f64).sqrt());
-        let attention = stable_softmax(scores, 2);
-        // Z_i = sum_j a_ij V_j + S_i: [M, N, N, 1] * [M, 1, N, d] summed over j.
-        let fused = (attention.unsqueeze_dim::<4>(3) * values.unsqueeze_dim::<4>(1))
-            .sum_dim(2)
-            .reshape([m, n, d]);
+        let attention = stable_softmax(scores, 1);
+        // Z_i = sum_j a_ij V_j + S_i: [N_i, N_j, M, 1] * [1, N_j, M, d] summed over j.
+        let fused = (attention.unsqueeze_dim::<4>(3) * values.unsqueeze_dim::<4>(0))
+            .sum_dim(1)
+            .reshape([n, m, d]);
         Ok(fused + body_feature)
     }
 }

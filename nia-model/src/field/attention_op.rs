@@ -4,8 +4,8 @@
 //! Per point, over its N views: `O_i = sum_j a_ij V_j`, `a_ij = softmax_j(Q_i . K_j / sqrt(d))`
 //! (the maximum subtracted, as [`crate::softmax::stable_softmax`] does), for the projections
 //! Q = phi_k(S), K = phi_k(L), V = phi_v(L) of [`super::attention::ViewCrossAttention`]. The
-//! tensor form broadcasts `[M, N, N, d]` products for the scores and for the weighted values and
-//! sums them, and under autodiff each product and sum has its own backward (a `[M, N, N, d]`
+//! tensor form broadcasts `[N, N, M, d]` products for the scores and for the weighted values and
+//! sums them, and under autodiff each product and sum has its own backward (a `[N, N, M, d]`
 //! buffer of ones for every sum's, the broadcast products' gradients reduced again). Here each
 //! point is a few N x N dot products on rayon's threads, the weights `a` are kept for the
 //! backward, and the backward is, per point,
@@ -32,7 +32,7 @@ use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 /// backward.
 #[backend_extension(Autodiff, Flex)]
 pub trait ViewAttentionBackend: Backend {
-    /// `q`, `k`, `v` `[M, N, d]` -> `O` `[M, N, d]`.
+    /// `q`, `k`, `v` `[N, M, d]` -> `O` `[N, M, d]`.
     fn view_attention(
         q: FloatTensor<Self>,
         k: FloatTensor<Self>,
@@ -42,13 +42,13 @@ pub trait ViewAttentionBackend: Backend {
 
 /// The host kernels on a concrete backend's buffers.
 pub trait ViewAttentionKernels: Backend {
-    /// The output `[M, N, d]` and the attention weights `a` `[M, N, N]`.
+    /// The output `[N, M, d]` and the attention weights `a` `[M, N, N]`.
     fn view_attention_forward(
         q: FloatTensor<Self>,
         k: FloatTensor<Self>,
         v: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>);
-    /// `dQ`, `dK`, `dV` from `dO` (all `[M, N, d]`) and the forward's inputs and weights.
+    /// `dQ`, `dK`, `dV` from `dO` (all `[N, M, d]`) and the forward's inputs and weights.
     fn view_attention_backward(
         grad: FloatTensor<Self>,
         q: FloatTensor<Self>,
@@ -61,12 +61,27 @@ pub trait ViewAttentionKernels: Backend {
 /// Points per parallel task.
 const POINTS_PER_TASK: usize = 64;
 
-/// Row `i` of the `[N, d]` block of a point that starts at `base`.
-fn row(x: &[f32], base: usize, i: usize, d: usize) -> &[f32] {
-    &x[base + i * d..base + (i + 1) * d]
+/// Row `(view, point)` of a `[N, M, d]` buffer.
+fn row(x: &[f32], m: usize, d: usize, view: usize, point: usize) -> &[f32] {
+    let at = (view * m + point) * d;
+    &x[at..at + d]
 }
 
-/// The forward on host slices, `[M, N, d]` each: `O` `[M, N, d]` and `a` `[M, N, N]`.
+/// A `[N, M, d]` buffer cut into tasks of [`POINTS_PER_TASK`] points: task `t` holds the rows
+/// of its points in each of the N views (N slices of up to `POINTS_PER_TASK * d` values).
+fn tasks_mut(x: &mut [f32], m: usize, d: usize) -> Vec<Vec<&mut [f32]>> {
+    let mut tasks: Vec<Vec<&mut [f32]>> = (0..m.div_ceil(POINTS_PER_TASK))
+        .map(|_| Vec::new())
+        .collect();
+    for view in x.chunks_mut(m * d) {
+        for (task, rows) in tasks.iter_mut().zip(view.chunks_mut(POINTS_PER_TASK * d)) {
+            task.push(rows);
+        }
+    }
+    tasks
+}
+
+/// The forward on host slices, `[N, M, d]` each: `O` `[N, M, d]` and `a` `[M, N, N]`.
 pub fn forward(q: &[f32], k: &[f32], v: &[f32], n: usize, d: usize) -> (Vec<f32>, Vec<f32>) {
     let m = if n * d == 0 { 0 } else { q.len() / (n * d) };
     let scale = 1.0 / (d as f32).sqrt();
@@ -75,20 +90,17 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], n: usize, d: usize) -> (Vec<f32>
     if m == 0 {
         return (out, weights);
     }
-    out.par_chunks_mut(POINTS_PER_TASK * n * d)
+    tasks_mut(&mut out, m, d)
+        .into_par_iter()
         .zip(weights.par_chunks_mut(POINTS_PER_TASK * n * n))
         .enumerate()
-        .for_each(|(task, (out, weights))| {
-            for (r, (o, a)) in out
-                .chunks_exact_mut(n * d)
-                .zip(weights.chunks_exact_mut(n * n))
-                .enumerate()
-            {
-                let base = (task * POINTS_PER_TASK + r) * n * d;
+        .for_each(|(task, (mut out, weights))| {
+            for (r, a) in weights.chunks_exact_mut(n * n).enumerate() {
+                let point = task * POINTS_PER_TASK + r;
                 for i in 0..n {
                     let a_i = &mut a[i * n..(i + 1) * n];
                     for (j, s) in a_i.iter_mut().enumerate() {
-                        *s = dot(row(q, base, i, d), row(k, base, j, d)) * scale;
+                        *s = dot(row(q, m, d, i, point), row(k, m, d, j, point)) * scale;
                     }
                     let max = a_i.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
                     let mut total = 0.0f32;
@@ -96,10 +108,10 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], n: usize, d: usize) -> (Vec<f32>
                         *s = (*s - max).exp();
                         total += *s;
                     }
-                    let o_i = &mut o[i * d..(i + 1) * d];
+                    let o_i = &mut out[i][r * d..(r + 1) * d];
                     for (j, s) in a_i.iter_mut().enumerate() {
                         *s /= total;
-                        for (acc, &x) in o_i.iter_mut().zip(row(v, base, j, d)) {
+                        for (acc, &x) in o_i.iter_mut().zip(row(v, m, d, j, point)) {
                             *acc += *s * x;
                         }
                     }
@@ -109,8 +121,8 @@ pub fn forward(q: &[f32], k: &[f32], v: &[f32], n: usize, d: usize) -> (Vec<f32>
     (out, weights)
 }
 
-/// The backward on host slices: `dQ`, `dK`, `dV` (`[M, N, d]`) from `dO` and the forward's
-/// `q`, `k`, `v` and weights `a` `[M, N, N]`.
+/// The backward on host slices: `dQ`, `dK`, `dV` (`[N, M, d]`) from `dO` and the forward's
+/// `q`, `k`, `v` (all `[N, M, d]`) and weights `a` `[M, N, N]`.
 pub fn backward(
     grad: &[f32],
     q: &[f32],
@@ -121,34 +133,31 @@ pub fn backward(
     d: usize,
 ) -> [Vec<f32>; 3] {
     let len = q.len();
+    let m = if n * d == 0 { 0 } else { len / (n * d) };
     let scale = 1.0 / (d as f32).sqrt();
     let (mut dq, mut dk, mut dv) = (zeroed(len), zeroed(len), zeroed(len));
-    if len == 0 {
+    if m == 0 {
         return [dq, dk, dv];
     }
-    let task = POINTS_PER_TASK * n * d;
-    dq.par_chunks_mut(task)
-        .zip(dk.par_chunks_mut(task))
-        .zip(dv.par_chunks_mut(task))
+    tasks_mut(&mut dq, m, d)
+        .into_par_iter()
+        .zip(tasks_mut(&mut dk, m, d))
+        .zip(tasks_mut(&mut dv, m, d))
         .enumerate()
-        .for_each(|(t, ((dq, dk), dv))| {
+        .for_each(|(t, ((mut dq, mut dk), mut dv))| {
             let mut ds = vec![0.0f32; n * n];
-            for (r, ((dq, dk), dv)) in dq
-                .chunks_exact_mut(n * d)
-                .zip(dk.chunks_exact_mut(n * d))
-                .zip(dv.chunks_exact_mut(n * d))
-                .enumerate()
-            {
+            let points = dq[0].len() / d;
+            for r in 0..points {
                 let point = t * POINTS_PER_TASK + r;
-                let base = point * n * d;
                 let a = &a[point * n * n..(point + 1) * n * n];
+                let at = r * d..(r + 1) * d;
                 for i in 0..n {
                     let (a_i, ds_i) = (&a[i * n..(i + 1) * n], &mut ds[i * n..(i + 1) * n]);
-                    let g_i = row(grad, base, i, d);
+                    let g_i = row(grad, m, d, i, point);
                     // da_ij = dO_i . V_j; dV_j += a_ij dO_i.
                     for j in 0..n {
-                        ds_i[j] = dot(g_i, row(v, base, j, d));
-                        for (acc, &g) in dv[j * d..(j + 1) * d].iter_mut().zip(g_i) {
+                        ds_i[j] = dot(g_i, row(v, m, d, j, point));
+                        for (acc, &g) in dv[j][at.clone()].iter_mut().zip(g_i) {
                             *acc += a_i[j] * g;
                         }
                     }
@@ -161,10 +170,10 @@ pub fn backward(
                 for i in 0..n {
                     for j in 0..n {
                         let s = ds[i * n + j];
-                        for (acc, &x) in dq[i * d..(i + 1) * d].iter_mut().zip(row(k, base, j, d)) {
+                        for (acc, &x) in dq[i][at.clone()].iter_mut().zip(row(k, m, d, j, point)) {
                             *acc += s * x;
                         }
-                        for (acc, &x) in dk[j * d..(j + 1) * d].iter_mut().zip(row(q, base, i, d)) {
+                        for (acc, &x) in dk[j][at.clone()].iter_mut().zip(row(q, m, d, i, point)) {
                             *acc += s * x;
                         }
                     }
@@ -181,16 +190,16 @@ impl ViewAttentionKernels for Flex {
         v: FlexTensor,
     ) -> (FlexTensor, FlexTensor) {
         let (q, k, v) = (contiguous_f32(q), contiguous_f32(k), contiguous_f32(v));
-        let [m, n, d] = dims::<3>(&q);
+        let [n, m, d] = dims::<3>(&q);
         assert!(
-            dims::<3>(&k) == [m, n, d] && dims::<3>(&v) == [m, n, d],
+            dims::<3>(&k) == [n, m, d] && dims::<3>(&v) == [n, m, d],
             "view attention: q {:?}, k {:?}, v {:?}",
-            [m, n, d],
+            [n, m, d],
             dims::<3>(&k),
             dims::<3>(&v)
         );
         let (out, a) = forward(values(&q), values(&k), values(&v), n, d);
-        (flex_tensor(out, [m, n, d]), flex_tensor(a, [m, n, n]))
+        (flex_tensor(out, [n, m, d]), flex_tensor(a, [m, n, n]))
     }
 
     fn view_attention_backward(
@@ -202,8 +211,8 @@ impl ViewAttentionKernels for Flex {
     ) -> [FlexTensor; 3] {
         let g = contiguous_f32(grad);
         let (q, k, v) = (contiguous_f32(q), contiguous_f32(k), contiguous_f32(v));
-        let [m, n, d] = dims::<3>(&q);
-        assert_eq!(dims::<3>(&g), [m, n, d], "view attention: gradient shape");
+        let [n, m, d] = dims::<3>(&q);
+        assert_eq!(dims::<3>(&g), [n, m, d], "view attention: gradient shape");
         let a = contiguous_f32(a);
         backward(
             values(&g),
@@ -214,7 +223,7 @@ impl ViewAttentionKernels for Flex {
             n,
             d,
         )
-        .map(|x| flex_tensor(x, [m, n, d]))
+        .map(|x| flex_tensor(x, [n, m, d]))
     }
 }
 
@@ -283,7 +292,7 @@ impl<B: Backend + ViewAttentionKernels, C: CheckpointStrategy> ViewAttentionBack
 /// flex, with or without autodiff: [`crate::host_op::runs_on_host`]).
 ///
 /// # Shapes
-/// - `q`, `k`, `v`: `[M, N, d]`; output `[M, N, d]`
+/// - `q`, `k`, `v`: `[N, M, d]` (views first); output `[N, M, d]`
 pub fn view_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>) -> Tensor<3> {
     Tensor::from_dispatch(<Dispatch as ViewAttentionBackend>::view_attention(
         q.into_dispatch(),

@@ -27,10 +27,10 @@ pub const HEAD_LAYERS: usize = 4;
 /// Mean over the views of per-view features: `mean_n z_n`.
 ///
 /// # Shapes
-/// - `z`: `[M, N, d]`
+/// - `z`: `[N, M, d]` (views first)
 /// - output: `[M, d]`
 pub fn view_mean(z: Tensor<3>) -> Tensor<2> {
-    z.mean_dim(1).squeeze_dim(1)
+    z.mean_dim(0).squeeze_dim(0)
 }
 
 /// Four linear layers `d_input -> d_hidden -> d_hidden -> d_hidden -> d_output`.

@@ -186,17 +186,15 @@ impl NiaModel {
                 Tensor::from_data(TensorData::new(mean, [m, d]), &l_device)
             }
             (Some((read, None)), true) => view_mean(
-                self.attention.forward(
-                    linear_rows(&self.body_reduce, read).swap_dims(0, 1),
-                    l.clone().swap_dims(0, 1),
-                )?, // [M, N, d]
+                self.attention
+                    .forward(linear_rows(&self.body_reduce, read), l.clone())?, // [N, M, d]
             ),
             (None, true) => {
                 return Err(ModelError::Input(
                     "the scene was encoded without a body volume".into(),
                 ))
             }
-            (_, false) => view_mean(l.clone().swap_dims(0, 1)),
+            (_, false) => view_mean(l.clone()),
         }; // [M, d]
         let sigma = match scene.host_network.as_deref() {
             Some(host) if !mean_z.is_autodiff() => host.density(mean_z.clone())?,
