@@ -7,7 +7,7 @@ mod common;
 use burn::prelude::*;
 use common::{assert_close, device, tensor, values};
 use nia_data::rng::Rng;
-use nia_model::encoder::bilinear::{grid_sample_reference, sample};
+use nia_model::encoder::bilinear::{grid_sample_reference, sample, ViewRows};
 
 const N: usize = 2;
 const C: usize = 3;
@@ -124,6 +124,48 @@ fn check_on(dev: &Device, what: &str) {
         }
     }
     assert!(compared > 20, "{what}: only {compared} points compared");
+}
+
+/// The maps' channels-last rows (`ViewRows::rows`): on flex the host operation of
+/// `nia_model::encoder::channels_last`, on ndarray the tensor form (permute, reshape, a zero
+/// row). Pure data movement, so values and the maps' gradient agree to the bit, for maps that
+/// arrive as a transposed view too; the zero row's gradient reaches nothing.
+#[test]
+#[allow(deprecated)] // Device::ndarray(): the reference CPU backend the project keeps
+fn channels_last_rows_are_the_tensor_layout_to_the_bit() {
+    let rows_and_grad = |dev: &Device, transposed: bool| {
+        let ad = dev.clone().autodiff();
+        let maps = if transposed {
+            // [N, C, W, H] swapped to [N, C, H, W]: a strided view.
+            let mut rng = Rng::new(21);
+            let v: Vec<f32> = (0..N * C * H * W).map(|_| rng.uniform() - 0.5).collect();
+            tensor(v, [N, C, W, H], &ad).require_grad()
+        } else {
+            tensor(maps_values(), [N, C, H, W], &ad).require_grad()
+        };
+        let input = if transposed {
+            maps.clone().swap_dims(2, 3)
+        } else {
+            maps.clone()
+        };
+        let rows = ViewRows::new(input).unwrap().rows();
+        assert_eq!(rows.dims(), [N * H * W + 1, C]);
+        let mut rng = Rng::new(22);
+        let upstream: Vec<f32> = (0..(N * H * W + 1) * C)
+            .map(|_| rng.uniform() - 0.5)
+            .collect();
+        let g = (rows.clone() * tensor(upstream, [N * H * W + 1, C], &ad))
+            .sum()
+            .backward();
+        (values(rows), values(maps.grad(&g).unwrap()))
+    };
+    for transposed in [false, true] {
+        let (rows, grad) = rows_and_grad(&Device::flex(), transposed);
+        let (rows_ref, grad_ref) = rows_and_grad(&Device::ndarray(), transposed);
+        assert_eq!(rows, rows_ref, "rows, transposed input {transposed}");
+        assert_eq!(&rows[N * H * W * C..], &[0.0; C], "the zero row");
+        assert_eq!(grad, grad_ref, "d/d maps, transposed input {transposed}");
+    }
 }
 
 #[test]

@@ -27,6 +27,7 @@ use burn::prelude::*;
 use burn::tensor::ops::GridSampleOptions;
 use rayon::prelude::*;
 
+use super::channels_last::channels_last_rows;
 use crate::blocked_rows::select_rows;
 use crate::host_buffer::zeroed;
 use crate::host_op::runs_on_host;
@@ -74,13 +75,19 @@ impl ViewRows {
             return Err(ShapeError::empty("IBR `maps` [N, C, H, W]"));
         }
         let device = maps.device();
-        let rows = Tensor::cat(
-            vec![
-                maps.permute([0, 2, 3, 1]).reshape([n * h * w, c]),
-                Tensor::zeros([1, c], &device),
-            ],
-            0,
-        );
+        let rows = if runs_on_host(&device) {
+            // flex: one pass, and a backward that hands the maps their gradient in their own
+            // layout (no transposed view for the pyramid's reshapes to copy).
+            channels_last_rows(maps)
+        } else {
+            Tensor::cat(
+                vec![
+                    maps.permute([0, 2, 3, 1]).reshape([n * h * w, c]),
+                    Tensor::zeros([1, c], &device),
+                ],
+                0,
+            )
+        };
         Ok(Self {
             rows,
             dims: [n, c, h, w],

@@ -8,6 +8,7 @@
 //! ([`ImageEncoder::load_torchvision`]); `layer4` and `fc` are not part of the trunk.
 
 pub mod bilinear;
+pub mod channels_last;
 pub mod host;
 pub mod import;
 pub mod pyramid_host;
