@@ -18,7 +18,7 @@ use nia_data::dataset::{DatasetConfig, Subject};
 use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::geometry::occupancy_memo::remembered;
 use nia_data::geometry::rays::mask_at_box;
-use nia_data::geometry::sparse::{remembered_pyramid, SitePyramid, VoxelGridSpec};
+use nia_data::geometry::sparse::{remembered_pyramid, NeighbourMaps, SitePyramid, VoxelGridSpec};
 use nia_data::geometry::surface_memo::remembered_surface;
 use nia_data::geometry::visibility::DEFAULT_DEPTH_TOL_M;
 use nia_data::rng::Rng;
@@ -545,6 +545,7 @@ fn the_loader_builds_training_site_pyramids_and_surface_indices_ahead() {
             box_enlarge: 0.025,
         },
         levels: 4,
+        neighbour_maps: true,
     };
     let source = fixture_source(None);
     let protocol = fixture_protocol();
@@ -569,6 +570,19 @@ fn the_loader_builds_training_site_pyramids_and_surface_indices_ahead() {
                 assert_eq!(pyramid.levels.len(), volume.levels + 1);
                 assert_eq!(pyramid.submanifold_rules, fresh.submanifold_rules);
                 assert_eq!(pyramid.strided_rules, fresh.strided_rules);
+                // ... with every rulebook's neighbour maps built (`neighbour_maps`).
+                for (rules, fresh) in pyramid
+                    .submanifold_rules
+                    .iter()
+                    .chain(&pyramid.strided_rules)
+                    .zip(fresh.submanifold_rules.iter().chain(&fresh.strided_rules))
+                {
+                    assert!(fresh.built_neighbour_maps().is_none());
+                    let built = rules
+                        .built_neighbour_maps()
+                        .unwrap_or_else(|| panic!("scene {i}: neighbour maps not built ahead"));
+                    assert_eq!(*built, NeighbourMaps::new(fresh));
+                }
                 assert_eq!(pyramid.voxels.vertex_site, fresh.voxels.vertex_site);
                 for (a, b) in pyramid.levels.iter().zip(&fresh.levels) {
                     assert_eq!(a.num_sites(), b.num_sites());

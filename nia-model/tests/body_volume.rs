@@ -140,6 +140,26 @@ fn rulebooks_match_brute_force() {
         }
         let filled = map.iter().filter(|&&i| i as usize != strided.n_in).count();
         assert_eq!(filled, strided.num_pairs());
+        // The host convolution's maps: the same neighbour map, and its inverse holds the same
+        // pairs seen from the inputs; built once, and shared by the clones made after.
+        assert!(strided.built_neighbour_maps().is_none());
+        let maps = strided.neighbour_maps();
+        assert_eq!(maps.neighbours, map);
+        for (k, i, o) in pair_set(&strided) {
+            assert_eq!(maps.inverse[i as usize * KERNEL_VOLUME + k], o);
+        }
+        let inverse_filled = maps
+            .inverse
+            .iter()
+            .filter(|&&o| o as usize != strided.n_out);
+        assert_eq!(inverse_filled.count(), strided.num_pairs());
+        assert_eq!(maps.inverse.len(), strided.n_in * KERNEL_VOLUME);
+        assert!(std::sync::Arc::ptr_eq(&maps, &strided.neighbour_maps()));
+        let copy = strided.clone();
+        assert!(std::sync::Arc::ptr_eq(
+            &maps,
+            &copy.built_neighbour_maps().unwrap()
+        ));
     }
 }
 

@@ -133,6 +133,10 @@ pub struct BodyVolumeGrid {
     pub grid: VoxelGridSpec,
     /// The coarsest level (level l: 1 / 2^l of the voxels).
     pub levels: usize,
+    /// Also every rulebook's neighbour maps (`SitePyramid::warm_neighbour_maps`), which the
+    /// host sparse convolution of the CPU backends reads and a GPU does not.
+    #[serde(default)]
+    pub neighbour_maps: bool,
 }
 
 /// The distances of a band sampler's occupancy grid ([`LoaderConfig::band_grid`]).
@@ -399,7 +403,11 @@ pub fn load_scene(
         if let Some(volume) = config.body_volume {
             let smpl = vertices_in_smpl_frame(&vertices, params.rh, params.th);
             if let Ok(voxel_box) = volume.grid.enclosing(&smpl) {
-                let _ = shared_pyramid(&smpl, &voxel_box, volume.levels);
+                if let Ok(pyramid) = shared_pyramid(&smpl, &voxel_box, volume.levels) {
+                    if volume.neighbour_maps {
+                        pyramid.warm_neighbour_maps();
+                    }
+                }
             }
         }
     }

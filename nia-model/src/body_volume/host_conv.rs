@@ -29,40 +29,30 @@ use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex};
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use nia_data::geometry::sparse::{Rulebook, KERNEL_VOLUME};
+use nia_data::geometry::sparse::{NeighbourMaps, Rulebook, KERNEL_VOLUME};
 
 use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 
-/// A rulebook in host memory for the host kernels: the neighbour map and its inverse.
+/// A rulebook in host memory for the host kernels: the neighbour map and its inverse
+/// ([`NeighbourMaps`], kept with the rulebook, so that the loader's workers can build them).
 #[derive(Debug, Clone, PartialEq)]
 pub struct HostRules {
     /// Input sites P_in.
     pub n_in: usize,
     /// Output sites P_out.
     pub n_out: usize,
-    /// `[P_out * 27]` input site read by output o at offset k (`o * 27 + k`); `n_in` = none.
-    pub neighbours: Vec<u32>,
-    /// `[P_in * 27]` output site that reads input i at offset k (`i * 27 + k`); `n_out` = none.
-    pub inverse: Vec<u32>,
+    /// The maps: `neighbours` `[P_out * 27]` (`n_in` = none), `inverse` `[P_in * 27]` (`n_out`
+    /// = none).
+    pub maps: Arc<NeighbourMaps>,
 }
 
 impl HostRules {
-    /// The maps of `rulebook`.
+    /// The maps of `rulebook` (built now unless the rulebook has them already).
     pub fn new(rulebook: &Rulebook) -> Self {
-        let (n_in, n_out) = (rulebook.n_in, rulebook.n_out);
-        let mut neighbours = vec![n_in as u32; n_out * KERNEL_VOLUME];
-        let mut inverse = vec![n_out as u32; n_in * KERNEL_VOLUME];
-        for k in 0..KERNEL_VOLUME {
-            for (i, o) in rulebook.pairs(k) {
-                neighbours[o as usize * KERNEL_VOLUME + k] = i;
-                inverse[i as usize * KERNEL_VOLUME + k] = o;
-            }
-        }
         HostRules {
-            n_in,
-            n_out,
-            neighbours,
-            inverse,
+            n_in: rulebook.n_in,
+            n_out: rulebook.n_out,
+            maps: rulebook.neighbour_maps(),
         }
     }
 }
@@ -110,7 +100,7 @@ impl SparseConvKernels for Flex {
             values(&x),
             rules.n_in,
             ci,
-            &rules.neighbours,
+            &rules.maps.neighbours,
             rules.n_out,
             n,
             values(&w),
@@ -141,7 +131,7 @@ impl SparseConvKernels for Flex {
             values(&g),
             rules.n_out,
             co,
-            &rules.inverse,
+            &rules.maps.inverse,
             rules.n_in,
             n,
             &wt,
@@ -366,7 +356,7 @@ fn gathered_outer_sum(
     assert!(
         x.len() == views * rows_in * ci
             && dy.len() == views * rows_out * co
-            && rules.neighbours.len() == rows_out * KERNEL_VOLUME,
+            && rules.maps.neighbours.len() == rows_out * KERNEL_VOLUME,
         "host sparse convolution backward: {} input values for [{views}, {rows_in}, {ci}], \
          {} gradient values for [{views}, {rows_out}, {co}]",
         x.len(),
@@ -392,7 +382,7 @@ fn gathered_outer_sum(
                     x,
                     rows_in,
                     ci,
-                    &rules.neighbours,
+                    &rules.maps.neighbours,
                     rows_out,
                     first,
                     len,

@@ -27,6 +27,7 @@ use nia_infer::eval::{
 };
 use nia_infer::pictures::{comparison_grid, save_evaluated};
 use nia_model::body_volume::NUM_SCALES;
+use nia_model::host_op::runs_on_host;
 use nia_model::loss::psnr_from_mse;
 use nia_model::renderer::call_size::rays_per_call;
 use nia_model::sampler::RaySampler;
@@ -189,10 +190,12 @@ pub fn train(
         }),
         RaySampler::Stratified => None,
     };
-    // ... and its body volume's sites and rulebooks.
+    // ... and its body volume's sites and rulebooks, with the neighbour maps that the CPU's
+    // host sparse convolution reads (any device on the host: the maps serve them all).
     loader_config.body_volume = model.variant.uses_body().then(|| BodyVolumeGrid {
         grid: model.voxel_grid(),
         levels: NUM_SCALES,
+        neighbour_maps: devices.iter().any(runs_on_host),
     });
     let mut loader = SceneLoader::new(data.dataset.source.clone(), requests, loader_config)?;
     let run_start = Instant::now();

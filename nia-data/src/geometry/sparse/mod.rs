@@ -2,16 +2,19 @@
 //!
 //! - [`voxelize`]: SMPL-frame vertices + [`VoxelBox`] -> active sites and a vertex -> site map;
 //!   [`ScaleGeometry`], the placement of each grid level.
-//! - [`rulebook`]: active sites -> submanifold / strided convolution rulebooks, [`SiteIndex`].
+//! - [`rulebook`]: active sites -> submanifold / strided convolution rulebooks, [`SiteIndex`];
+//!   [`neighbour_maps`]: a rulebook as dense maps for the host convolution.
 //! - [`corners`]: query points -> the 8 corner sites and trilinear weights on one level.
 //! - [`pyramid`]: every level's sites and rulebooks of one body, remembered for recent bodies.
 
 pub mod corners;
+pub mod neighbour_maps;
 pub mod pyramid;
 pub mod rulebook;
 pub mod voxelize;
 
 pub use corners::{TrilinearCorners, CORNERS};
+pub use neighbour_maps::NeighbourMaps;
 pub use pyramid::{remembered_pyramid, shared_pyramid, SitePyramid};
 pub use rulebook::{kernel_offset, Rulebook, RulebookKind, SiteIndex, KERNEL_VOLUME};
 pub use voxelize::{

@@ -66,6 +66,17 @@ impl SitePyramid {
     }
 }
 
+impl SitePyramid {
+    /// Builds every rulebook's [`super::NeighbourMaps`] now (they are kept with the rulebooks
+    /// and shared by the memo's copies), so that a training step on the CPU's host
+    /// convolution finds them built ([`crate::dataset::loader::BodyVolumeGrid::neighbour_maps`]).
+    pub fn warm_neighbour_maps(&self) {
+        for rulebook in self.submanifold_rules.iter().chain(&self.strided_rules) {
+            rulebook.neighbour_maps();
+        }
+    }
+}
+
 /// The memo's key: the vertices as points, the box and the depth as bits.
 fn memo_key(
     vertices_smpl: &[[f32; 3]],

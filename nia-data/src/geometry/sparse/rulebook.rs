@@ -11,7 +11,9 @@
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
+use std::sync::{Arc, OnceLock};
 
+use super::neighbour_maps::NeighbourMaps;
 use super::voxelize::{strided_dim, MAX_GRID_DIM};
 use super::SparseGridError;
 
@@ -168,7 +170,7 @@ pub enum RulebookKind {
 /// `out_index`), `out[out_index[t]] += in[in_index[t]] @ W[k]`. Within a group, pairs are sorted
 /// by output site (submanifold) or input site (strided); every (output, offset) appears at
 /// most once.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone)]
 pub struct Rulebook {
     pub kind: RulebookKind,
     /// Number of input sites P_in.
@@ -181,7 +183,21 @@ pub struct Rulebook {
     pub out_index: Vec<u32>,
     /// [28] start of every offset's group, `group_start[27] = T`.
     pub group_start: [usize; KERNEL_VOLUME + 1],
+    /// [`Self::neighbour_maps`], built on first use (clones made after share them).
+    maps: OnceLock<Arc<NeighbourMaps>>,
 }
+
+/// Rulebooks are equal when their pairs are: whether the maps were built yet does not count.
+impl PartialEq for Rulebook {
+    fn eq(&self, other: &Self) -> bool {
+        (self.kind, self.n_in, self.n_out, self.group_start)
+            == (other.kind, other.n_in, other.n_out, other.group_start)
+            && self.in_index == other.in_index
+            && self.out_index == other.out_index
+    }
+}
+
+impl Eq for Rulebook {}
 
 impl Rulebook {
     /// Total number of pairs T.
@@ -208,6 +224,19 @@ impl Rulebook {
             }
         }
         map
+    }
+
+    /// The neighbour map and its inverse ([`NeighbourMaps`]), built the first time they are
+    /// asked for and kept.
+    pub fn neighbour_maps(&self) -> Arc<NeighbourMaps> {
+        self.maps
+            .get_or_init(|| Arc::new(NeighbourMaps::new(self)))
+            .clone()
+    }
+
+    /// [`Self::neighbour_maps`] if they were built, without building them.
+    pub fn built_neighbour_maps(&self) -> Option<Arc<NeighbourMaps>> {
+        self.maps.get().cloned()
     }
 
     /// Fraction of the `P_out * 27` (output, offset) slots that have an input, in [0, 1].
@@ -242,6 +271,7 @@ impl Rulebook {
             in_index,
             out_index,
             group_start,
+            maps: OnceLock::new(),
         }
     }
 
@@ -298,6 +328,7 @@ impl Rulebook {
             in_index,
             out_index,
             group_start,
+            maps: OnceLock::new(),
         };
         Ok((out_sites, rulebook))
     }
