@@ -37,10 +37,10 @@ use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 pub struct Taps {
     /// K, taps per output row (at least 1).
     pub per_row: usize,
-    /// `[P K]` table rows of view 0.
-    pub index: Vec<u32>,
+    /// `[P K]` table rows of view 0 (shared: the body volume's reads keep them per call).
+    pub index: Arc<Vec<u32>>,
     /// `[P K]` weights.
-    pub weight: Vec<f32>,
+    pub weight: Arc<Vec<f32>>,
     /// V, the views (at least 1).
     pub views: usize,
     /// Table rows between one view's rows and the next's.
@@ -50,6 +50,11 @@ pub struct Taps {
 impl Taps {
     /// Taps read in one view.
     pub fn new(per_row: usize, index: Vec<u32>, weight: Vec<f32>) -> Self {
+        Self::shared(per_row, Arc::new(index), Arc::new(weight))
+    }
+
+    /// Taps read in one view, from index and weight vectors shared with their owner.
+    pub fn shared(per_row: usize, index: Arc<Vec<u32>>, weight: Arc<Vec<f32>>) -> Self {
         Taps {
             per_row,
             index,
@@ -147,7 +152,7 @@ pub fn scatter_weighted(grad: &[f32], c: usize, taps: &Taps, table_rows: usize) 
         let end = first + block.len() / c;
         for view in 0..taps.views {
             let offset = view * taps.view_stride;
-            for (j, (&t, &w)) in taps.index.iter().zip(&taps.weight).enumerate() {
+            for (j, (&t, &w)) in taps.index.iter().zip(taps.weight.iter()).enumerate() {
                 let t = t as usize + offset;
                 if t < first || t >= end {
                     continue;

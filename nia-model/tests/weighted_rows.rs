@@ -45,7 +45,7 @@ fn run(device: &Device, t: usize, c: usize, taps: &Taps, host: bool) -> (Vec<f32
     } else {
         let index: Vec<i64> = taps.index.iter().map(|&i| i as i64).collect();
         let index = Tensor::<1, Int>::from_data(TensorData::new(index, [r * k]), device);
-        let w = Tensor::<2>::from_data(TensorData::new(taps.weight.clone(), [r * k, 1]), device);
+        let w = Tensor::<2>::from_data(TensorData::new(taps.weight.to_vec(), [r * k, 1]), device);
         (table.clone().select(0, index) * w)
             .reshape([r, k, c])
             .sum_dim(1)

@@ -103,9 +103,10 @@ pub struct TrilinearTensors {
     pub weight: Tensor<2>,
     /// The read the layout is for.
     pub read: CornerRead,
-    /// On flex, for [`CornerRead::Stacked`]: the corners in host memory, which [`sample`] reads
-    /// as one weighted gather with its own backward ([`crate::weighted_rows`]).
-    pub host: Option<Arc<TrilinearCorners>>,
+    /// On flex, for [`CornerRead::Stacked`]: the corners' sites and weights in host memory
+    /// (`[M * 8]` each), which [`sample`] reads as one weighted gather with its own backward
+    /// ([`crate::weighted_rows`]); every read shares them.
+    pub host: Option<(Arc<Vec<u32>>, Arc<Vec<f32>>)>,
     /// M.
     pub num_points: usize,
     /// P_s.
@@ -137,8 +138,12 @@ impl TrilinearTensors {
             index: index.reshape(shape),
             weight: Tensor::from_data(TensorData::new(weight, shape), device),
             read,
-            host: (read == CornerRead::Stacked && runs_on_host(device))
-                .then(|| Arc::new(corners.clone())),
+            host: (read == CornerRead::Stacked && runs_on_host(device)).then(|| {
+                (
+                    Arc::new(corners.index.clone()),
+                    Arc::new(corners.weight.clone()),
+                )
+            }),
             num_points: m,
             num_sites: corners.num_sites,
         }
@@ -284,12 +289,12 @@ pub fn sample_with(
     if m == 0 {
         return Ok(Tensor::zeros([n, 0, c], &device));
     }
-    if let (Some(host), true) = (&corners.host, runs_on_host(&device)) {
+    if let (Some((index, weight)), true) = (&corners.host, runs_on_host(&device)) {
         // Stacked rows (the reads agree, checked above): row `v (P_s + 1) + site`.
         let taps = Taps {
             views: n,
             view_stride: p_s + 1,
-            ..Taps::new(CORNERS, host.index.clone(), host.weight.clone())
+            ..Taps::shared(CORNERS, index.clone(), weight.clone())
         };
         return Ok(weighted_rows(rows.rows.clone(), taps).reshape([n, m, c]));
     }
