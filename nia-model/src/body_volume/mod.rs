@@ -20,6 +20,7 @@ pub mod host_conv;
 pub mod host_read;
 pub mod network;
 pub mod site_norm;
+pub mod site_norm_op;
 pub mod sparse_conv;
 pub mod trilinear;
 mod view_rows;

@@ -21,7 +21,6 @@ use nia_data::geometry::sparse::{
 };
 
 use burn::prelude::*;
-use burn::tensor::activation::relu;
 
 use super::site_norm::{SiteNorm, SiteNormConfig};
 use super::sparse_conv::{ConvMethod, RulebookTensors, SparseConv3d, SparseConv3dConfig};
@@ -104,9 +103,8 @@ impl SparseConvBlock {
         features: Tensor<3>,
         rulebook: &RulebookTensors,
     ) -> Result<Tensor<3>, BodyVolumeError> {
-        Ok(relu(
-            self.norm.forward(self.conv.forward(features, rulebook)?)?,
-        ))
+        self.norm
+            .forward_relu(self.conv.forward(features, rulebook)?)
     }
 }
 

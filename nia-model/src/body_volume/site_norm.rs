@@ -11,8 +11,11 @@
 
 use burn::module::Param;
 use burn::prelude::*;
+use burn::tensor::activation::relu;
 
+use super::site_norm_op::site_norm_relu;
 use super::BodyVolumeError;
+use crate::host_op::runs_on_host;
 
 /// Configuration of [`SiteNorm`].
 #[derive(Config, Debug)]
@@ -51,6 +54,37 @@ impl SiteNorm {
     /// - features: `[N, P, C]`
     /// - output: `[N, P, C]`
     pub fn forward(&self, features: Tensor<3>) -> Result<Tensor<3>, BodyVolumeError> {
+        self.check(&features)?;
+        if features.dims()[1] == 0 {
+            return Ok(features);
+        }
+        Ok(self.normalise(features))
+    }
+
+    /// `ReLU(self.forward(features))`; on flex one host operation with its own backward
+    /// ([`super::site_norm_op`]).
+    ///
+    /// # Shapes
+    /// - features: `[N, P, C]`
+    /// - output: `[N, P, C]`
+    pub fn forward_relu(&self, features: Tensor<3>) -> Result<Tensor<3>, BodyVolumeError> {
+        self.check(&features)?;
+        if features.dims()[1] == 0 {
+            return Ok(features);
+        }
+        if runs_on_host(&features.device()) {
+            return Ok(site_norm_relu(
+                features,
+                self.gamma.val(),
+                self.beta.val(),
+                self.epsilon,
+            ));
+        }
+        Ok(relu(self.normalise(features)))
+    }
+
+    /// The features' channel count against gamma's.
+    fn check(&self, features: &Tensor<3>) -> Result<(), BodyVolumeError> {
         let [channels] = self.gamma.dims();
         let dims = features.dims();
         if dims[2] != channels {
@@ -60,13 +94,16 @@ impl SiteNorm {
                 &dims,
             ));
         }
-        if dims[1] == 0 {
-            return Ok(features);
-        }
+        Ok(())
+    }
+
+    /// The tensor form of the norm, `P > 0`.
+    fn normalise(&self, features: Tensor<3>) -> Tensor<3> {
+        let [channels] = self.gamma.dims();
         let (var, mean) = features.clone().var_mean_bias(1);
         let normalised = (features - mean) / (var + self.epsilon).sqrt();
         let gamma = self.gamma.val().reshape([1, 1, channels]);
         let beta = self.beta.val().reshape([1, 1, channels]);
-        Ok(normalised * gamma + beta)
+        normalised * gamma + beta
     }
 }
