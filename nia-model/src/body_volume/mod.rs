@@ -18,6 +18,7 @@ use nia_data::geometry::sparse::SparseGridError;
 
 pub mod host_conv;
 pub mod host_read;
+pub mod im2col_op;
 pub mod network;
 pub mod site_norm;
 pub mod site_norm_op;

@@ -6,7 +6,9 @@
 //! - `Im2col`: a gather of the 27 neighbours of every output (a missing neighbour reads an
 //!   appended zero row) into `[N, P_out, 27 C_in]` and a matmul with `W` as `[27 C_in, C_out]`,
 //!   in blocks of outputs ([`GATHER_CHUNK_BYTES`], [`GPU_IM2COL_BLOCK_BYTES`]). No scatter; its
-//!   cost grows with `27 P_out` whatever the number of active neighbours.
+//!   cost grows with `27 P_out` whatever the number of active neighbours. In training on a GPU
+//!   backend the blocks run as one operation, [`super::im2col_op`], whose backward zeroes one
+//!   input-sized buffer for all blocks and keeps no columns.
 //! - `Pairs`: one matmul of every input with all 27 offsets' weights (`[N P_in, 27 C_out]`),
 //!   one gather of the T pairs' products and one scatter-add (`select_assign(.., Add)`) into
 //!   `[N, P_out, C_out]`. The matmul costs as much as `Im2col`'s, but only T rows move through
@@ -22,6 +24,7 @@ use burn::prelude::*;
 use std::sync::Arc;
 
 use super::host_conv::{sparse_conv_host, HostRules};
+use super::im2col_op::im2col_product;
 use super::view_rows::ViewRows;
 use super::BodyVolumeError;
 use crate::blocked_rows::{scatter_add_rows, select_rows};
@@ -327,6 +330,14 @@ impl SparseConv3d {
                     .unwrap_or_else(|| im2col_outputs_per_block(&rows, n * KERNEL_VOLUME * c_in));
                 // [N * P_out * 27], block by block and view-major within a block.
                 let stacked = neighbours.stacked(n, chunk);
+                if rows.is_tracked() && !computes_on_cpu(&rows.device()) {
+                    // Training on a GPU backend: one operation whose backward zeroes one
+                    // input-sized buffer for all blocks, not one per block.
+                    return Ok(add_bias(
+                        im2col_product(rows, w, stacked, n, chunk),
+                        &self.bias,
+                    ));
+                }
                 let mut parts = Vec::with_capacity(p_out.div_ceil(chunk));
                 for start in (0..p_out).step_by(chunk) {
                     let len = chunk.min(p_out - start);
@@ -368,9 +379,17 @@ impl SparseConv3d {
                 }
             }
         };
-        Ok(match &self.bias {
-            Some(bias) => out + bias.val().reshape([1, 1, c_out]),
-            None => out,
-        })
+        Ok(add_bias(out, &self.bias))
+    }
+}
+
+/// `out` `[N, P, C_out]` plus the bias `[C_out]`, if there is one.
+fn add_bias(out: Tensor<3>, bias: &Option<Param<Tensor<1>>>) -> Tensor<3> {
+    match bias {
+        Some(bias) => {
+            let c_out = out.dims()[2];
+            out + bias.val().reshape([1, 1, c_out])
+        }
+        None => out,
     }
 }
