@@ -31,9 +31,7 @@ use burn::prelude::*;
 use burn::tensor::{IndexingUpdateOp, Slice};
 
 use crate::blocked_rows::MAX_SCATTER_INDICES;
-
-/// Neighbours of one output (3 x 3 x 3).
-const KERNEL_VOLUME: usize = 27;
+use nia_data::geometry::sparse::KERNEL_VOLUME;
 
 /// The product as a backend operation: ndarray and (with the `wgpu` feature) the cubecl
 /// backends, and autodiff over them with this module's backward.
