@@ -17,7 +17,9 @@
 //! [`render_options`] (the `[render]` section), [`error`], [`loss`] (NIA eq. 6), [`lpips`]
 //! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints) and the tensor
 //! helpers ([`shape`], [`softmax`], [`linear_rows`], [`host_mlp`] (linear stacks fused on
-//! the host), [`host_buffer`], [`readback`], [`timing`], [`device`]).
+//! the host), [`host_buffer`], [`readback`], [`timing`], [`device`]), and the row gathers
+//! with their own backwards: [`weighted_rows`] (flex), [`tap_gather`] and [`row_scatter`]
+//! (training on the GPU backends), [`blocked_rows`].
 
 pub mod blocked_rows;
 pub mod body_volume;
@@ -39,11 +41,13 @@ pub mod model;
 pub mod readback;
 pub mod render_options;
 pub mod renderer;
+pub mod row_scatter;
 pub mod sampler;
 pub mod scene_encoding;
 pub mod shape;
 pub mod softmax;
 pub mod store;
+pub mod tap_gather;
 pub mod timing;
 pub mod variant;
 pub mod weighted_rows;

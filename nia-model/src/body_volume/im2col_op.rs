@@ -12,9 +12,7 @@
 //! - forward: `out_b = cols_b W` with `cols_b = rows[index_b]` (reshaped to `[K_b, 27 C_in]`);
 //! - backward: `dW += cols_b^T d out_b`, `d rows[index_b] += d out_b W^T`.
 //!
-//! The scatter-adds run as `blocked_rows` runs them: an element-wise `scatter` with `Add` in
-//! blocks of at most [`MAX_SCATTER_INDICES`] rows on the GPU backends (atomic adds, no fixed
-//! order), one `select_assign` on ndarray.
+//! The scatter-adds run as [`crate::row_scatter`] runs them (atomic adds on the GPU backends).
 // ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
 #![allow(deprecated)]
 
@@ -22,15 +20,14 @@ use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::ops::{FloatTensorOps, IntTensorOps};
 use burn::backend::tensor::{FloatTensor, IntTensor};
 #[cfg(feature = "wgpu")]
 use burn::backend::Cube;
 use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, NdArray, TensorMetadata};
 use burn::prelude::*;
-use burn::tensor::{IndexingUpdateOp, Slice};
+use burn::tensor::Slice;
 
-use crate::blocked_rows::MAX_SCATTER_INDICES;
+use crate::row_scatter::{blocks, range, RowScatter};
 use nia_data::geometry::sparse::KERNEL_VOLUME;
 
 /// The product as a backend operation: ndarray and (with the `wgpu` feature) the cubecl
@@ -47,71 +44,6 @@ pub trait Im2colBackend: Backend {
         views: usize,
         chunk: usize,
     ) -> FloatTensor<Self>;
-}
-
-/// `(start, len)` of the blocks of `step` among `k`.
-fn blocks(k: usize, step: usize) -> impl Iterator<Item = (usize, usize)> {
-    let step = step.max(1);
-    (0..k)
-        .step_by(step)
-        .map(move |start| (start, step.min(k - start)))
-}
-
-/// Rows `start..start + len` along dim 0.
-fn rows_range(start: usize, len: usize) -> [Slice; 1] {
-    [Slice::with_step(
-        start as isize,
-        Some((start + len) as isize),
-        1,
-    )]
-}
-
-/// The scatter-add of gradient rows, per backend (module docs).
-pub trait RowScatter: Backend {
-    /// `target` `[R, C]` with every row of `values` `[L, C]` added at the row `index` `[L]`
-    /// names.
-    fn scatter_add_rows(
-        target: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        values: FloatTensor<Self>,
-    ) -> FloatTensor<Self>;
-}
-
-impl RowScatter for NdArray {
-    fn scatter_add_rows(
-        target: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        values: FloatTensor<Self>,
-    ) -> FloatTensor<Self> {
-        Self::float_select_assign(target, 0, index, values, IndexingUpdateOp::Add)
-    }
-}
-
-#[cfg(feature = "wgpu")]
-impl RowScatter for Cube {
-    fn scatter_add_rows(
-        target: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        values: FloatTensor<Self>,
-    ) -> FloatTensor<Self> {
-        let len = index.shape().dims::<1>()[0];
-        let columns = values.shape().dims::<2>()[1];
-        let mut out = target;
-        for (start, block) in blocks(len, MAX_SCATTER_INDICES) {
-            let index = Self::int_slice(index.clone(), &rows_range(start, block));
-            let index = Self::int_expand(
-                Self::int_reshape(index, [block, 1].into()),
-                [block, columns].into(),
-            );
-            let values = if block == len {
-                values.clone()
-            } else {
-                Self::float_slice(values.clone(), &rows_range(start, block))
-            };
-            out = Self::float_scatter(0, out, index, values, IndexingUpdateOp::Add);
-        }
-        out
-    }
 }
 
 /// The outputs per view, P, of an index of `views` views.
@@ -135,7 +67,7 @@ fn columns<B: Backend>(
         let per_output = KERNEL_VOLUME * views;
         B::int_slice(
             index.clone(),
-            &rows_range(per_output * start, per_output * len),
+            &[range(per_output * start, per_output * len)],
         )
     };
     let cols = B::float_select(rows.clone(), 0, index.clone());
@@ -192,7 +124,7 @@ pub fn backward<B: RowScatter>(grad: FloatTensor<B>, saved: Saved<B>) -> [FloatT
         } else {
             B::float_slice(
                 grad.clone(),
-                &[Slice::full(), rows_range(start, len)[0], Slice::full()],
+                &[Slice::full(), range(start, len), Slice::full()],
             )
         };
         let g = B::float_reshape(g, [views * len, c_out].into());

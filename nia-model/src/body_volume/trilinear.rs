@@ -13,7 +13,8 @@
 //! the backend's read ([`CornerRead`]) and used: `[N, P_s, C] -> [N, M, C]`, differentiable in
 //! the features: row gathers from the features with a zero row appended ([`SiteRows`]) and a
 //! weighted sum over the corners. On flex that read is one weighted gather with its own
-//! backward from corners kept in host memory ([`crate::weighted_rows`]).
+//! backward from corners kept in host memory ([`crate::weighted_rows`]); in training on a GPU
+//! backend it is one operation with its own backward ([`crate::tap_gather`]).
 
 use std::sync::Arc;
 
@@ -27,6 +28,7 @@ use super::BodyVolumeError;
 use crate::blocked_rows::select_rows;
 use crate::device::computes_on_cpu;
 use crate::host_op::runs_on_host;
+use crate::tap_gather::tap_gather;
 use crate::weighted_rows::{weighted_rows, Taps};
 pub use nia_data::geometry::sparse::{TrilinearCorners, CORNERS};
 
@@ -299,6 +301,18 @@ pub fn sample_with(
         return Ok(weighted_rows(rows.rows.clone(), taps).reshape([n, m, c]));
     }
     let block = points_per_block.max(1);
+    if corners.read == CornerRead::ByCorner && rows.rows.is_tracked() && !computes_on_cpu(&device) {
+        // Training on a GPU backend: one operation whose backward zeroes one table-sized
+        // buffer for all corners and blocks, not one per corner and block.
+        let out = tap_gather(
+            rows.rows.clone(),
+            corners.index.clone(),
+            corners.weight.clone(),
+            block,
+        );
+        // [M, N * C] -> [N, M, C]
+        return Ok(out.reshape([m, n, c]).swap_dims(0, 1));
+    }
     let parts = (0..m)
         .step_by(block)
         .map(|start| {

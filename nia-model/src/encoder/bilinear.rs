@@ -19,7 +19,8 @@
 //! see `ibr::surface`). That tensor read runs on every backend and stays the reference; on flex
 //! (training included) a read whose grid carries no gradient is instead one weighted gather
 //! with its own backward ([`crate::weighted_rows`]), its taps computed on the host from the
-//! grid with the same coordinates and weights.
+//! grid with the same coordinates and weights. In training on a GPU backend the four corners'
+//! gathers run as one operation with its own backward ([`crate::tap_gather`]).
 
 use std::sync::Arc;
 
@@ -29,10 +30,12 @@ use rayon::prelude::*;
 
 use super::channels_last::channels_last_rows;
 use crate::blocked_rows::select_rows;
+use crate::device::computes_on_cpu;
 use crate::host_buffer::zeroed;
 use crate::host_op::runs_on_host;
 use crate::readback::host_values_of;
 use crate::shape::ShapeError;
+use crate::tap_gather::tap_gather;
 use crate::weighted_rows::{weighted_rows, Taps};
 
 /// Reads N maps at M points each: [`ViewRows::new`] then [`ViewRows::sample`]. A caller that
@@ -219,9 +222,9 @@ impl ViewRows {
         let (x1, y1) = (x0.clone() + 1.0, y0.clone() + 1.0);
         let x_inside = [within(x0.clone(), w), within(x1.clone(), w)];
         let y_inside = [within(y0.clone(), h), within(y1.clone(), h)];
-        // One corner (x0 + dx, y0 + dy) with its weight: a row gather times the weight, zero
-        // off the map.
-        let corner = |dx: usize, dy: usize, wx: Tensor<2>, wy: Tensor<2>| -> Tensor<2> {
+        // One corner (x0 + dx, y0 + dy): its row `[N M]` (the zero row off the map) and
+        // weight `[N M]` (zero off the map).
+        let corner = |dx: usize, dy: usize, wx: Tensor<2>, wy: Tensor<2>| {
             let xi = [&x0, &x1][dx].clone();
             let yi = [&y0, &y1][dy].clone();
             let inside = x_inside[dx].clone().bool_and(y_inside[dy].clone());
@@ -230,14 +233,36 @@ impl ViewRows {
                 .mask_fill(outside.clone(), zero_row)
                 .int()
                 .reshape([n * m]);
-            let weight = (wy * wx).mask_fill(outside, 0.0).reshape([n * m, 1]);
-            select_rows(self.rows.clone(), index) * weight
+            let weight = (wy * wx).mask_fill(outside, 0.0).reshape([n * m]);
+            (index, weight)
         };
         let (gx, gy) = (fx.clone().neg() + 1.0, fy.clone().neg() + 1.0);
-        let out = corner(0, 0, gx.clone(), gy.clone())
-            + corner(1, 0, fx.clone(), gy)
-            + corner(0, 1, gx, fy.clone())
-            + corner(1, 1, fx, fy);
+        let corners = [
+            corner(0, 0, gx.clone(), gy.clone()),
+            corner(1, 0, fx.clone(), gy),
+            corner(0, 1, gx, fy.clone()),
+            corner(1, 1, fx, fy),
+        ];
+        let training = self.rows.is_tracked() || corners[0].1.is_tracked();
+        let out = if training && !computes_on_cpu(&device) {
+            // Training on a GPU backend: one operation whose backward zeroes one buffer the
+            // size of the maps for all four corners, not one per corner.
+            let (index, weight): (Vec<_>, Vec<_>) = corners.into_iter().unzip();
+            tap_gather(
+                self.rows.clone(),
+                Tensor::stack(index, 0),
+                Tensor::stack(weight, 0),
+                n * m,
+            )
+        } else {
+            corners
+                .into_iter()
+                .map(|(index, weight)| {
+                    select_rows(self.rows.clone(), index) * weight.reshape([n * m, 1])
+                })
+                .reduce(|sum, term| sum + term)
+                .expect("four corners")
+        };
         Ok(out.reshape([n, m, c]))
     }
 }

@@ -1,0 +1,277 @@
+//! Weighted row gathers, the bilinear and trilinear reads, as one operation with a hand-written
+//! backward (burn's backend extension), for training on the GPU backends (and on ndarray, where
+//! the tests compare it with the tensor form). [`crate::weighted_rows`] is the same read on
+//! flex, as a host loop.
+//!
+//! `out[l] = sum_j weight[j, l] * rows[index[j, l]]` for L output rows and K taps (4 corners of
+//! a pixel-feature read, 8 of a body-volume read). The tensor form gathers each tap's rows,
+//! weights them and sums them; under autodiff each tap's gather has its own backward: a zeroed
+//! buffer the size of the whole table, a scatter-add into it, and an addition to the other
+//! taps' buffers. Here the backward zeroes one table-sized buffer and scatter-adds the
+//! weighted output gradient of all K taps of a block of rows into it at once:
+//! - forward, per block of outputs: `out_b = sum_j weight[j, b] * rows[index[j, b]]`;
+//! - backward: `d rows[index[j, l]] += weight[j, l] * d out[l]` as one scatter-add per
+//!   [`MAX_SCATTER_INDICES`] taps, and, where the weights carry a gradient (the surface read's
+//!   bilinear weights depend on the expected depth), `d weight[j, l] = d out[l] . rows[index[j, l]]`
+//!   from the same block's rows gathered again.
+//!
+//! The scatter-adds run as [`crate::row_scatter`] runs them (atomic adds on the GPU backends,
+//! in no fixed order).
+// ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
+#![allow(deprecated)]
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::tensor::{FloatTensor, IntTensor};
+#[cfg(feature = "wgpu")]
+use burn::backend::Cube;
+use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, NdArray, TensorMetadata};
+use burn::prelude::*;
+use burn::tensor::Slice;
+
+use crate::blocked_rows::MAX_SCATTER_INDICES;
+use crate::row_scatter::{blocks, range, RowScatter};
+
+/// The read as a backend operation: ndarray and (with the `wgpu` feature) the cubecl backends,
+/// and autodiff over them with this module's backward.
+#[backend_extension(Autodiff, NdArray, Cube: cfg(feature = "wgpu"))]
+pub trait TapGatherBackend: Backend {
+    /// `rows` `[R, C]`, `index` `[K, L]` Int in `0..R`, `weight` `[K, L]`, read `block`
+    /// outputs at a time -> `[L, C]`.
+    fn tap_gather(
+        rows: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        weight: FloatTensor<Self>,
+        block: usize,
+    ) -> FloatTensor<Self>;
+}
+
+/// Tap `j`'s index `[len]` and weight `[len, 1]` for outputs `start..start + len` of `l`.
+fn tap<B: Backend>(
+    index: &IntTensor<B>,
+    weight: &FloatTensor<B>,
+    j: usize,
+    (start, len): (usize, usize),
+) -> (IntTensor<B>, FloatTensor<B>) {
+    let at = [range(j, 1), range(start, len)];
+    (
+        B::int_reshape(B::int_slice(index.clone(), &at), [len].into()),
+        B::float_reshape(B::float_slice(weight.clone(), &at), [len, 1].into()),
+    )
+}
+
+/// Every tap of outputs `start..start + len`, tap-major: index `[K len]` and weight
+/// `[K, len, 1]`.
+fn taps<B: Backend>(
+    index: &IntTensor<B>,
+    weight: &FloatTensor<B>,
+    (start, len): (usize, usize),
+) -> (IntTensor<B>, FloatTensor<B>) {
+    let [k, l] = index.shape().dims::<2>();
+    let (index, weight) = if len == l {
+        (index.clone(), weight.clone())
+    } else {
+        let at = [Slice::full(), range(start, len)];
+        (
+            B::int_slice(index.clone(), &at),
+            B::float_slice(weight.clone(), &at),
+        )
+    };
+    (
+        B::int_reshape(index, [k * len].into()),
+        B::float_reshape(weight, [k, len, 1].into()),
+    )
+}
+
+/// The forward (module docs): `[L, C]`.
+pub fn forward<B: Backend>(
+    rows: &FloatTensor<B>,
+    index: &IntTensor<B>,
+    weight: &FloatTensor<B>,
+    block: usize,
+) -> FloatTensor<B> {
+    let [k, l] = index.shape().dims::<2>();
+    let c = rows.shape().dims::<2>()[1];
+    if l == 0 || k == 0 {
+        return B::float_zeros([l, c].into(), &rows.device(), rows.dtype().into());
+    }
+    let mut parts: Vec<FloatTensor<B>> = blocks(l, block)
+        .map(|outputs| {
+            (0..k)
+                .map(|j| {
+                    let (index, weight) = tap::<B>(index, weight, j, outputs);
+                    B::float_mul(B::float_select(rows.clone(), 0, index), weight)
+                })
+                .reduce(B::float_add)
+                .expect("at least one tap")
+        })
+        .collect();
+    if parts.len() == 1 {
+        parts.pop().expect("one block")
+    } else {
+        B::float_cat(parts, 0)
+    }
+}
+
+/// The backward (module docs): the gradients of `rows` `[R, C]` (when `wants.0`) and `weight`
+/// `[K, L]` (when `wants.1`) from the output's `grad` `[L, C]`.
+pub fn backward<B: RowScatter>(
+    grad: FloatTensor<B>,
+    saved: &Saved<B>,
+    wants: (bool, bool),
+) -> (Option<FloatTensor<B>>, Option<FloatTensor<B>>) {
+    let Saved {
+        rows,
+        index,
+        weight,
+    } = saved;
+    let [r, c] = rows.shape().dims::<2>();
+    let [k, l] = index.shape().dims::<2>();
+    let mut d_rows = wants
+        .0
+        .then(|| B::float_zeros([r, c].into(), &rows.device(), rows.dtype().into()));
+    let mut d_weight = Vec::new();
+    // One scatter-add (at most MAX_SCATTER_INDICES rows) for all K taps of a block.
+    for outputs @ (start, len) in blocks(l, MAX_SCATTER_INDICES / k.max(1)) {
+        let g = if len == l {
+            grad.clone()
+        } else {
+            B::float_slice(grad.clone(), &[range(start, len)])
+        };
+        let g = B::float_reshape(g, [1, len, c].into());
+        let (index, weight) = taps::<B>(index, weight, outputs);
+        if let Some(acc) = d_rows.take() {
+            let values = B::float_reshape(B::float_mul(g.clone(), weight), [k * len, c].into());
+            d_rows = Some(B::scatter_add_rows(acc, index.clone(), values));
+        }
+        if wants.1 {
+            let read =
+                B::float_reshape(B::float_select(rows.clone(), 0, index), [k, len, c].into());
+            let dot = B::float_sum_dim(B::float_mul(read, g), 2);
+            d_weight.push(B::float_reshape(dot, [k, len].into()));
+        }
+    }
+    let d_weight = match d_weight.len() {
+        0 => None,
+        1 => d_weight.pop(),
+        _ => Some(B::float_cat(d_weight, 1)),
+    };
+    (d_rows, d_weight)
+}
+
+/// What the backward keeps: the inputs.
+#[derive(Debug, Clone)]
+pub struct Saved<B: Backend> {
+    /// `[R, C]`.
+    pub rows: FloatTensor<B>,
+    /// `[K, L]`.
+    pub index: IntTensor<B>,
+    /// `[K, L]`.
+    pub weight: FloatTensor<B>,
+}
+
+impl TapGatherBackend for NdArray {
+    fn tap_gather(
+        rows: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        weight: FloatTensor<Self>,
+        block: usize,
+    ) -> FloatTensor<Self> {
+        forward::<Self>(&rows, &index, &weight, block)
+    }
+}
+
+#[cfg(feature = "wgpu")]
+impl TapGatherBackend for Cube {
+    fn tap_gather(
+        rows: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        weight: FloatTensor<Self>,
+        block: usize,
+    ) -> FloatTensor<Self> {
+        forward::<Self>(&rows, &index, &weight, block)
+    }
+}
+
+/// The backward of [`TapGatherBackend::tap_gather`] under autodiff.
+#[derive(Debug)]
+struct TapGatherBackward;
+
+impl<B: RowScatter> Backward<B, 2> for TapGatherBackward {
+    type State = Saved<B>;
+
+    fn backward(
+        self,
+        ops: Ops<Self::State, 2>,
+        grads: &mut Gradients,
+        _checkpointer: &mut Checkpointer,
+    ) {
+        let grad = grads.consume::<B>(&ops.node);
+        let [rows_node, weight_node] = ops.parents;
+        let wants = (rows_node.is_some(), weight_node.is_some());
+        let (d_rows, d_weight) = backward::<B>(grad, &ops.state, wants);
+        if let (Some(node), Some(g)) = (rows_node, d_rows) {
+            grads.register::<B>(node.id, g);
+        }
+        if let (Some(node), Some(g)) = (weight_node, d_weight) {
+            grads.register::<B>(node.id, g);
+        }
+    }
+}
+
+impl<B: RowScatter, C: CheckpointStrategy> TapGatherBackend for Autodiff<B, C> {
+    fn tap_gather(
+        rows: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        weight: FloatTensor<Self>,
+        block: usize,
+    ) -> FloatTensor<Self> {
+        match TapGatherBackward
+            .prepare::<C>([rows.node(), weight.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let rows = rows.into_primitive();
+                let weight = weight.into_primitive();
+                let out = forward::<B>(&rows, &index, &weight, block);
+                prep.finish(
+                    Saved {
+                        rows,
+                        index,
+                        weight,
+                    },
+                    out,
+                )
+            }
+            OpsKind::UnTracked(prep) => prep.finish(forward::<B>(
+                &rows.into_primitive(),
+                &index,
+                &weight.into_primitive(),
+                block,
+            )),
+        }
+    }
+}
+
+/// The read by the operation with the one-buffer backward (module docs), `block` outputs at a
+/// time in the forward. The device must be ndarray or (with the `wgpu` feature) a cubecl one,
+/// with or without autodiff; `rows` and `weight` may each carry a gradient or not.
+///
+/// # Shapes
+/// - `rows`: `[R, C]`; `index`: `[K, L]` Int in `0..R`; `weight`: `[K, L]`; output `[L, C]`
+pub fn tap_gather(
+    rows: Tensor<2>,
+    index: Tensor<2, Int>,
+    weight: Tensor<2>,
+    block: usize,
+) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as TapGatherBackend>::tap_gather(
+        rows.into_dispatch(),
+        index.into_dispatch(),
+        weight.into_dispatch(),
+        block,
+    ))
+}
