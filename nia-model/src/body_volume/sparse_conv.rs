@@ -152,8 +152,8 @@ impl RulebookTensors {
     }
 
     /// Runs `Im2col` in blocks of `outputs` output sites (at least 1) instead of the
-    /// default block ([`GATHER_CHUNK_BYTES`], or [`GPU_IM2COL_BLOCK_BYTES`] on a GPU backend
-    /// when no backward runs through it); the result is the same (for tests and tuning).
+    /// default block ([`GATHER_CHUNK_BYTES`], or [`GPU_IM2COL_BLOCK_BYTES`] on a GPU backend);
+    /// the result is the same (for tests and tuning).
     pub fn with_outputs_per_chunk(mut self, outputs: usize) -> Self {
         self.outputs_per_chunk = Some(outputs.max(1));
         self
@@ -176,18 +176,19 @@ impl RulebookTensors {
 /// 1-4 MiB are as fast). Results do not depend on it.
 pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
 
-/// Size of one gathered block of `Im2col` columns on a GPU backend when no backward runs
-/// through it, bytes: fewer blocks, fewer kernel launches (on lavapipe the paper forward's
-/// launches at 256 rays fell from 1,220 to 761). Under the 128 MiB storage-buffer binding
-/// range of Mesa's lavapipe (see [`super::trilinear::BY_CORNER_BLOCK_BYTES`]). Training keeps
-/// [`GATHER_CHUNK_BYTES`]: its tracked gathers run in blocks of
-/// [`crate::blocked_rows::MAX_SCATTER_INDICES`] rows anyway, and on lavapipe 64 MiB blocks made
-/// the training step slower (docs/speed.md, "Kernel launches").
+/// Size of one gathered block of `Im2col` columns on a GPU backend, bytes: fewer blocks, fewer
+/// kernel launches (on lavapipe the paper forward's launches at 256 rays fell from 1,220 to
+/// 761). Under the 128 MiB storage-buffer binding range of Mesa's lavapipe (see
+/// [`super::trilinear::BY_CORNER_BLOCK_BYTES`]). Training used [`GATHER_CHUNK_BYTES`] while
+/// its tracked gathers had a backward each (64 MiB blocks were slower then, docs/speed.md,
+/// "Kernel launches"); it now runs [`super::im2col_op`], whose backward gathers each block
+/// again and scatter-adds in blocks of [`crate::blocked_rows::MAX_SCATTER_INDICES`] rows
+/// whatever the block's size.
 pub const GPU_IM2COL_BLOCK_BYTES: usize = 64 << 20;
 
 /// The `Im2col` block size for gathering from `rows` (module docs).
 fn im2col_block_bytes(rows: &Tensor<2>) -> usize {
-    if computes_on_cpu(&rows.device()) || rows.is_tracked() {
+    if computes_on_cpu(&rows.device()) {
         GATHER_CHUNK_BYTES
     } else {
         GPU_IM2COL_BLOCK_BYTES
