@@ -1,6 +1,8 @@
 //! `ReLU(SiteNorm(x))` as one host operation with its own backward
 //! (`nia_model::body_volume::site_norm_op`, on flex) against the tensor form (ndarray): values
-//! and the gradients of x, gamma and beta, the hard cases and the thread count.
+//! and the gradients of x, gamma and beta, the hard cases and the thread count; and the same
+//! operation from the backend's primitives (`site_norm_device`, what training on a GPU runs) on
+//! ndarray and on wgpu.
 
 mod common;
 
@@ -8,6 +10,7 @@ use burn::module::Param;
 use burn::prelude::*;
 use common::{relative_gap, tensor, values};
 use nia_data::rng::Rng;
+use nia_model::body_volume::site_norm_op::site_norm_relu;
 use nia_model::body_volume::{SiteNorm, SiteNormConfig};
 
 /// A norm with scale and shift drawn from `seed`, on `device`.
@@ -21,14 +24,24 @@ fn norm(c: usize, seed: u64, device: &Device) -> SiteNorm {
     norm
 }
 
-/// `ReLU(SiteNorm(x))` and the gradients of `sum(y * R)` in x, gamma and beta.
-fn run(device: &Device, x: &[f32], [n, p, c]: [usize; 3]) -> Vec<Vec<f32>> {
+/// `ReLU(SiteNorm(x))` and the gradients of `sum(y * R)` in x, gamma and beta, by
+/// `SiteNorm::forward_relu` (the backend's own choice).
+fn run(device: &Device, x: &[f32], shape: [usize; 3]) -> Vec<Vec<f32>> {
+    run_with(device, x, shape, false)
+}
+
+/// [`run`], or with `by_op` by the operation whatever the backend.
+fn run_with(device: &Device, x: &[f32], [n, p, c]: [usize; 3], by_op: bool) -> Vec<Vec<f32>> {
     let ad = device.clone().autodiff();
     let norm = norm(c, 3, &ad);
     let x = tensor(x.to_vec(), [n, p, c], &ad).require_grad();
     let mut rng = Rng::new(4);
     let r: Vec<f32> = (0..n * p * c).map(|_| rng.range(-1.0, 1.0)).collect();
-    let y = norm.forward_relu(x.clone()).unwrap();
+    let y = if by_op {
+        site_norm_relu(x.clone(), norm.gamma.val(), norm.beta.val(), 1e-3)
+    } else {
+        norm.forward_relu(x.clone()).unwrap()
+    };
     let grads = (y.clone() * tensor(r, [n, p, c], &ad)).sum().backward();
     vec![
         values(y),
@@ -122,4 +135,46 @@ fn host_site_norm_is_the_same_whatever_the_number_of_threads() {
         let got = pool.install(|| run(&Device::flex(), &x, shape));
         assert_eq!(got, reference, "{threads} threads");
     }
+}
+
+/// Got against want within `tol` (relative to the largest), all finite.
+fn assert_close(got: &[Vec<f32>], want: &[Vec<f32>], tol: f32, case: &str) {
+    for ((what, g), w) in WHAT.iter().zip(got).zip(want) {
+        assert!(g.iter().all(|v| v.is_finite()), "{case}: {what} not finite");
+        let gap = relative_gap(g, w);
+        assert!(gap <= tol, "{case}: {what} gap {gap}");
+    }
+}
+
+#[test]
+#[allow(deprecated)] // Device::ndarray(): the reference CPU backend the project keeps
+fn device_site_norm_matches_the_tensor_form_on_ndarray() {
+    // Several views, one site (variance 0), a constant channel everywhere (x_hat 0, not 0/0).
+    let constant = vec![7.5f32; 2 * 40 * 3];
+    for (shape, x) in [
+        ([3, 50, 4], features([3, 50, 4], 0.0, 7)),
+        ([2, 1300, 8], features([2, 1300, 8], 0.0, 8)),
+        ([3, 1, 5], features([3, 1, 5], 0.0, 9)),
+        ([2, 40, 3], constant),
+    ] {
+        let got = run_with(&Device::ndarray(), &x, shape, true);
+        let want = run_with(&Device::ndarray(), &x, shape, false);
+        assert_close(&got, &want, 2e-6, &format!("{shape:?}"));
+        assert!(got[0].iter().any(|&v| v == 0.0), "{shape:?}: no value cut");
+    }
+}
+
+#[cfg(feature = "wgpu")]
+#[test]
+#[allow(deprecated)] // Device::ndarray(): the reference CPU backend the project keeps
+fn training_on_wgpu_runs_the_operation_and_matches_ndarray() {
+    let Some(wgpu) = common::wgpu_device() else {
+        return;
+    };
+    let shape = [3, 300, 8];
+    let x = features(shape, 0.5, 10);
+    // forward_relu on wgpu in training takes the operation; on ndarray the tensor form.
+    let got = run(&wgpu, &x, shape);
+    let want = run(&Device::ndarray(), &x, shape);
+    assert_close(&got, &want, 1e-5, "wgpu");
 }

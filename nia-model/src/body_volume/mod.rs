@@ -21,6 +21,7 @@ pub mod host_read;
 pub mod im2col_op;
 pub mod network;
 pub mod site_norm;
+pub mod site_norm_device;
 pub mod site_norm_op;
 pub mod sparse_conv;
 pub mod trilinear;

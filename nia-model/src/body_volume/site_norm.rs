@@ -15,6 +15,7 @@ use burn::tensor::activation::relu;
 
 use super::site_norm_op::site_norm_relu;
 use super::BodyVolumeError;
+use crate::device::computes_on_cpu;
 use crate::host_op::runs_on_host;
 
 /// Configuration of [`SiteNorm`].
@@ -62,7 +63,8 @@ impl SiteNorm {
     }
 
     /// `ReLU(self.forward(features))`; on flex one host operation with its own backward
-    /// ([`super::site_norm_op`]).
+    /// ([`super::site_norm_op`]), and in training on a GPU backend the same operation from the
+    /// backend's primitives ([`super::site_norm_device`]).
     ///
     /// # Shapes
     /// - features: `[N, P, C]`
@@ -72,7 +74,10 @@ impl SiteNorm {
         if features.dims()[1] == 0 {
             return Ok(features);
         }
-        if runs_on_host(&features.device()) {
+        let device = features.device();
+        let training_on_gpu =
+            !computes_on_cpu(&device) && (features.is_tracked() || self.gamma.val().is_tracked());
+        if runs_on_host(&device) || training_on_gpu {
             return Ok(site_norm_relu(
                 features,
                 self.gamma.val(),

@@ -1,5 +1,6 @@
 //! [`super::SiteNorm`] and the ReLU after it as one host operation with a hand-written backward
-//! (burn's backend extension): on flex, with and without autodiff.
+//! (burn's backend extension): on flex, with and without autodiff. The same operation on the
+//! device backends (training on a GPU) is [`super::site_norm_device`].
 //!
 //! Per view n and channel c over the P sites: `x_hat = (x - mean) / sqrt(var + eps)` (biased
 //! variance, two passes), `y = ReLU(gamma x_hat + beta)`. The tensor form is a dozen element-wise
@@ -12,6 +13,8 @@
 //! The sums over sites run in fixed blocks of [`ROWS_PER_BLOCK`] rows on rayon's threads, in
 //! f64, the blocks added in order: the same bits for any number of threads. Equal to the tensor
 //! form within float rounding (`nia-model/tests/body_volume.rs`).
+// ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
+#![allow(deprecated)]
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -28,9 +31,9 @@ use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 /// Rows (sites) of a block of the sums over sites.
 pub const ROWS_PER_BLOCK: usize = 512;
 
-/// The norm and ReLU as a backend operation: flex, and autodiff over flex with this module's
-/// backward.
-#[backend_extension(Autodiff, Flex)]
+/// The norm and ReLU as a backend operation: flex, ndarray and (with the `wgpu` feature) the
+/// cubecl backends, and autodiff over them with this module's backward.
+#[backend_extension(Autodiff, Flex, NdArray, Cube: cfg(feature = "wgpu"))]
 pub trait SiteNormBackend: Backend {
     /// `x` `[N, P, C]`, `gamma` and `beta` `[C]` -> `ReLU(gamma x_hat + beta)` `[N, P, C]`.
     fn site_norm_relu(
@@ -339,8 +342,8 @@ impl<B: Backend + SiteNormKernels, C: CheckpointStrategy> SiteNormBackend for Au
     }
 }
 
-/// `ReLU(SiteNorm(x))` by the host operation (the device must be flex, with or without
-/// autodiff: [`crate::host_op::runs_on_host`]).
+/// `ReLU(SiteNorm(x))` by the operation: on flex the host's, on ndarray or a cubecl backend
+/// [`super::site_norm_device`]'s (with or without autodiff).
 ///
 /// # Shapes
 /// - `x`: `[N, P, C]`; `gamma`, `beta`: `[C]`; output `[N, P, C]`
