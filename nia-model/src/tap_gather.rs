@@ -172,28 +172,25 @@ pub struct Saved<B: Backend> {
     pub weight: FloatTensor<B>,
 }
 
-impl TapGatherBackend for NdArray {
-    fn tap_gather(
-        rows: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        weight: FloatTensor<Self>,
-        block: usize,
-    ) -> FloatTensor<Self> {
-        forward::<Self>(&rows, &index, &weight, block)
-    }
+/// The operation on a device backend: [`forward`].
+macro_rules! on_device_backend {
+    ($backend:ty) => {
+        impl TapGatherBackend for $backend {
+            fn tap_gather(
+                rows: FloatTensor<Self>,
+                index: IntTensor<Self>,
+                weight: FloatTensor<Self>,
+                block: usize,
+            ) -> FloatTensor<Self> {
+                forward::<Self>(&rows, &index, &weight, block)
+            }
+        }
+    };
 }
 
+on_device_backend!(NdArray);
 #[cfg(feature = "wgpu")]
-impl TapGatherBackend for Cube {
-    fn tap_gather(
-        rows: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        weight: FloatTensor<Self>,
-        block: usize,
-    ) -> FloatTensor<Self> {
-        forward::<Self>(&rows, &index, &weight, block)
-    }
-}
+on_device_backend!(Cube);
 
 /// The backward of [`TapGatherBackend::tap_gather`] under autodiff.
 #[derive(Debug)]

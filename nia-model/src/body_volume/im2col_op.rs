@@ -159,30 +159,26 @@ pub struct Saved<B: Backend> {
     pub chunk: usize,
 }
 
-impl Im2colBackend for NdArray {
-    fn im2col_product(
-        rows: FloatTensor<Self>,
-        weight: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        views: usize,
-        chunk: usize,
-    ) -> FloatTensor<Self> {
-        forward::<Self>(&rows, &weight, &index, views, chunk)
-    }
+/// The operation on a device backend: [`forward`].
+macro_rules! on_device_backend {
+    ($backend:ty) => {
+        impl Im2colBackend for $backend {
+            fn im2col_product(
+                rows: FloatTensor<Self>,
+                weight: FloatTensor<Self>,
+                index: IntTensor<Self>,
+                views: usize,
+                chunk: usize,
+            ) -> FloatTensor<Self> {
+                forward::<Self>(&rows, &weight, &index, views, chunk)
+            }
+        }
+    };
 }
 
+on_device_backend!(NdArray);
 #[cfg(feature = "wgpu")]
-impl Im2colBackend for Cube {
-    fn im2col_product(
-        rows: FloatTensor<Self>,
-        weight: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        views: usize,
-        chunk: usize,
-    ) -> FloatTensor<Self> {
-        forward::<Self>(&rows, &weight, &index, views, chunk)
-    }
-}
+on_device_backend!(Cube);
 
 /// The backward of [`Im2colBackend::im2col_product`] under autodiff.
 #[derive(Debug)]

@@ -82,62 +82,40 @@ pub fn backward<B: Backend>(
     [B::float_mul(centred, scale), d_gamma, d_beta]
 }
 
-impl SiteNormKernels for NdArray {
-    fn site_norm_forward(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> Saved<FloatTensor<Self>> {
-        forward::<Self>(x, gamma, beta, epsilon)
-    }
+/// The operation on a device backend: [`forward`] and [`backward`].
+macro_rules! on_device_backend {
+    ($backend:ty) => {
+        impl SiteNormKernels for $backend {
+            fn site_norm_forward(
+                x: FloatTensor<Self>,
+                gamma: FloatTensor<Self>,
+                beta: FloatTensor<Self>,
+                epsilon: f64,
+            ) -> Saved<FloatTensor<Self>> {
+                forward::<Self>(x, gamma, beta, epsilon)
+            }
 
-    fn site_norm_backward(
-        grad: FloatTensor<Self>,
-        saved: Saved<FloatTensor<Self>>,
-    ) -> [FloatTensor<Self>; 3] {
-        backward::<Self>(grad, saved)
-    }
+            fn site_norm_backward(
+                grad: FloatTensor<Self>,
+                saved: Saved<FloatTensor<Self>>,
+            ) -> [FloatTensor<Self>; 3] {
+                backward::<Self>(grad, saved)
+            }
+        }
+
+        impl SiteNormBackend for $backend {
+            fn site_norm_relu(
+                x: FloatTensor<Self>,
+                gamma: FloatTensor<Self>,
+                beta: FloatTensor<Self>,
+                epsilon: f64,
+            ) -> FloatTensor<Self> {
+                forward::<Self>(x, gamma, beta, epsilon).y
+            }
+        }
+    };
 }
 
-impl SiteNormBackend for NdArray {
-    fn site_norm_relu(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> FloatTensor<Self> {
-        forward::<Self>(x, gamma, beta, epsilon).y
-    }
-}
-
+on_device_backend!(NdArray);
 #[cfg(feature = "wgpu")]
-impl SiteNormKernels for Cube {
-    fn site_norm_forward(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> Saved<FloatTensor<Self>> {
-        forward::<Self>(x, gamma, beta, epsilon)
-    }
-
-    fn site_norm_backward(
-        grad: FloatTensor<Self>,
-        saved: Saved<FloatTensor<Self>>,
-    ) -> [FloatTensor<Self>; 3] {
-        backward::<Self>(grad, saved)
-    }
-}
-
-#[cfg(feature = "wgpu")]
-impl SiteNormBackend for Cube {
-    fn site_norm_relu(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> FloatTensor<Self> {
-        forward::<Self>(x, gamma, beta, epsilon).y
-    }
-}
+on_device_backend!(Cube);
