@@ -158,8 +158,8 @@ run() {
 
   # Each step has its own time limit, so a slow one cannot keep the rest from running.
   local steps=" ${GPU_CHECK_STEPS:-probe paper 4k tiny torch render flex} "
-  # Not in the default list: train (the training step alone), profile (the paper forward
-  # under cubecl's profiler: compilations and GPU time per kernel family) and autotune (the
+  # Not in the default list: train (the training step alone), profile (the paper forward and
+  # training step under cubecl's profiler: compilations and GPU time per kernel family) and autotune (the
   # first forward with CUBECL_AUTOTUNE_LEVEL=minimal against the default, fresh caches) and
   # spirv (the paper setting with the SPIR-V build, against `paper`'s WGSL build).
   # Every step check first packs what the steps before it wrote, so a run stopped at the device
@@ -236,6 +236,15 @@ run() {
       > "$out/nia_profile.txt" 2> "$out/nia_profile.err" || echo "profile failed: $?"
     "$python" scripts/cubecl_profile_summary.py "$out/cubecl_forward.log" | tee "$out/profile.md" || true
     gzip -f "$out/cubecl_forward.log" || true
+    # The training step's GPU time by kernel family: the last of three steps (the first one
+    # compiles and autotunes), counted from its encoder's max-pool on.
+    echo "== cubecl profile of the paper training step (GPU time per kernel, last of 3 steps) =="
+    CUBECL_DEBUG_LOG="$out/cubecl_train.log" CUBECL_DEBUG_OPTION=profile-medium \
+      timeout $limit $bin bench --backend wgpu "${dims[@]}" --reps 2 --train-only \
+      > "$out/nia_profile_train.txt" 2> "$out/nia_profile_train.err" || echo "profile failed: $?"
+    "$python" scripts/cubecl_profile_summary.py "$out/cubecl_train.log" --top 25 \
+      --after Pool2dDirect --nth 3 | tee "$out/profile_train.md" || true
+    gzip -f "$out/cubecl_train.log" || true
   fi
 
   # The first forward by cubecl's autotune level, each run in a fresh HOME (cubecl's autotune

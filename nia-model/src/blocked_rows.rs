@@ -17,26 +17,49 @@
 //!   the row index broadcast over the columns;
 //! - [`scatter_add_rows`] is a `scatter` with `Add`;
 //!
-//! each in blocks of at most [`MAX_SCATTER_INDICES`] rows (which bounds the broadcast index
-//! and keeps a device without float atomics, where burn falls back to a serial kernel, under
-//! the 65,536 at which lavapipe's serial kernel failed). Atomic adds land in no fixed order,
+//! each in blocks of at most [`MAX_SCATTER_INDICES`] rows on a device without float atomics,
+//! where burn falls back to a serial kernel (under the 65,536 at which lavapipe's serial kernel
+//! failed), and of [`ATOMIC_SCATTER_VALUES`] values where the device adds floats atomically
+//! ([`crate::device::adds_floats_atomically`]; which bounds the broadcast index). Atomic adds land in no fixed order,
 //! so on a GPU these sums may differ in the last bits from run to run. On the CPU backends,
 //! and for gathers no backward runs through, each stays one `select` / `select_assign`.
 
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
-use crate::device::computes_on_cpu;
+use crate::device::{adds_floats_atomically, computes_on_cpu};
 
-/// The most rows one gather or scatter-add gets on a GPU backend (half of the 65,536 from
-/// which lavapipe's serial scatter-add went wrong).
+/// The most rows one gather or scatter-add gets on a GPU backend without float atomics (half
+/// of the 65,536 from which lavapipe's serial scatter-add went wrong).
 pub const MAX_SCATTER_INDICES: usize = 32_768;
 
-/// `(start, len)` of the blocks of `len` indices.
-fn blocks(len: usize) -> impl Iterator<Item = (usize, usize)> {
+/// The most values (rows x columns) one gather or scatter-add gets on a device that adds floats
+/// atomically: 64 MiB of `f32`, so that an `Im2col` block's column gradient
+/// ([`crate::body_volume::sparse_conv::GPU_IM2COL_BLOCK_BYTES`]) is one kernel, and under the
+/// 128 MiB storage-buffer binding of Mesa's software Vulkan even if the broadcast index were
+/// laid out in memory.
+pub const ATOMIC_SCATTER_VALUES: usize = 1 << 24;
+
+/// Rows per gather or scatter-add of `columns`-wide rows on a GPU backend:
+/// [`MAX_SCATTER_INDICES`], or where the device adds floats atomically the power of two at
+/// most [`ATOMIC_SCATTER_VALUES`] / `columns` when that is more. Powers of two keep the
+/// blocks' slices on the device's alignment (views, not copies), also when a caller divides
+/// them by its 4 or 8 taps.
+pub fn scatter_block_rows(atomic: bool, columns: usize) -> usize {
+    if atomic {
+        let rows = ATOMIC_SCATTER_VALUES / columns.max(1);
+        let power_of_two = 1usize << (usize::BITS - 1 - rows.max(1).leading_zeros());
+        power_of_two.max(MAX_SCATTER_INDICES)
+    } else {
+        MAX_SCATTER_INDICES
+    }
+}
+
+/// `(start, len)` of the blocks of `step` among `len` indices.
+fn blocks(len: usize, step: usize) -> impl Iterator<Item = (usize, usize)> {
     (0..len)
-        .step_by(MAX_SCATTER_INDICES)
-        .map(move |start| (start, MAX_SCATTER_INDICES.min(len - start)))
+        .step_by(step)
+        .map(move |start| (start, step.min(len - start)))
 }
 
 /// `[L]` row indices as the `[L, C]` element indices of `gather` / `scatter` along dim 0.
@@ -56,7 +79,8 @@ pub fn select_rows(rows: Tensor<2>, index: Tensor<1, Int>) -> Tensor<2> {
         return rows.select(0, index);
     }
     let columns = rows.dims()[1];
-    let parts: Vec<Tensor<2>> = blocks(len)
+    let step = scatter_block_rows(adds_floats_atomically(&rows.device()), columns);
+    let parts: Vec<Tensor<2>> = blocks(len, step)
         .map(|(start, block)| {
             let index = per_element(index.clone().narrow(0, start, block), columns);
             rows.clone().gather(0, index)
@@ -76,8 +100,9 @@ pub fn scatter_add_rows(target: Tensor<2>, index: Tensor<1, Int>, values: Tensor
     }
     let [len] = index.dims();
     let columns = target.dims()[1];
+    let step = scatter_block_rows(adds_floats_atomically(&target.device()), columns);
     let mut out = target;
-    for (start, block) in blocks(len) {
+    for (start, block) in blocks(len, step) {
         out = out.scatter(
             0,
             per_element(index.clone().narrow(0, start, block), columns),

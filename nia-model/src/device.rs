@@ -243,6 +243,45 @@ pub fn is_host(device: &Device) -> bool {
     !device.is_autodiff() && computes_on_cpu(device)
 }
 
+/// Whether `device` is a GPU backend whose kernels add `f32` atomically in global memory. burn's
+/// scatter-add is then one kernel with a thread per value, of any length; without, it is one
+/// serial loop per column, which Mesa's software Vulkan got wrong from 65,536 rows (so
+/// [`crate::blocked_rows`] and [`crate::row_scatter`] cut it into blocks there). False on the
+/// CPU backends and on cubecl's CPU runtime.
+pub fn adds_floats_atomically(device: &Device) -> bool {
+    #[cfg(feature = "wgpu")]
+    {
+        use burn_dispatch::DispatchDevice;
+        let cube = |d: &DispatchDevice| match d {
+            DispatchDevice::Cube(d) => cube_adds_floats_atomically(d),
+            _ => false,
+        };
+        match device.as_dispatch() {
+            DispatchDevice::Autodiff(d) => cube(&d.clone().inner()),
+            d => cube(d),
+        }
+    }
+    #[cfg(not(feature = "wgpu"))]
+    {
+        let _ = device;
+        false
+    }
+}
+
+/// [`adds_floats_atomically`] for a cubecl device: its client's atomic `f32` usage includes
+/// `Add`, and it is not cubecl's CPU runtime (where burn keeps the serial kernel).
+#[cfg(feature = "wgpu")]
+pub fn cube_adds_floats_atomically(device: &burn_cubecl::CubeDevice) -> bool {
+    use burn_cubecl::cubecl::features::AtomicUsage;
+    use burn_cubecl::cubecl::ir::{ElemType, FloatKind, Type};
+    let client = device.client();
+    let properties = client.properties();
+    properties.hardware.num_cpu_cores.is_none()
+        && properties
+            .atomic_type_usage(Type::atomic(ElemType::Float(FloatKind::F32)))
+            .contains(AtomicUsage::Add)
+}
+
 /// Whether `device` computes on the CPU (flex or ndarray), with or without autodiff; the others
 /// are GPU backends, where the renderers pad their network calls to shape buckets
 /// (`renderer::shape_buckets`) and gather and scatter-add through `blocked_rows`.

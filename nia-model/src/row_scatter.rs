@@ -2,8 +2,10 @@
 //! of the GPU training operations ([`crate::body_volume::im2col_op`], [`crate::tap_gather`]).
 //!
 //! As [`crate::blocked_rows`] runs it at the tensor level: an element-wise `scatter` with `Add`
-//! in blocks of at most [`MAX_SCATTER_INDICES`] rows on the cubecl backends (atomic adds, no
-//! fixed order), one `select_assign` on ndarray (the tests' reference).
+//! in blocks of [`RowScatter::scatter_rows`] rows on the cubecl backends (atomic adds, no fixed
+//! order; [`MAX_SCATTER_INDICES`] rows where the device has no float atomics), one
+//! `select_assign` on ndarray (the tests' reference, whose callers block their rows as a device
+//! without float atomics would).
 // ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
 #![allow(deprecated)]
 
@@ -15,6 +17,8 @@ use burn::backend::{Backend, NdArray, TensorMetadata};
 use burn::tensor::{IndexingUpdateOp, Slice};
 
 use crate::blocked_rows::MAX_SCATTER_INDICES;
+#[cfg(feature = "wgpu")]
+use crate::{blocked_rows::scatter_block_rows, device::cube_adds_floats_atomically};
 
 /// `(start, len)` of the blocks of `step` (at least 1) among `k`.
 pub fn blocks(k: usize, step: usize) -> impl Iterator<Item = (usize, usize)> {
@@ -31,6 +35,12 @@ pub fn range(start: usize, len: usize) -> Slice {
 
 /// The scatter-add of gradient rows, per backend (module docs).
 pub trait RowScatter: Backend {
+    /// The most rows of `columns` values a caller should hand one [`Self::scatter_add_rows`]
+    /// on `device` (it bounds the callers' intermediate buffers too):
+    /// [`crate::blocked_rows::scatter_block_rows`] on the cubecl backends,
+    /// [`MAX_SCATTER_INDICES`] on ndarray.
+    fn scatter_rows(device: &Self::Device, columns: usize) -> usize;
+
     /// `target` `[R, C]` with every row of `values` `[L, C]` added at the row `index` `[L]`
     /// names.
     fn scatter_add_rows(
@@ -41,6 +51,10 @@ pub trait RowScatter: Backend {
 }
 
 impl RowScatter for NdArray {
+    fn scatter_rows(_device: &Self::Device, _columns: usize) -> usize {
+        MAX_SCATTER_INDICES
+    }
+
     fn scatter_add_rows(
         target: FloatTensor<Self>,
         index: IntTensor<Self>,
@@ -52,6 +66,10 @@ impl RowScatter for NdArray {
 
 #[cfg(feature = "wgpu")]
 impl RowScatter for Cube {
+    fn scatter_rows(device: &Self::Device, columns: usize) -> usize {
+        scatter_block_rows(cube_adds_floats_atomically(device), columns)
+    }
+
     fn scatter_add_rows(
         target: FloatTensor<Self>,
         index: IntTensor<Self>,
@@ -59,8 +77,9 @@ impl RowScatter for Cube {
     ) -> FloatTensor<Self> {
         let len = index.shape().dims::<1>()[0];
         let columns = values.shape().dims::<2>()[1];
+        let step = Self::scatter_rows(&values.device(), columns);
         let mut out = target;
-        for (start, block) in blocks(len, MAX_SCATTER_INDICES) {
+        for (start, block) in blocks(len, step) {
             let index = Self::int_slice(index.clone(), &[range(start, block)]);
             let index = Self::int_expand(
                 Self::int_reshape(index, [block, 1].into()),

@@ -11,7 +11,8 @@
 //! weighted output gradient of all K taps of a block of rows into it at once:
 //! - forward, per block of outputs: `out_b = sum_j weight[j, b] * rows[index[j, b]]`;
 //! - backward: `d rows[index[j, l]] += weight[j, l] * d out[l]` as one scatter-add per
-//!   [`MAX_SCATTER_INDICES`] taps, and, where the weights carry a gradient (the surface read's
+//!   [`RowScatter::scatter_rows`] taps (64 MiB of values where the device adds floats
+//!   atomically, else [`crate::blocked_rows::MAX_SCATTER_INDICES`]), and, where the weights carry a gradient (the surface read's
 //!   bilinear weights depend on the expected depth), `d weight[j, l] = d out[l] . rows[index[j, l]]`
 //!   from the same block's rows gathered again.
 //!
@@ -31,7 +32,6 @@ use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, NdArray, Ten
 use burn::prelude::*;
 use burn::tensor::Slice;
 
-use crate::blocked_rows::MAX_SCATTER_INDICES;
 use crate::row_scatter::{blocks, range, RowScatter};
 
 /// The read as a backend operation: ndarray and (with the `wgpu` feature) the cubecl backends,
@@ -133,8 +133,9 @@ pub fn backward<B: RowScatter>(
         .0
         .then(|| B::float_zeros([r, c].into(), &rows.device(), rows.dtype().into()));
     let mut d_weight = Vec::new();
-    // One scatter-add (at most MAX_SCATTER_INDICES rows) for all K taps of a block.
-    for outputs @ (start, len) in blocks(l, MAX_SCATTER_INDICES / k.max(1)) {
+    // One scatter-add for all K taps of a block.
+    let step = B::scatter_rows(&rows.device(), c) / k.max(1);
+    for outputs @ (start, len) in blocks(l, step) {
         let g = if len == l {
             grad.clone()
         } else {

@@ -3,14 +3,18 @@
 //! Row gathers and scatter-adds of many indices ([`nia_model::blocked_rows`]): the same as one
 //! `select` / `select_assign` on the CPU backends, and with more than 65,536 indices (where
 //! burn-cubecl's `select_assign` went wrong on lavapipe) the same numbers, and the same
-//! gradients, on wgpu as on ndarray.
+//! gradients, on wgpu as on ndarray: in blocks of 32,768 rows on a device without float
+//! atomics, in one kernel where the device adds floats atomically (lavapipe does).
 
 mod common;
 
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 use nia_data::rng::Rng;
-use nia_model::blocked_rows::{scatter_add_rows, select_rows, MAX_SCATTER_INDICES};
+use nia_model::blocked_rows::{
+    scatter_add_rows, scatter_block_rows, select_rows, ATOMIC_SCATTER_VALUES, MAX_SCATTER_INDICES,
+};
+use nia_model::device::adds_floats_atomically;
 
 const ROWS: usize = 500;
 const C: usize = 8;
@@ -93,6 +97,28 @@ fn on_the_cpu_the_helpers_are_the_plain_ops() {
     assert_eq!(scattered, plain);
 }
 
+/// The rows per block: 32,768 without float atomics; with them at most 64 MiB of values, a
+/// power of two, never fewer than 32,768 rows. The CPU backends never take the atomic path.
+#[test]
+fn blocks_are_32768_rows_or_64_mib_of_values_with_atomics() {
+    for columns in [1, 8, 64, 512, 4096] {
+        assert_eq!(scatter_block_rows(false, columns), MAX_SCATTER_INDICES);
+    }
+    assert_eq!(ATOMIC_SCATTER_VALUES * 4, 64 << 20);
+    assert_eq!(scatter_block_rows(true, 16), (64 << 20) / (16 * 4));
+    assert_eq!(scatter_block_rows(true, 1), ATOMIC_SCATTER_VALUES);
+    // A power of two, so that blocks start on the device's alignment: 2^24 / 48 = 349,525.
+    assert_eq!(scatter_block_rows(true, 48), 1 << 18);
+    assert_eq!(scatter_block_rows(true, 3), 1 << 22);
+    // Very wide rows: the floor of 32,768 rows.
+    assert_eq!(scatter_block_rows(true, 4096), MAX_SCATTER_INDICES);
+    assert_eq!(scatter_block_rows(true, 0), ATOMIC_SCATTER_VALUES);
+    for device in [Device::ndarray(), Device::flex()] {
+        assert!(!adds_floats_atomically(&device));
+        assert!(!adds_floats_atomically(&device.autodiff()));
+    }
+}
+
 /// On wgpu, past 65,536 indices: the gather, its gradient and the scatter-add match ndarray's.
 #[cfg(feature = "wgpu")]
 #[test]
@@ -100,6 +126,15 @@ fn on_wgpu_many_indices_gather_and_scatter_like_ndarray() {
     let Some(gpu) = common::wgpu_device() else {
         return;
     };
+    // Lavapipe adds floats atomically: there this is one kernel of all LEN rows.
+    eprintln!(
+        "wgpu device adds floats atomically: {}",
+        adds_floats_atomically(&gpu)
+    );
+    assert_eq!(
+        adds_floats_atomically(&gpu),
+        adds_floats_atomically(&gpu.clone().autodiff())
+    );
     let (f_cpu, g_cpu, s_cpu) = run(&Device::ndarray());
     let (f_gpu, g_gpu, s_gpu) = run(&gpu);
     assert_eq!(f_gpu, f_cpu, "gathered rows");

@@ -182,8 +182,9 @@ pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
 /// [`super::trilinear::BY_CORNER_BLOCK_BYTES`]). Training used [`GATHER_CHUNK_BYTES`] while
 /// its tracked gathers had a backward each (64 MiB blocks were slower then, docs/speed.md,
 /// "Kernel launches"); it now runs [`super::im2col_op`], whose backward gathers each block
-/// again and scatter-adds in blocks of [`crate::blocked_rows::MAX_SCATTER_INDICES`] rows
-/// whatever the block's size.
+/// again and scatter-adds its column gradient in one kernel where the device adds floats
+/// atomically ([`crate::blocked_rows::ATOMIC_SCATTER_VALUES`]), else in blocks of
+/// [`crate::blocked_rows::MAX_SCATTER_INDICES`] rows.
 pub const GPU_IM2COL_BLOCK_BYTES: usize = 64 << 20;
 
 /// The `Im2col` block size for gathering from `rows` (module docs).
