@@ -18,7 +18,8 @@
 //! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints) and the tensor
 //! helpers ([`shape`], [`softmax`], [`linear_rows`], [`host_mlp`] (linear stacks fused on
 //! the host), [`host_buffer`], [`readback`], [`timing`], [`device`]), and the row gathers
-//! with their own backwards: [`weighted_rows`] (flex), [`tap_gather`] and [`row_scatter`]
+//! with their own backwards: [`weighted_rows`] (flex), [`tap_gather`], [`tap_scatter`] (a GPU
+//! kernel) and [`row_scatter`]
 //! (training on the GPU backends), [`blocked_rows`].
 
 pub mod blocked_rows;
@@ -48,6 +49,7 @@ pub mod shape;
 pub mod softmax;
 pub mod store;
 pub mod tap_gather;
+pub mod tap_scatter;
 pub mod timing;
 pub mod variant;
 pub mod weighted_rows;

@@ -41,6 +41,24 @@ pub trait RowScatter: Backend {
     /// [`MAX_SCATTER_INDICES`] on ndarray.
     fn scatter_rows(device: &Self::Device, columns: usize) -> usize;
 
+    /// Whether [`Self::weighted_scatter_add`] on `device` is one operation of its own rather
+    /// than [`weighted_scatter_tensor_form`] (which callers may as well run in blocks).
+    fn scatters_weighted_taps(_device: &Self::Device) -> bool {
+        false
+    }
+
+    /// `rows` `[R, C]` with `weight[j, l] * grad[l]` added at row `index[j, l]` for every tap j
+    /// and output l (`grad` `[L, C]`, `index` `[K, L]`, `weight` `[K, L]`): the rows' gradient
+    /// of [`crate::tap_gather`] ([`crate::tap_scatter`]).
+    fn weighted_scatter_add(
+        rows: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        weight: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        weighted_scatter_tensor_form::<Self>(rows, grad, index, weight)
+    }
+
     /// `target` `[R, C]` with every row of `values` `[L, C]` added at the row `index` `[L]`
     /// names.
     fn scatter_add_rows(
@@ -70,6 +88,23 @@ impl RowScatter for Cube {
         scatter_block_rows(cube_adds_floats_atomically(device), columns)
     }
 
+    fn scatters_weighted_taps(device: &Self::Device) -> bool {
+        cube_adds_floats_atomically(device)
+    }
+
+    fn weighted_scatter_add(
+        rows: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        index: IntTensor<Self>,
+        weight: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        if cube_adds_floats_atomically(&rows.device()) {
+            crate::tap_scatter::cube::fused(rows, grad, index, weight)
+        } else {
+            weighted_scatter_tensor_form::<Self>(rows, grad, index, weight)
+        }
+    }
+
     fn scatter_add_rows(
         target: FloatTensor<Self>,
         index: IntTensor<Self>,
@@ -94,4 +129,30 @@ impl RowScatter for Cube {
         }
         out
     }
+}
+
+/// [`RowScatter::weighted_scatter_add`] by tensor operations, on any [`RowScatter`] backend:
+/// the output gradient weighted by every tap into a `[K L, C]` buffer, then one
+/// [`RowScatter::scatter_add_rows`] ([`crate::tap_scatter`] is the GPU kernel without the buffer).
+///
+/// # Shapes
+/// - `rows`: `[R, C]`; `grad`: `[L, C]`; `index`: `[K, L]` Int in `0..R`; `weight`: `[K, L]`;
+///   output `[R, C]`
+pub fn weighted_scatter_tensor_form<B: RowScatter>(
+    rows: FloatTensor<B>,
+    grad: FloatTensor<B>,
+    index: IntTensor<B>,
+    weight: FloatTensor<B>,
+) -> FloatTensor<B> {
+    let [k, l] = index.shape().dims::<2>();
+    let c = grad.shape().dims::<2>()[1];
+    let values = B::float_mul(
+        B::float_reshape(grad, [1, l, c].into()),
+        B::float_reshape(weight, [k, l, 1].into()),
+    );
+    B::scatter_add_rows(
+        rows,
+        B::int_reshape(index, [k * l].into()),
+        B::float_reshape(values, [k * l, c].into()),
+    )
 }

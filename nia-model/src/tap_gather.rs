@@ -132,8 +132,16 @@ pub fn backward<B: RowScatter>(
     let mut d_rows = wants
         .0
         .then(|| B::float_zeros([r, c].into(), &rows.device(), rows.dtype().into()));
+    // Where the backend has the scatter-add of weighted taps as one operation (a GPU kernel),
+    // the rows' gradient is that, whole; else one scatter-add for all K taps of each block.
+    if wants.0 && B::scatters_weighted_taps(&rows.device()) {
+        d_rows = d_rows
+            .map(|acc| B::weighted_scatter_add(acc, grad.clone(), index.clone(), weight.clone()));
+        if !wants.1 {
+            return (d_rows, None);
+        }
+    }
     let mut d_weight = Vec::new();
-    // One scatter-add for all K taps of a block.
     let step = B::scatter_rows(&rows.device(), c) / k.max(1);
     for outputs @ (start, len) in blocks(l, step) {
         let g = if len == l {
@@ -144,8 +152,16 @@ pub fn backward<B: RowScatter>(
         let g = B::float_reshape(g, [1, len, c].into());
         let (index, weight) = taps::<B>(index, weight, outputs);
         if let Some(acc) = d_rows.take() {
-            let values = B::float_reshape(B::float_mul(g.clone(), weight), [k * len, c].into());
-            d_rows = Some(B::scatter_add_rows(acc, index.clone(), values));
+            d_rows = Some(if B::scatters_weighted_taps(&rows.device()) {
+                acc
+            } else {
+                let values = B::float_mul(g.clone(), weight);
+                B::scatter_add_rows(
+                    acc,
+                    index.clone(),
+                    B::float_reshape(values, [k * len, c].into()),
+                )
+            });
         }
         if wants.1 {
             let read =

@@ -1,7 +1,9 @@
 //! The weighted row gather as one operation with a one-buffer backward
 //! (`nia_model::tap_gather`, what training on a GPU backend runs for the bilinear and trilinear
 //! reads) against the tensor form the other backends run (a gather, a product and a sum per
-//! tap): values and the gradients of the rows and of the weights, on ndarray and on wgpu.
+//! tap): values and the gradients of the rows and of the weights, on ndarray and on wgpu
+//! (where the rows' gradient is the `nia_model::tap_scatter` kernel on a device that adds
+//! floats atomically).
 
 mod common;
 
@@ -155,11 +157,30 @@ fn tap_gather_on_wgpu_matches_ndarray() {
         return;
     };
     let device = common::device();
-    for (k, block, weight_grad, seed) in [(8usize, 16usize, false, 11u64), (4, 64, true, 12)] {
-        let c = case(k, 37, 50, 6, seed);
+    // Where the device adds floats atomically (lavapipe does) the rows' gradient is the
+    // weighted scatter-add kernel (`nia_model::tap_scatter`): small cases, one of 8 x 5,000 x
+    // 16 threads, and every tap on one row (all threads add to the same 16 values).
+    eprintln!(
+        "wgpu device adds floats atomically: {}",
+        nia_model::device::adds_floats_atomically(&wgpu)
+    );
+    let mut on_one_row = case(8, 600, 5, 16, 14);
+    on_one_row.index = vec![0; 8 * 600];
+    for (c, block, weight_grad) in [
+        (case(8, 37, 50, 6, 11), 16usize, false),
+        (case(4, 37, 50, 6, 12), 64, true),
+        (case(8, 5000, 300, 16, 13), 1024, false),
+        (on_one_row, 256, true),
+    ] {
         let reference = run(&device, &c, block, weight_grad, false);
         let got = run(&wgpu, &c, block, weight_grad, true);
         // Atomic scatter-adds sum in no fixed order.
-        assert_agree(&got, &reference, 1e-5, &format!("wgpu, k {k}"));
+        assert_agree(
+            &got,
+            &reference,
+            1e-5,
+            &format!("wgpu, k {}, l {}", c.k, c.l),
+        );
+        assert!(got[1].iter().any(|v| *v != 0.0), "d rows all zero");
     }
 }
