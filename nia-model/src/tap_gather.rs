@@ -10,11 +10,13 @@
 //! taps' buffers. Here the backward zeroes one table-sized buffer and scatter-adds the
 //! weighted output gradient of all K taps of a block of rows into it at once:
 //! - forward, per block of outputs: `out_b = sum_j weight[j, b] * rows[index[j, b]]`;
-//! - backward: `d rows[index[j, l]] += weight[j, l] * d out[l]` as one scatter-add per
-//!   [`RowScatter::scatter_rows`] taps (64 MiB of values where the device adds floats
-//!   atomically, else [`crate::blocked_rows::MAX_SCATTER_INDICES`]), and, where the weights carry a gradient (the surface read's
-//!   bilinear weights depend on the expected depth), `d weight[j, l] = d out[l] . rows[index[j, l]]`
-//!   from the same block's rows gathered again.
+//! - backward: `d rows[index[j, l]] += weight[j, l] * d out[l]`: where the device adds floats
+//!   atomically, one [`crate::tap_scatter`] kernel for all taps and outputs; else one
+//!   scatter-add per [`RowScatter::scatter_rows`] taps
+//!   ([`crate::blocked_rows::MAX_SCATTER_INDICES`] rows on a GPU without float atomics). Where
+//!   the weights carry a gradient (the surface read's bilinear weights depend on the expected
+//!   depth), `d weight[j, l] = d out[l] . rows[index[j, l]]` from each block's rows gathered
+//!   again.
 //!
 //! The scatter-adds run as [`crate::row_scatter`] runs them (atomic adds on the GPU backends,
 //! in no fixed order).

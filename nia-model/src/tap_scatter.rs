@@ -2,15 +2,15 @@
 //! L outputs: the rows' gradient of [`crate::tap_gather`], as one GPU kernel of our own where
 //! the device adds floats atomically ([`crate::device::cube_adds_floats_atomically`]).
 //!
-//! The tensor form ([`crate::row_scatter::weighted_scatter_tensor_form`], what ndarray and
-//! devices without float atomics run) weights
-//! the output gradient by every tap into a `[K L, C]` buffer and scatter-adds it
-//! ([`crate::row_scatter::RowScatter::scatter_add_rows`]) in blocks of at most 64 MiB of values: on a GPU a copy of
-//! the block's taps, a product and a scatter-add per block, 16 blocks for a body-volume read at
-//! the paper's size. The kernel runs one thread per (tap, output, channel), reads the weight,
-//! the index and the gradient where they are and adds atomically: one launch, no buffer. Atomic
-//! adds land in no fixed order, so the sums may differ in the last bits from run to run, as
-//! burn's atomic scatter-add's do.
+//! Without it (ndarray, devices without float atomics) the tensor form runs
+//! ([`crate::row_scatter::weighted_scatter_tensor_form`], or [`crate::tap_gather`]'s blocks of
+//! it): the output gradient weighted by every tap into a `[K L, C]` buffer, then a scatter-add
+//! ([`crate::row_scatter::RowScatter::scatter_add_rows`]). On a GPU that was a copy of the
+//! block's taps, a product and a scatter-add per block of at most 64 MiB of values, 16 blocks
+//! for a body-volume read at the paper's size. The kernel runs one thread per (tap, output,
+//! channel), reads the weight, the index and the gradient where they are and adds atomically:
+//! one launch, no buffer. Atomic adds land in no fixed order, so the sums may differ in the
+//! last bits from run to run, as burn's atomic scatter-add's do.
 //!
 //! Under burn's fusion the kernel is a custom operation in the fusion stream, ordered with the
 //! operations around it and not fused into them.
