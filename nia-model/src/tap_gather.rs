@@ -136,7 +136,8 @@ pub fn backward<B: RowScatter>(
         .then(|| B::float_zeros([r, c].into(), &rows.device(), rows.dtype().into()));
     // Where the backend has the scatter-add of weighted taps as one operation (a GPU kernel),
     // the rows' gradient is that, whole; else one scatter-add for all K taps of each block.
-    if wants.0 && B::scatters_weighted_taps(&rows.device()) {
+    let fused = wants.0 && B::scatters_weighted_taps(&rows.device());
+    if fused {
         d_rows = d_rows
             .map(|acc| B::weighted_scatter_add(acc, grad.clone(), index.clone(), weight.clone()));
         if !wants.1 {
@@ -153,17 +154,14 @@ pub fn backward<B: RowScatter>(
         };
         let g = B::float_reshape(g, [1, len, c].into());
         let (index, weight) = taps::<B>(index, weight, outputs);
-        if let Some(acc) = d_rows.take() {
-            d_rows = Some(if B::scatters_weighted_taps(&rows.device()) {
-                acc
-            } else {
-                let values = B::float_mul(g.clone(), weight);
-                B::scatter_add_rows(
-                    acc,
-                    index.clone(),
-                    B::float_reshape(values, [k * len, c].into()),
-                )
-            });
+        // With `fused`, d rows is already whole.
+        if let Some(acc) = d_rows.take_if(|_| !fused) {
+            let values = B::float_mul(g.clone(), weight);
+            d_rows = Some(B::scatter_add_rows(
+                acc,
+                index.clone(),
+                B::float_reshape(values, [k * len, c].into()),
+            ));
         }
         if wants.1 {
             let read =
