@@ -9,7 +9,9 @@
 // ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
 #![allow(deprecated)]
 
-use burn::backend::ops::{FloatTensorOps, IntTensorOps};
+use burn::backend::ops::FloatTensorOps;
+#[cfg(feature = "wgpu")]
+use burn::backend::ops::IntTensorOps;
 use burn::backend::tensor::{FloatTensor, IntTensor};
 #[cfg(feature = "wgpu")]
 use burn::backend::Cube;
