@@ -15,8 +15,9 @@
 #                                       # forward by CUBECL_AUTOTUNE_LEVEL; spirv: the paper setting
 #                                       # with the SPIR-V build; baseline: the 4096-ray forward
 #                                       # and the render with an older commit's binary, for a
-#                                       # before/after in one run; chunks: the render with 1024
-#                                       # rays per network call, the CPU's, against the default). GPU_CHECK_LIMIT and
+#                                       # before/after in one run; chunks: the render in chunks
+#                                       # of 1024 and 8192 rays, the earlier GPU defaults, against
+#                                       # the default). GPU_CHECK_LIMIT and
 #                                       # GPU_CHECK_RENDER_LIMIT: seconds for a bench / the render
 #   scripts/gpu_check.sh run --dry      # a rehearsal here on lavapipe and CPU torch, small sizes
 #                                       # (NIA_PYTHON: a python with torch; default python3)
@@ -299,14 +300,15 @@ run() {
     echo "== one 512x512 unseen-subject image, paper network (wgpu) =="
     fresh_render render_wgpu $bin
   fi
-  # Fewer, larger network calls (docs/speed.md, "Fewer, larger calls"): on a GPU a render's
-  # chunk now defaults to 8192 rays of 64 samples (nia_model::renderer::call_size) where it was
-  # 1024. After `render`, in the same HOME as the other steps, so that both renders find most
-  # kernels compiled: the old chunk, then the default once more. Their second images compare
-  # the steady state.
+  # Fewer, larger network calls (docs/speed.md, "Fewer, larger calls" and "Chunks apart from
+  # calls"): on a GPU a render's chunk was 1024 rays, then 8192 rays of 64 samples, and is now
+  # 65,536 (2^22 samples, nia_model::renderer::call_size) with each depth segment's points in
+  # calls of up to 65,536. After `render`, in the same HOME as the other steps, so that the
+  # renders find most kernels compiled: the two old chunks, then the default once more. Their
+  # second images compare the steady state.
   if step chunks; then
-    echo "== the same render with 1024 rays per network call, then the default again =="
-    for c in 1024 default; do
+    echo "== the same render in chunks of 1024 and 8192 rays, then the default again =="
+    for c in 1024 8192 default; do
       local flag=(); [ $c = default ] || flag=(--chunk $c)
       timeout $render_limit $bin "${render[@]}" --backend wgpu "${flag[@]}" --out "$out/render_chunk_$c" \
         > "$out/render_chunk_$c.txt" 2>&1 || echo "chunk $c render failed: $?"

@@ -135,6 +135,7 @@ print()
 for name, label, expected in [("render_wgpu", "512x512 images, wgpu", True),
                               ("render_baseline", f"512x512 images, wgpu, commit {base}", bool(base)),
                               ("render_chunk_1024", "512x512 images, wgpu, warm caches", False),
+                              ("render_chunk_8192", "512x512 images, wgpu, warm caches", False),
                               ("render_chunk_default", "512x512 images, wgpu, warm caches", False),
                               ("render_flex", "512x512 images, flex (CPU)", True)]:
     path = os.path.join(out, name, "render.json")
@@ -147,7 +148,7 @@ for name, label, expected in [("render_wgpu", "512x512 images, wgpu", True),
     if read(f"{name}_wall.txt"):
         t0, t1 = map(float, read(f"{name}_wall.txt").split())
         wall = f"; command wall {t1 - t0:.1f} s (process start, model load, shader compilation included)"
-    print(f"{label}, {r['chunk']} rays per call: encoding {r['encode_seconds']:.2f} s{wall}")
+    print(f"{label}, chunks of {r['chunk']} rays: encoding {r['encode_seconds']:.2f} s{wall}")
     for k, img in enumerate(r["images"]):
         which = "first image" if k == 0 else "next image (kernels compiled)"
         print(f"  {which} (view {img['target_view']}), {img['width']}x{img['height']}: render {img['seconds']:.2f} s; "

@@ -16,7 +16,7 @@ use nia_infer::run_settings::RunSettings;
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::lpips::{Lpips, LpipsNet};
 use nia_model::render_options::{RenderOptions, DEFAULT_OCCUPANCY_CELL_M};
-use nia_model::renderer::call_size::rays_per_call;
+use nia_model::renderer::call_size::rays_per_chunk;
 use nia_model::sampler::{RaySampler, DEFAULT_BAND_MARGIN_M};
 use nia_model::store::model_file::ModelFile;
 use nia_model::NiaModel;
@@ -37,10 +37,11 @@ pub struct ModelArgs {
     /// Samples per ray (default: the training setting stored in the model file).
     #[arg(long)]
     pub samples: Option<usize>,
-    /// Rays per network call; bounds memory (about chunk x samples points in flight, a
-    /// depth segment's with early termination). Default: as many as keep a call within
-    /// 16,384 points on the CPU (4096 rays of 32 samples with early termination, 1024 without)
-    /// and 65,536 on a GPU (8192 rays of 64 samples with early termination): fewer calls.
+    /// Rays rendered together (sampled, walked front to back, composited); the network sees
+    /// their points in calls of at most 65,536 whatever the chunk. Default: on the CPU as many
+    /// as keep a depth segment within 16,384 points (4096 rays of 32 samples with early
+    /// termination, 1024 without); on a GPU 2^22 samples (65,536 rays of 64 samples):
+    /// fewer, fuller calls.
     #[arg(long)]
     pub chunk: Option<usize>,
     /// Empty-space skipping: on or off (default: the model's `[render]` setting, on).
@@ -324,11 +325,11 @@ impl LoadedModel {
         args.samples.unwrap_or(self.run.train.samples)
     }
 
-    /// Rays per network call: `--chunk`, or the device's default for `samples` samples per
-    /// ray and the `render` options ([`rays_per_call`]: more on a GPU).
+    /// Rays per chunk: `--chunk`, or the device's default for `samples` samples per ray and
+    /// the `render` options ([`rays_per_chunk`]: more on a GPU).
     pub fn chunk(&self, args: &ModelArgs, samples: usize, render: &RenderOptions) -> usize {
         args.chunk
-            .unwrap_or_else(|| rays_per_call(&self.device, samples, render))
+            .unwrap_or_else(|| rays_per_chunk(&self.device, samples, render))
     }
 
     /// The run's `[data]` section, at `root` and with the SMPL model `smpl` when given.

@@ -213,11 +213,11 @@ fn wgpu_matches_ndarray() {
     // (`renderer::call_size`, far more rays than the CPU's), on the CPU in chunks of 2 rays;
     // each chunk's columns come back in one read.
     use nia_model::render_options::RenderOptions;
-    use nia_model::renderer::call_size::{gpu_rays_per_call, rays_per_call, MIN_RAYS_PER_CALL};
+    use nia_model::renderer::call_size::{gpu_rays_per_chunk, rays_per_chunk, MIN_RAYS_PER_CHUNK};
     use nia_model::renderer::image::{render_image, ImageRenderOptions};
-    let gpu_chunk = rays_per_call(&gpu, SAMPLES, &RenderOptions::default());
-    assert_eq!(gpu_chunk, gpu_rays_per_call(SAMPLES, true));
-    assert!(gpu_chunk > MIN_RAYS_PER_CALL && gpu_chunk > rays.len());
+    let gpu_chunk = rays_per_chunk(&gpu, SAMPLES, &RenderOptions::default());
+    assert_eq!(gpu_chunk, gpu_rays_per_chunk(SAMPLES));
+    assert!(gpu_chunk > MIN_RAYS_PER_CHUNK && gpu_chunk > rays.len());
     let image = |m: &nia_model::NiaModel, d: &Device, chunk: usize| {
         let scene = m
             .encode(&input, None, d, None)

@@ -680,9 +680,11 @@ fn a_pixel_is_the_mean_of_its_rays() {
 
 /// Rays are independent, so an image does not depend on how many rays each network call
 /// holds (`ImageRenderOptions::chunk`; a GPU render takes far larger chunks than a CPU one,
-/// `renderer::call_size`): chunks of 7, of 64 and one chunk of every ray give the same
-/// colours, opacity, depth and blend weights, with and without early termination and colour
-/// culling, and evaluate the same points.
+/// `renderer::call_size`), nor on how many points a network call gets
+/// (`SceneEncoding::points_per_call`: a depth segment, or a chunk without termination, of more
+/// goes in several calls): chunks of 7, of 64 and one chunk of every ray, and that chunk in
+/// calls of 37 or 256 points, give the same colours, opacity, depth and blend weights, with and
+/// without early termination and colour culling, and evaluate the same points.
 #[test]
 fn an_image_does_not_depend_on_its_chunk_size() {
     let (_, input, model, encoded) = tiny_encoded();
@@ -700,8 +702,22 @@ fn an_image_does_not_depend_on_its_chunk_size() {
             whole.acc.iter().any(|&v| v > 0.05),
             "some opacity to compare"
         );
-        for chunk in [7, 64] {
-            let part = render(chunk);
+        // Enough points that each of the 8 depth segments splits into calls of 37.
+        assert!(
+            whole.point_evaluations > 8 * 2 * 37,
+            "{} points",
+            whole.point_evaluations
+        );
+        let in_calls = |points: usize| {
+            let scene = scene.clone().with_points_per_call(points);
+            (
+                format!("calls of {points} points"),
+                image_of(&model, &scene, &rays, rays.len()),
+            )
+        };
+        let chunks = [7, 64].map(|chunk| (format!("chunks of {chunk}"), render(chunk)));
+        for (what_split, part) in chunks.into_iter().chain([in_calls(37), in_calls(256)]) {
+            let chunk = what_split;
             assert_eq!(part.rays, whole.rays);
             assert_eq!(part.point_evaluations, whole.point_evaluations);
             assert_eq!(part.colour_evaluations, whole.colour_evaluations);
@@ -714,7 +730,7 @@ fn an_image_does_not_depend_on_its_chunk_size() {
                 (&part.blend_weights, &whole.blend_weights, "blend weights"),
             ] {
                 assert!(got.iter().all(|v| v.is_finite()), "{what}: finite");
-                assert_close(got, expected, 1e-5, &format!("{what}, chunks of {chunk}"));
+                assert_close(got, expected, 1e-5, &format!("{what}, {chunk}"));
             }
         }
     }

@@ -21,7 +21,7 @@ use image::RgbImage;
 use nia_data::dataset::protocol::{EvalItem, EvalSplit};
 use nia_infer::eval::{eval_items, evaluate_images, EvalError, EvalOptions, EvalTask, ImageResult};
 use nia_infer::pictures::{rgb8, row, save_png};
-use nia_model::renderer::call_size::rays_per_call;
+use nia_model::renderer::call_size::rays_per_chunk;
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::variant::Variant;
 use serde::Serialize;
@@ -197,7 +197,7 @@ pub fn run(
                 EvalOptions {
                     task,
                     samples: run_config.train.samples,
-                    chunk: rays_per_call(&device, run_config.train.samples, &adaptive),
+                    chunk: rays_per_chunk(&device, run_config.train.samples, &adaptive),
                     timed: false,
                     render: adaptive,
                     lpips: None,

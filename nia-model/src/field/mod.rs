@@ -51,6 +51,33 @@ pub struct PointOutput {
     pub ibr_colour: Tensor<2>,
 }
 
+impl PointOutput {
+    /// The outputs of several calls, one after the other (`None` for no parts). `blend_c0`
+    /// is kept only when every part has it.
+    ///
+    /// # Shapes
+    /// parts of `[M_i, ..]` rows each -> `[sum_i M_i, ..]`
+    pub fn cat(parts: Vec<PointOutput>) -> Option<PointOutput> {
+        if parts.len() <= 1 {
+            return parts.into_iter().next();
+        }
+        let cat2 = |f: fn(&PointOutput) -> Tensor<2>| Tensor::cat(parts.iter().map(f).collect(), 0);
+        let blend_c0 = parts
+            .iter()
+            .map(|p| p.blend_c0.clone())
+            .collect::<Option<Vec<_>>>()
+            .map(|b| Tensor::cat(b, 0));
+        Some(PointOutput {
+            sigma: Tensor::cat(parts.iter().map(|p| p.sigma.clone()).collect(), 0),
+            colour: cat2(|p| p.colour.clone()),
+            c0: cat2(|p| p.c0.clone()),
+            blend_c0,
+            blend_weights: cat2(|p| p.blend_weights.clone()),
+            ibr_colour: cat2(|p| p.ibr_colour.clone()),
+        })
+    }
+}
+
 /// [`PointInputs`] on a device.
 #[derive(Debug, Clone)]
 pub struct PointTensors {

@@ -8,6 +8,7 @@
 //! ```
 
 use burn::prelude::*;
+use glam::Vec3;
 use nia_data::geometry::rays::RayBundle;
 
 use super::quadrature::{render_rays_delta, RenderOutput};
@@ -112,8 +113,11 @@ impl NiaModel {
         } else {
             let (points, dirs) = (&ray_samples.points, &ray_samples.dirs);
             // On a GPU backend (training too) the call is padded to its shape bucket; the
-            // scatter drops the padding.
-            let out = if pads_to_buckets(&device) {
+            // scatter drops the padding. At inference a chunk of more points than a call
+            // takes goes in several calls (training's step is one call, as its rays are).
+            let out = if jitter.is_none() && points.len() > scene.points_per_call {
+                self.field_in_calls(scene, points, dirs, watch)?
+            } else if pads_to_buckets(&device) {
                 self.field_in_bucket(scene, points, dirs, watch)?
             } else {
                 self.field_with(scene, points, dirs, watch)?
@@ -128,6 +132,30 @@ impl NiaModel {
             evaluated,
             colour_evaluated,
         ))
+    }
+
+    /// The field at `points` / `dirs` ([M] each) in calls of at most the scene's
+    /// `points_per_call` points (each padded to its bucket on a GPU backend), `[M]` rows of
+    /// outputs in order.
+    fn field_in_calls(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let pad = pads_to_buckets(&scene.images.device());
+        let call = scene.points_per_call.max(1);
+        let mut parts = Vec::new();
+        for (points, dirs) in points.chunks(call).zip(dirs.chunks(call)) {
+            parts.push(if pad {
+                self.field_in_bucket(scene, points, dirs, watch)?
+                    .first(points.len())
+            } else {
+                self.field_with(scene, points, dirs, watch)?
+            });
+        }
+        PointOutput::cat(parts).ok_or_else(|| ModelError::Input("no point to evaluate".into()))
     }
 
     /// NeRF quadrature of the sample fields, then the IBR composites: the per-sample IBR

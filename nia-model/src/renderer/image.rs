@@ -59,7 +59,9 @@ pub struct RenderedImage {
 pub struct ImageRenderOptions {
     /// Stratified samples per ray (bin centres, no jitter).
     pub samples: usize,
-    /// Rays per network call: bounds memory (about `chunk * samples` points in flight).
+    /// Rays rendered together: bounds the per-sample tensors (`chunk * samples` rows); the
+    /// network sees their points in calls of at most
+    /// [`crate::renderer::call_size::MAX_POINTS_PER_CALL`].
     pub chunk: usize,
     /// Charge the time of every stage to [`RenderedImage::times`] (synchronises the device).
     pub timed: bool,

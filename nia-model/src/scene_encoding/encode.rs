@@ -18,6 +18,7 @@ use crate::error::ModelError;
 use crate::field::network_host::HostNetwork;
 use crate::ibr::sample_rows_through;
 use crate::model::NiaModel;
+use crate::renderer::call_size::MAX_POINTS_PER_CALL;
 use crate::timing::{Stage, StageTimes, Stopwatch};
 
 impl NiaModel {
@@ -91,6 +92,7 @@ impl NiaModel {
             band,
             visual_hull: None,
             c0_weight_scale: None,
+            points_per_call: MAX_POINTS_PER_CALL,
         };
         // Inference on a CPU backend reads the body volume on the host (fused).
         encoding.with_host_reads(self, on_host)
@@ -144,6 +146,7 @@ impl NiaModel {
             band,
             visual_hull: scene.visual_hull.clone(),
             c0_weight_scale: scene.c0_weight_scale,
+            points_per_call: scene.points_per_call,
         })
     }
 

@@ -73,6 +73,11 @@ pub struct SceneEncoding {
     /// paper; [`crate::ibr::c0_weight_scale::rescale_c0_weight`]). `None` (the default, and in training)
     /// blends with F_B's weights as they are.
     pub c0_weight_scale: Option<f32>,
+    /// The most points one network call of a render gets
+    /// ([`crate::renderer::call_size::MAX_POINTS_PER_CALL`] unless set): a depth segment (or a
+    /// chunk without termination) of more is evaluated in several calls. Training's step is one
+    /// call whatever this says.
+    pub points_per_call: usize,
 }
 
 impl SceneEncoding {
@@ -140,6 +145,12 @@ impl SceneEncoding {
     /// This encoding with early ray termination below transmittance `epsilon` (`None`: off).
     pub fn with_termination(mut self, epsilon: Option<f32>) -> Self {
         self.termination = epsilon;
+        self
+    }
+
+    /// This encoding with renders' network calls of at most `points` points (at least 1).
+    pub fn with_points_per_call(mut self, points: usize) -> Self {
+        self.points_per_call = points.max(1);
         self
     }
 

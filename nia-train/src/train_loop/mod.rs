@@ -29,7 +29,7 @@ use nia_infer::pictures::{comparison_grid, save_evaluated};
 use nia_model::body_volume::NUM_SCALES;
 use nia_model::host_op::runs_on_host;
 use nia_model::loss::psnr_from_mse;
-use nia_model::renderer::call_size::rays_per_call;
+use nia_model::renderer::call_size::rays_per_chunk;
 use nia_model::sampler::RaySampler;
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::ModelError;
@@ -257,7 +257,7 @@ pub fn train(
                 EvalTask::NovelView,
                 Some(t.validation_images),
             )?;
-            let chunk = rays_per_call(&device, t.samples, &config.render);
+            let chunk = rays_per_chunk(&device, t.samples, &config.render);
             let total = items.len();
             let done_steps = done;
             on_event(TrainEvent::Progress {
@@ -341,7 +341,7 @@ pub fn train(
             EvalOptions {
                 task: EvalTask::NovelView,
                 samples: t.samples,
-                chunk: rays_per_call(&device, t.samples, &config.render),
+                chunk: rays_per_chunk(&device, t.samples, &config.render),
                 timed: false,
                 render: config.render,
                 lpips: lpips.clone(),
