@@ -171,15 +171,26 @@ fn wgpu_matches_ndarray() {
     let input = common::scene(3, 32);
     let rays = common::target_rays(&input, 3);
     // Plain, and front to back with termination and colour culling (the renderer's two
-    // paths; on wgpu both pad their network calls to shape buckets).
-    let run = |m: &nia_model::NiaModel, d: &Device, adaptive: bool| {
+    // paths; on wgpu both pad their network calls to shape buckets), in one network call or
+    // in calls of `call` points (`SceneEncoding::points_per_call`; on wgpu each call padded).
+    let run = |m: &nia_model::NiaModel, d: &Device, adaptive: bool, call: Option<usize>| {
         let mut scene = m.encode(&input, None, d, None).unwrap();
+        if let Some(call) = call {
+            scene = scene.with_points_per_call(call);
+        }
         if adaptive {
             scene = scene
                 .with_termination(Some(1e-3))
                 .with_colour_culling(Some(0.05));
         }
         let out = m.render(&scene, &rays, SAMPLES, None, None).unwrap();
+        if let Some(call) = call {
+            assert!(
+                out.point_evaluations > 3 * call,
+                "{} points",
+                out.point_evaluations
+            );
+        }
         // The adaptive run culls colours (the padded selection path on wgpu).
         assert_eq!(
             out.colour_evaluations < out.point_evaluations,
@@ -201,13 +212,16 @@ fn wgpu_matches_ndarray() {
     ] {
         model.source_colours_at = at;
         model_gpu.source_colours_at = at;
-        let (rgb_cpu, acc_cpu) = run(&model, &cpu, adaptive);
-        let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu, adaptive);
-        let max_diff = max_abs_diff(&rgb_cpu, &rgb_gpu).max(max_abs_diff(&acc_cpu, &acc_gpu));
-        assert!(
-            max_diff <= BACKEND_TOLERANCE,
-            "{at:?} (adaptive: {adaptive}): ndarray vs wgpu max difference {max_diff}"
-        );
+        let (rgb_cpu, acc_cpu) = run(&model, &cpu, adaptive, None);
+        for call in [None, Some(40)] {
+            let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu, adaptive, call);
+            let max_diff = max_abs_diff(&rgb_cpu, &rgb_gpu).max(max_abs_diff(&acc_cpu, &acc_gpu));
+            assert!(
+                max_diff <= BACKEND_TOLERANCE,
+                "{at:?} (adaptive: {adaptive}, calls of {call:?} points): ndarray vs wgpu \
+                 max difference {max_diff}"
+            );
+        }
     }
     // Whole images through `render_image`: on the GPU in its default chunk
     // (`renderer::call_size`, far more rays than the CPU's), on the CPU in chunks of 2 rays;

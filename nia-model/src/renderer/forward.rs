@@ -135,8 +135,9 @@ impl NiaModel {
     }
 
     /// The field at `points` / `dirs` ([M] each) in calls of at most the scene's
-    /// `points_per_call` points (each padded to its bucket on a GPU backend), `[M]` rows of
-    /// outputs in order.
+    /// `points_per_call` points, the outputs in order. On a GPU backend each call is padded to
+    /// its bucket and the last call's padding kept (as [`Self::field_in_bucket`]'s: more than
+    /// M rows, which the scatter sends to its spare row, so its shapes stay bucketed).
     fn field_in_calls(
         &self,
         scene: &SceneEncoding,
@@ -146,13 +147,15 @@ impl NiaModel {
     ) -> Result<PointOutput, ModelError> {
         let pad = pads_to_buckets(&scene.images.device());
         let call = scene.points_per_call.max(1);
+        let calls = points.len().div_ceil(call);
         let mut parts = Vec::new();
-        for (points, dirs) in points.chunks(call).zip(dirs.chunks(call)) {
-            parts.push(if pad {
-                self.field_in_bucket(scene, points, dirs, watch)?
-                    .first(points.len())
-            } else {
-                self.field_with(scene, points, dirs, watch)?
+        for (k, (points, dirs)) in points.chunks(call).zip(dirs.chunks(call)).enumerate() {
+            parts.push(match (pad, k + 1 == calls) {
+                (true, true) => self.field_in_bucket(scene, points, dirs, watch)?,
+                (true, false) => self
+                    .field_in_bucket(scene, points, dirs, watch)?
+                    .first(points.len()),
+                (false, _) => self.field_with(scene, points, dirs, watch)?,
             });
         }
         PointOutput::cat(parts).ok_or_else(|| ModelError::Input("no point to evaluate".into()))
