@@ -184,13 +184,6 @@ fn wgpu_matches_ndarray() {
                 .with_colour_culling(Some(0.05));
         }
         let out = m.render(&scene, &rays, SAMPLES, None, None).unwrap();
-        if let Some(call) = call {
-            assert!(
-                out.point_evaluations > 3 * call,
-                "{} points",
-                out.point_evaluations
-            );
-        }
         // The adaptive run culls colours (the padded selection path on wgpu).
         assert_eq!(
             out.colour_evaluations < out.point_evaluations,
@@ -202,6 +195,7 @@ fn wgpu_matches_ndarray() {
         (
             out.rgb.into_data().try_to_vec::<f32>().unwrap(),
             out.acc.into_data().try_to_vec::<f32>().unwrap(),
+            out.point_evaluations,
         )
     };
     // Source colours per sample (the paper) and at the expected surface point.
@@ -212,9 +206,12 @@ fn wgpu_matches_ndarray() {
     ] {
         model.source_colours_at = at;
         model_gpu.source_colours_at = at;
-        let (rgb_cpu, acc_cpu) = run(&model, &cpu, adaptive, None);
-        for call in [None, Some(40)] {
-            let (rgb_gpu, acc_gpu) = run(&model_gpu, &gpu, adaptive, call);
+        let (rgb_cpu, acc_cpu, points) = run(&model, &cpu, adaptive, None);
+        // The points depend on the random weights (other tests draw from the same seed):
+        // calls of a quarter of them, so that the render takes at least four calls.
+        assert!(points >= 4, "{points} points");
+        for call in [None, Some(points / 4)] {
+            let (rgb_gpu, acc_gpu, _) = run(&model_gpu, &gpu, adaptive, call);
             let max_diff = max_abs_diff(&rgb_cpu, &rgb_gpu).max(max_abs_diff(&acc_cpu, &acc_gpu));
             assert!(
                 max_diff <= BACKEND_TOLERANCE,
