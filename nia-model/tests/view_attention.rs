@@ -1,6 +1,8 @@
 //! The view attention's weighted sum as one host operation with its own backward
 //! (`nia_model::field::attention_op`, on flex) against the tensor form (ndarray): values and
-//! the gradients of S, L, phi_k and phi_v, the hard cases and the thread count.
+//! the gradients of S, L, phi_k and phi_v, the hard cases and the thread count. And the view
+//! mean with phi_v after the weights' mean (`ViewCrossAttention::view_mean`) against the mean
+//! of Z, on both forms.
 
 mod common;
 
@@ -10,6 +12,7 @@ use burn::prelude::*;
 use common::{relative_gap, tensor, values};
 use nia_data::rng::Rng;
 use nia_model::field::attention::ViewCrossAttention;
+use nia_model::field::heads::view_mean;
 
 fn random(rng: &mut Rng, n: usize, scale: f32) -> Vec<f32> {
     (0..n).map(|_| rng.range(-scale, scale)).collect()
@@ -34,14 +37,42 @@ fn attention(d: usize, seed: u64, device: &Device) -> ViewCrossAttention {
 }
 
 /// Z and the gradients of `sum(Z * R)` in S, L, phi_k's and phi_v's weights and biases.
-fn run(device: &Device, (m, n, d): (usize, usize, usize), scale: f32) -> Vec<Vec<f32>> {
+fn run(device: &Device, shape: (usize, usize, usize), scale: f32) -> Vec<Vec<f32>> {
+    run_with(device, shape, scale, |attention, s, l| {
+        attention.forward(s, l).unwrap()
+    })
+}
+
+/// How the output is computed from S and L.
+type Output = fn(&ViewCrossAttention, Tensor<3>, Tensor<3>) -> Tensor<3>;
+
+/// `mean_i z_i` by `ViewCrossAttention::view_mean` (phi_v after the weights' mean), as
+/// `[1, M, d]`.
+fn folded_mean(attention: &ViewCrossAttention, s: Tensor<3>, l: Tensor<3>) -> Tensor<3> {
+    attention.view_mean(s, l).unwrap().unsqueeze_dim(0)
+}
+
+/// `mean_i z_i` as the mean of [`ViewCrossAttention::forward`]'s Z, as `[1, M, d]`.
+fn mean_of_z(attention: &ViewCrossAttention, s: Tensor<3>, l: Tensor<3>) -> Tensor<3> {
+    view_mean(attention.forward(s, l).unwrap()).unsqueeze_dim(0)
+}
+
+/// `output(S, L)` and the gradients of `sum(output * R)` in S, L, phi_k's and phi_v's weights
+/// and biases.
+fn run_with(
+    device: &Device,
+    (m, n, d): (usize, usize, usize),
+    scale: f32,
+    output: Output,
+) -> Vec<Vec<f32>> {
     let ad = device.clone().autodiff();
     let attention = attention(d, 4, &ad);
     let mut rng = Rng::new(5);
     let s = tensor(random(&mut rng, m * n * d, scale), [n, m, d], &ad).require_grad();
     let l = tensor(random(&mut rng, m * n * d, scale), [n, m, d], &ad).require_grad();
-    let r = tensor(random(&mut rng, m * n * d, 1.0), [n, m, d], &ad);
-    let z = attention.forward(s.clone(), l.clone()).unwrap();
+    let z = output(&attention, s.clone(), l.clone());
+    let shape = z.dims();
+    let r = tensor(random(&mut rng, shape.iter().product(), 1.0), shape, &ad);
     let grads = (z.clone() * r).sum().backward();
     let bias = |layer: &Linear| layer.bias.as_ref().unwrap().val();
     vec![
@@ -112,5 +143,37 @@ fn host_attention_is_the_same_whatever_the_number_of_threads() {
             .unwrap();
         let got = pool.install(|| run(&Device::flex(), shape, 2.0));
         assert_eq!(got, reference, "{threads} threads");
+    }
+}
+
+/// The view mean with phi_v after the weights' mean equals the mean of Z, values and every
+/// gradient, on the tensor form (ndarray) and on flex's host operation, for one view (the
+/// softmax is 1), three and four views, and scores of about 1e6 (the softmax saturates).
+#[test]
+#[allow(deprecated)]
+fn the_view_mean_with_phi_v_after_the_weights_equals_the_mean_of_z() {
+    for (shape, scale, tol) in [
+        ((1, 1, 4), 2.0, 2e-5),
+        ((37, 3, 8), 2.0, 2e-5),
+        ((500, 4, 16), 2.0, 2e-5),
+        ((50, 3, 8), 1e3, 1e-4),
+    ] {
+        let want = run_with(&Device::ndarray(), shape, scale, mean_of_z);
+        for (backend, device) in [("ndarray", Device::ndarray()), ("flex", Device::flex())] {
+            let got = run_with(&device, shape, scale, folded_mean);
+            for ((what, g), w) in WHAT.iter().zip(&got).zip(&want) {
+                assert_eq!(g.len(), w.len(), "{backend} {shape:?} {what}");
+                assert!(
+                    g.iter().all(|v| v.is_finite()),
+                    "{backend} {shape:?} {what} not finite"
+                );
+                let gap = relative_gap(g, w);
+                assert!(gap <= tol, "{backend} {shape:?} {what}: gap {gap}");
+            }
+            // One view: no gradient reaches phi_k.
+            if shape.1 == 1 {
+                assert!(got[3].iter().chain(&got[4]).all(|v| *v == 0.0), "{backend}");
+            }
+        }
     }
 }

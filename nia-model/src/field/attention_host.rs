@@ -3,13 +3,14 @@
 //!
 //! The field reads only `mean_n z_n` of the attention's output. The tensor form
 //! ([`ViewCrossAttention::forward`] then [`super::heads::view_mean`]) materialises the
-//! `[M, N, N, d]` products of the scores and of the weighted values and sums them, one
-//! element-wise kernel after the other. Here everything runs on the host in tasks of
-//! [`POINTS_PER_TASK`] points: the task's projections phi_k(S), phi_k(L), phi_v(L) (one matrix
-//! product per view, [`HostLinear::apply`]), then per point the N x N scores, the stable
-//! softmax (maximum subtracted), `z_i = sum_j a_ij v_j + s_i` and the mean over i, writing only
-//! `[M, d]`. Same formula; the tensor form stays the reference (and the path with gradients
-//! and on the GPU), `nia-model/tests/fields.rs` checks the two agree.
+//! `[M, N, N, d]` scores and sums them, one element-wise kernel after the other. Here
+//! everything runs on the host in tasks of [`POINTS_PER_TASK`] points: the task's projections
+//! phi_k(S), phi_k(L) (one matrix product per view, [`HostLinear::apply`]), then per point the
+//! N x N scores, the stable softmax (maximum subtracted), `abar_j = mean_i a_ij`,
+//! `sum_j abar_j l_j` and `mean_i s_i`, and last phi_v of the task's weighted sums (one product
+//! on its points' rows, not one per view: [`ViewCrossAttention::view_mean`]'s form), writing
+//! only `[M, d]`. The tensor form stays the reference (and the path with gradients and on the
+//! GPU), `nia-model/tests/fields.rs` checks the two agree.
 
 use burn::prelude::*;
 use rayon::prelude::*;
@@ -21,7 +22,7 @@ use crate::host_mlp::HostLinear;
 use crate::readback::host_view_of;
 use crate::shape::ShapeError;
 
-/// Points per parallel task (its three projections of N x 128 rows stay in cache).
+/// Points per parallel task (its two projections of N x 128 rows stay in cache).
 const POINTS_PER_TASK: usize = 128;
 
 impl ViewCrossAttention {
@@ -89,21 +90,32 @@ impl ViewCrossAttention {
             .for_each(|(task, block)| {
                 let p0 = task * POINTS_PER_TASK;
                 let points = block.len() / d;
-                // The task's projections, [N, points, d] each: one product per view and map
-                // (a view's rows of the task are contiguous in [N, M, d]).
+                // The task's projections phi_k(S), phi_k(L), [N, points, d] each: one product
+                // per view and map (a view's rows of the task are contiguous in [N, M, d]).
                 let mut q = vec![0.0f32; n * points * d];
                 let mut k = vec![0.0f32; n * points * d];
-                let mut v = vec![0.0f32; n * points * d];
                 for view in 0..n {
                     let rows = (view * m + p0) * d..(view * m + p0 + points) * d;
                     let at = view * points * d..(view + 1) * points * d;
                     phi_k.apply(&s[rows.clone()], points, &mut q[at.clone()]);
-                    phi_k.apply(&l[rows.clone()], points, &mut k[at.clone()]);
-                    phi_v.apply(&l[rows], points, &mut v[at]);
+                    phi_k.apply(&l[rows], points, &mut k[at]);
                 }
                 let at = |view: usize, r: usize| (view * points + r) * d;
+                // Row (view, point r of the task) of S or L.
+                let row =
+                    |view: usize, r: usize| (view * m + p0 + r) * d..(view * m + p0 + r + 1) * d;
+                // Per point sum_j abar_j l_j and mean_i s_i, [points, d] each.
+                let mut attended = vec![0.0f32; points * d];
+                let mut body_mean = vec![0.0f32; points * d];
                 let mut scores = vec![0.0f32; n];
-                for (r, mean) in block.chunks_mut(d).enumerate() {
+                let mut abar = vec![0.0f32; n];
+                let inv = 1.0 / n as f32;
+                for (r, (lbar, smean)) in attended
+                    .chunks_mut(d)
+                    .zip(body_mean.chunks_mut(d))
+                    .enumerate()
+                {
+                    abar.fill(0.0);
                     for i in 0..n {
                         let qi = &q[at(i, r)..at(i, r) + d];
                         for (j, score) in scores.iter_mut().enumerate() {
@@ -116,23 +128,27 @@ impl ViewCrossAttention {
                             *score = (*score - max).exp();
                             total += *score;
                         }
-                        // z_i = sum_j a_ij v_j + s_i, summed into the mean.
-                        for (j, &e) in scores.iter().enumerate() {
-                            let a = e / total;
-                            let vj = &v[at(j, r)..at(j, r) + d];
-                            for (acc, &x) in mean.iter_mut().zip(vj) {
-                                *acc += a * x;
-                            }
+                        for (a, &e) in abar.iter_mut().zip(&scores) {
+                            *a += e / total;
                         }
-                        let si = &s[(i * m + p0 + r) * d..(i * m + p0 + r + 1) * d];
-                        for (acc, &x) in mean.iter_mut().zip(si) {
+                        for (acc, &x) in smean.iter_mut().zip(&s[row(i, r)]) {
                             *acc += x;
                         }
                     }
-                    let inv = 1.0 / n as f32;
-                    for acc in mean.iter_mut() {
+                    for (j, &a) in abar.iter().enumerate() {
+                        let w = a * inv;
+                        for (acc, &x) in lbar.iter_mut().zip(&l[row(j, r)]) {
+                            *acc += w * x;
+                        }
+                    }
+                    for acc in smean.iter_mut() {
                         *acc *= inv;
                     }
+                }
+                // phi_v once per point, then the residual's mean.
+                phi_v.apply(&attended, points, block);
+                for (o, &x) in block.iter_mut().zip(&body_mean) {
+                    *o += x;
                 }
             });
         Ok(out)

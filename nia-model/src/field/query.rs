@@ -185,10 +185,9 @@ impl NiaModel {
                 let d = mean.len() / m.max(1);
                 Tensor::from_data(TensorData::new(mean, [m, d]), &l_device)
             }
-            (Some((read, None)), true) => view_mean(
-                self.attention
-                    .forward(linear_rows(&self.body_reduce, read), l.clone())?, // [N, M, d]
-            ),
+            (Some((read, None)), true) => self
+                .attention
+                .view_mean(linear_rows(&self.body_reduce, read), l.clone())?,
             (None, true) => {
                 return Err(ModelError::Input(
                     "the scene was encoded without a body volume".into(),
