@@ -2,8 +2,8 @@
 //! backends).
 //!
 //! The field reads only `mean_n z_n` of the attention's output. The tensor form
-//! ([`ViewCrossAttention::forward`] then [`super::heads::view_mean`]) materialises the
-//! `[M, N, N, d]` scores and sums them, one element-wise kernel after the other. Here
+//! ([`ViewCrossAttention::view_mean`]) materialises the `[N, N, M, d]` products of the scores
+//! and sums them, one element-wise kernel after the other. Here
 //! everything runs on the host in tasks of [`POINTS_PER_TASK`] points: the task's projections
 //! phi_k(S), phi_k(L) (one matrix product per view, [`HostLinear::apply`]), then per point the
 //! N x N scores, the stable softmax (maximum subtracted), `abar_j = mean_i a_ij`,
