@@ -255,51 +255,53 @@ fn gather_columns(
     // `memcpy` call per slot (the tiny network's stages are 8 and 16 wide). Wider rows keep
     // `memcpy`, which is as fast there (docs/speed.md).
     match c {
-        8 => gather_columns_of::<8>(buf, table, rows_in, map, rows_out, first, len),
-        16 => gather_columns_of::<16>(buf, table, rows_in, map, rows_out, first, len),
-        32 => gather_columns_of::<32>(buf, table, rows_in, map, rows_out, first, len),
-        _ => gather_columns_any(buf, table, rows_in, c, map, rows_out, first, len),
+        8 => gather_rows(buf, table, rows_in, Fixed::<8>, map, rows_out, first, len),
+        16 => gather_rows(buf, table, rows_in, Fixed::<16>, map, rows_out, first, len),
+        32 => gather_rows(buf, table, rows_in, Fixed::<32>, map, rows_out, first, len),
+        _ => gather_rows(buf, table, rows_in, Any(c), map, rows_out, first, len),
     }
 }
 
-/// [`gather_columns`] for rows of `C` values.
-fn gather_columns_of<const C: usize>(
-    buf: &mut [f32],
-    table: &[f32],
-    rows_in: usize,
-    map: &[u32],
-    rows_out: usize,
-    first: usize,
-    len: usize,
-) {
-    let k_len = KERNEL_VOLUME * C;
-    for (r, cols) in buf.chunks_exact_mut(k_len).take(len).enumerate() {
-        let (view, row) = ((first + r) / rows_out, (first + r) % rows_out);
-        let src = &table[view * rows_in * C..(view + 1) * rows_in * C];
-        let slots = &map[row * KERNEL_VOLUME..(row + 1) * KERNEL_VOLUME];
-        for (slot, col) in slots.iter().zip(cols.chunks_exact_mut(C)) {
-            let i = *slot as usize;
-            if i < rows_in {
-                col.copy_from_slice(&src[i * C..(i + 1) * C]);
-            } else {
-                col.fill(0.0);
-            }
-        }
+/// A row width: a constant the compiler sees ([`Fixed`]) or any ([`Any`]).
+trait RowWidth: Copy {
+    fn get(self) -> usize;
+}
+
+/// Rows of `C` values.
+#[derive(Clone, Copy)]
+struct Fixed<const C: usize>;
+
+impl<const C: usize> RowWidth for Fixed<C> {
+    #[inline(always)]
+    fn get(self) -> usize {
+        C
     }
 }
 
-/// [`gather_columns`] for rows of any width.
+/// Rows of any width.
+#[derive(Clone, Copy)]
+struct Any(usize);
+
+impl RowWidth for Any {
+    #[inline(always)]
+    fn get(self) -> usize {
+        self.0
+    }
+}
+
+/// [`gather_columns`] for rows of `width` values.
 #[allow(clippy::too_many_arguments)]
-fn gather_columns_any(
+fn gather_rows(
     buf: &mut [f32],
     table: &[f32],
     rows_in: usize,
-    c: usize,
+    width: impl RowWidth,
     map: &[u32],
     rows_out: usize,
     first: usize,
     len: usize,
 ) {
+    let c = width.get();
     let k_len = KERNEL_VOLUME * c;
     for (r, cols) in buf.chunks_exact_mut(k_len).take(len).enumerate() {
         let (view, row) = ((first + r) / rows_out, (first + r) % rows_out);
@@ -496,7 +498,16 @@ mod tests {
             let k_len = KERNEL_VOLUME * c;
             let mut general = vec![-1.0f32; (len + 1) * k_len];
             let mut fast = general.clone();
-            gather_columns_any(&mut general, &table, rows_in, c, &map, rows_out, first, len);
+            gather_rows(
+                &mut general,
+                &table,
+                rows_in,
+                Any(c),
+                &map,
+                rows_out,
+                first,
+                len,
+            );
             gather_columns(&mut fast, &table, rows_in, c, &map, rows_out, first, len);
             assert_eq!(fast, general, "rows of {c} values");
             // Row 0 of the block is output row 1 of view 0; its slot 4 reads input row 5: empty.
