@@ -304,12 +304,15 @@ run() {
   # calls"): on a GPU a render's chunk was 1024 rays, then 8192 rays of 64 samples, and is now
   # 65,536 (2^22 samples, nia_model::renderer::call_size) with each depth segment's points in
   # calls of up to 65,536. After `render`, in the same HOME as the other steps, so that the
-  # renders find most kernels compiled: the two old chunks, then the default once more. Their
-  # second images compare the steady state.
+  # renders find most kernels compiled: the two old chunks, then the default once more, then
+  # the default without stage timings (`--no-stage-times`: no device synchronisation at the end
+  # of every stage of every call, so the host's work for the next call overlaps the device's).
+  # Their second images compare the steady state.
   if step chunks; then
-    echo "== the same render in chunks of 1024 and 8192 rays, then the default again =="
-    for c in 1024 8192 default; do
-      local flag=(); [ $c = default ] || flag=(--chunk $c)
+    echo "== the same render in chunks of 1024 and 8192 rays, then the default again, timed and untimed =="
+    for c in 1024 8192 default untimed; do
+      local flag=()
+      case $c in default) ;; untimed) flag=(--no-stage-times) ;; *) flag=(--chunk $c) ;; esac
       timeout $render_limit $bin "${render[@]}" --backend wgpu "${flag[@]}" --out "$out/render_chunk_$c" \
         > "$out/render_chunk_$c.txt" 2>&1 || echo "chunk $c render failed: $?"
       grep -v XDG "$out/render_chunk_$c.txt" | grep "^view" || true

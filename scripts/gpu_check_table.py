@@ -124,7 +124,11 @@ if base_big:
             after += now_stages.get("point_inputs") or 0.0
             name = "sampling, point inputs included"
         print(f"| {name} | {fmt(before)} | {fmt(after)} | {ratio(after, before)} |")
-    for label, key in [("forward", "forward_s"), ("first forward of the process", "first_forward_s")]:
+    forward = "forward"
+    if now.get("stages_timed_apart") and not base_big.get("stages_timed_apart"):
+        # Builds before the split timed the forward with a device synchronisation per stage.
+        forward = "forward (the older build's with its stages timed, this build's without)"
+    for label, key in [(forward, "forward_s"), ("first forward of the process", "first_forward_s")]:
         print(f"| {label} | {fmt(base_big.get(key))} | {fmt(now.get(key))} | {ratio(now.get(key), base_big.get(key))} |")
 if tiny:
     print(f"tiny network (the quickstart's), {tiny['rays']} rays x {tiny['samples']}: forward {tiny['forward_s']:.4f} s "
@@ -137,6 +141,7 @@ for name, label, expected in [("render_wgpu", "512x512 images, wgpu", True),
                               ("render_chunk_1024", "512x512 images, wgpu, warm caches", False),
                               ("render_chunk_8192", "512x512 images, wgpu, warm caches", False),
                               ("render_chunk_default", "512x512 images, wgpu, warm caches", False),
+                              ("render_chunk_untimed", "512x512 images, wgpu, warm caches, --no-stage-times", False),
                               ("render_flex", "512x512 images, flex (CPU)", True)]:
     path = os.path.join(out, name, "render.json")
     if not os.path.exists(path):
@@ -153,5 +158,5 @@ for name, label, expected in [("render_wgpu", "512x512 images, wgpu", True),
         which = "first image" if k == 0 else "next image (kernels compiled)"
         print(f"  {which} (view {img['target_view']}), {img['width']}x{img['height']}: render {img['seconds']:.2f} s; "
               f"{img['point_evaluations']} network points, {img['colour_evaluations']} coloured; stages (ms) "
-              + ", ".join(f"{k2} {v:.0f}" for k2, v in sorted(img["stage_ms"].items())))
+              + (", ".join(f"{k2} {v:.0f}" for k2, v in sorted(img["stage_ms"].items())) or "not timed"))
 print(f"GPU memory of the wgpu render: {mem('render_wgpu')}")

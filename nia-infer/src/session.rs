@@ -36,6 +36,12 @@ pub struct SessionArgs {
     /// subject's dataset, as `eval` uses).
     #[arg(long, value_parser = parse_views)]
     pub views: Option<ViewList>,
+    /// Leaves out the per-stage timings of the report (`stage_ms`). Timing a stage waits for
+    /// the device at its end, six times per network call; on a GPU those waits add time and
+    /// keep the host's work for the next call from overlapping the device's. On the CPU
+    /// backends it changes only the report (`orbit` never times its stages).
+    #[arg(long)]
+    pub no_stage_times: bool,
 }
 
 /// What every rendering command's report starts with.
@@ -59,6 +65,8 @@ pub struct RenderSession {
     pub samples: usize,
     /// Rays per network call.
     pub chunk: usize,
+    /// Whether the commands time their stages (not with `--no-stage-times`).
+    pub timed: bool,
 }
 
 impl RenderSession {
@@ -76,6 +84,7 @@ impl RenderSession {
             opened,
             views,
             options,
+            timed: !args.no_stage_times,
         })
     }
 

@@ -154,6 +154,26 @@ fn eval_reproduces_the_numbers_training_printed() {
     assert_eq!(csv.lines().count(), images.len() + 1);
     let report = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
     assert!(report.contains(&format!("**{psnr:.2}**")), "{report}");
+    assert_eq!(metrics["stage_times"], true);
+
+    // Without the stage timings: the same scores to the bit, no stage in any image's row.
+    let untimed_dir = scratch("eval-untimed");
+    ok(&on_model(
+        "eval",
+        "--backend ndarray --no-stage-times --no-pictures",
+        &[],
+        &untimed_dir,
+    ));
+    let untimed = json_file(&untimed_dir.join("metrics.json"));
+    assert_eq!(untimed["stage_times"], false);
+    assert_eq!(untimed["overall"]["psnr"], overall["psnr"]);
+    assert_eq!(untimed["overall"]["ssim"], overall["ssim"]);
+    let untimed_images = untimed["images"].as_array().unwrap();
+    assert_eq!(untimed_images.len(), images.len());
+    for (a, b) in untimed_images.iter().zip(images) {
+        assert_eq!(a["point_evaluations"], b["point_evaluations"]);
+        assert!(a["stage_ms"].as_object().unwrap().is_empty(), "{a}");
+    }
 }
 
 /// A synthetic set other than the model's own (another seed, another number of people) is
@@ -467,28 +487,73 @@ fn render_and_animate_write_pictures() {
         );
         let png = image::open(out_dir.join(format!("frame0001_view{view:02}.png"))).unwrap();
         assert_eq!((png.width(), png.height()), (40, 40));
+        assert!(img["stage_ms"]["mlps"].as_f64().unwrap() > 0.0, "{img}");
+    }
+    assert_eq!(report["stage_times"], true);
+    // Without stage timings: the same pictures to the byte, and no stage table.
+    let untimed_dir = scratch("render-untimed");
+    let untimed_flags = format!("{flags} --no-stage-times");
+    ok(&on_model(
+        "render",
+        &untimed_flags,
+        &["--data", s(&root)],
+        &untimed_dir,
+    ));
+    let untimed = json_file(&untimed_dir.join("render.json"));
+    assert_eq!(untimed["stage_times"], false);
+    assert_eq!(untimed["encode_stage_ms"], serde_json::json!({}));
+    for (i, view) in [3, 1].iter().enumerate() {
+        assert_eq!(untimed["images"][i]["stage_ms"], serde_json::json!({}));
+        assert_eq!(
+            untimed["images"][i]["point_evaluations"],
+            report["images"][i]["point_evaluations"]
+        );
+        for suffix in ["", "_acc", "_blend"] {
+            let file = format!("frame0001_view{view:02}{suffix}.png");
+            assert!(
+                std::fs::read(out_dir.join(&file)).unwrap()
+                    == std::fs::read(untimed_dir.join(&file)).unwrap(),
+                "{file} differs with --no-stage-times"
+            );
+        }
     }
 
     // Poses from a range of frames, then from a folder of params files (here the subject's
     // own, in name order).
     let params = subject.join("params");
-    let animate = |poses: [&str; 2], name: &str| {
+    let animate = |poses: [&str; 2], more: &str, name: &str| {
         let out = scratch(name);
         let extra = [&["--subject", s(&subject)][..], &poses].concat();
-        let flags = "--ref-frame 0 --views 0,1,2 --target 3";
-        ok(&on_model("animate", flags, &extra, &out));
+        let flags = format!("--ref-frame 0 --views 0,1,2 --target 3 {more}");
+        ok(&on_model("animate", &flags, &extra, &out));
         out
     };
-    let anim = animate(["--poses", "0..=2"], "animate");
+    let anim = animate(["--poses", "0..=2"], "", "animate");
     for i in 0..3 {
         assert!(anim.join(format!("pose_{i:04}.png")).is_file());
     }
     assert_eq!(gif_frames(&anim.join("animation.gif")), 3);
-    let from_params = animate(["--params", s(&params)], "animate-params");
+    let timed = json_file(&anim.join("animate.json"));
+    for pose in timed["poses"].as_array().unwrap() {
+        assert!(pose["stage_ms"]["mlps"].as_f64().unwrap() > 0.0, "{pose}");
+    }
+    // From the params files, and without the stage timings.
+    let from_params = animate(
+        ["--params", s(&params)],
+        "--no-stage-times",
+        "animate-params",
+    );
     let report = json_file(&from_params.join("animate.json"));
     let poses = report["poses"].as_array().unwrap();
     assert_eq!(poses.len(), 3, "one pose per params file");
     assert!(poses[2]["pose"].as_str().unwrap().ends_with("2.npy"));
+    assert_eq!(
+        (timed["stage_times"].clone(), report["stage_times"].clone()),
+        (true.into(), false.into())
+    );
+    for pose in poses {
+        assert!(pose["stage_ms"].as_object().unwrap().is_empty(), "{pose}");
+    }
 }
 
 #[test]

@@ -137,6 +137,36 @@ impl DeviceSpec {
     }
 }
 
+/// Whether a Vulkan driver is installed (Linux): an ICD manifest in the loader's standard
+/// folders, or one named by `VK_ICD_FILENAMES` / `VK_DRIVER_FILES`. Without one wgpu falls
+/// back to Mesa's OpenGL (llvmpipe) on a machine without a GPU, where a test's kernels crawl
+/// (a 14-minute `wgpu_matches_ndarray` was seen); the wgpu tests are not run there.
+#[cfg(target_os = "linux")]
+pub fn vulkan_driver_installed() -> bool {
+    if ["VK_ICD_FILENAMES", "VK_DRIVER_FILES"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some_and(|s| !s.is_empty()))
+    {
+        return true;
+    }
+    [
+        "/usr/share/vulkan/icd.d",
+        "/usr/local/share/vulkan/icd.d",
+        "/etc/vulkan/icd.d",
+    ]
+    .iter()
+    .filter_map(|dir| std::fs::read_dir(dir).ok())
+    .flatten()
+    .flatten()
+    .any(|entry| entry.path().extension().is_some_and(|e| e == "json"))
+}
+
+/// Elsewhere wgpu's own backends (Metal, DX12) are fast enough.
+#[cfg(not(target_os = "linux"))]
+pub fn vulkan_driver_installed() -> bool {
+    true
+}
+
 /// wgpu picks its adapter at the first operation, and without one burn 0.22 panics in a worker
 /// thread (`AdapterUnavailable`, then `RecvError` here). One tiny operation, caught, turns that
 /// into [`DeviceError::NoAdapter`]; the worker's own panic message still reaches stderr.

@@ -100,6 +100,8 @@ struct Report {
     ref_frame: usize,
     target: usize,
     gif: String,
+    /// Whether the stages were timed (not with `--no-stage-times`).
+    stage_times: bool,
     poses: Vec<PoseReport>,
 }
 
@@ -162,9 +164,9 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
         let body_box = BoxPadding::nhp()
             .body_box(reposer.target_vertices())
             .with_context(|| format!("{label}: the posed body has no finite vertices"))?;
-        let encoding = session.prepare_pose(&base, reposer, Some(&mut times))?;
+        let encoding = session.prepare_pose(&base, reposer, session.timed.then_some(&mut times))?;
         let img = session
-            .render(&encoding, &camera, &body_box, true, &mut |_, _| {})
+            .render(&encoding, &camera, &body_box, session.timed, &mut |_, _| {})
             .with_context(|| format!("rendering {label}"))?;
         times.merge(&img.times);
         let file = format!("pose_{i:04}.png");
@@ -189,6 +191,7 @@ pub fn run(args: &AnimateArgs) -> anyhow::Result<()> {
         ref_frame: args.ref_frame,
         target: args.target,
         gif: gif.into(),
+        stage_times: session.timed,
         poses: reports,
     };
     write_json(&args.out.join("animate.json"), &report)?;

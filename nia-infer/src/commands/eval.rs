@@ -96,6 +96,11 @@ pub struct EvalArgs {
     /// Skip the grid and blend-weight PNGs.
     #[arg(long)]
     pub no_pictures: bool,
+    /// Leaves out each image's per-stage timings (`stage_ms`). Timing a stage waits for the
+    /// device at its end, six times per network call; on a GPU those waits add time. On the
+    /// CPU backends it changes only the report.
+    #[arg(long)]
+    pub no_stage_times: bool,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -143,6 +148,8 @@ struct Metrics<'a> {
     /// Novel pose: the source frame given on the command line (`None`: each subject's first).
     reference_frame: Option<usize>,
     samples: usize,
+    /// Whether each image's stages were timed (not with `--no-stage-times`).
+    stage_times: bool,
     /// The LPIPS network and files, when LPIPS was scored.
     lpips: Option<LpipsFiles>,
     overall: Mean,
@@ -231,7 +238,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             task,
             samples,
             chunk: loaded.chunk(&args.model, samples, &adaptive),
-            timed: true,
+            timed: !args.no_stage_times,
             render: adaptive,
             lpips: lpips.as_ref().map(|(_, net)| net.clone()),
         },
@@ -268,6 +275,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         smpl_alignment: data_config.smpl_alignment,
         reference_frame: args.ref_frame,
         samples,
+        stage_times: !args.no_stage_times,
         lpips: lpips.as_ref().map(|(files, _)| files.clone()),
         overall: overall.into(),
         subjects,

@@ -44,7 +44,8 @@ pub struct ImageReport {
     /// Of those, the points whose colour was evaluated (colour culling skips the rest).
     pub colour_evaluations: u64,
     pub seconds: f64,
-    /// Milliseconds per stage (this image's rendering; the scene's encoding is reported once).
+    /// Milliseconds per stage (this image's rendering; the scene's encoding is reported once);
+    /// empty with `--no-stage-times`.
     pub stage_ms: BTreeMap<String, f64>,
 }
 
@@ -55,6 +56,8 @@ struct Report {
     frame: usize,
     chunk: usize,
     adaptive: RenderOptions,
+    /// Whether the stages were timed (not with `--no-stage-times`).
+    stage_times: bool,
     /// Per-scene work (encoder, body volume), done once for all targets.
     encode_seconds: f64,
     encode_stage_ms: BTreeMap<String, f64>,
@@ -71,8 +74,9 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
 
     let started = std::time::Instant::now();
+    let timed = session.timed;
     let mut encode_times = StageTimes::default();
-    let encoding = session.prepare(&scene, Some(&mut encode_times))?;
+    let encoding = session.prepare(&scene, timed.then_some(&mut encode_times))?;
     let encode_seconds = started.elapsed().as_secs_f64();
 
     let mut images = Vec::new();
@@ -84,7 +88,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             &encoding,
             &camera,
             &scene.body_box,
-            true,
+            timed,
             &mut |done, total| {
                 bar.set_length(total as u64);
                 bar.set_position(done as u64)
@@ -129,6 +133,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         frame: args.frame,
         chunk: session.chunk,
         adaptive: session.options,
+        stage_times: timed,
         encode_seconds,
         encode_stage_ms: encode_times.milliseconds(),
         images,

@@ -232,7 +232,7 @@ impl ViewerScene {
             &camera,
             &body_box,
             &options,
-            true,
+            self.session.timed,
             &mut |_, _| {},
             cancelled,
         )?

@@ -116,36 +116,6 @@ pub fn target_rays(input: &SceneInput, k: usize) -> RayBundle {
     rays
 }
 
-/// Whether a Vulkan driver is installed (Linux): an ICD manifest in the loader's standard
-/// folders, or one named by `VK_ICD_FILENAMES` / `VK_DRIVER_FILES`. Without one wgpu falls
-/// back to Mesa's OpenGL (llvmpipe), where these tests crawl (a 14-minute `wgpu_matches_ndarray`
-/// was seen), so they are not run there.
-#[cfg(all(feature = "wgpu", target_os = "linux"))]
-fn vulkan_driver_installed() -> bool {
-    if ["VK_ICD_FILENAMES", "VK_DRIVER_FILES"]
-        .iter()
-        .any(|v| std::env::var_os(v).is_some_and(|s| !s.is_empty()))
-    {
-        return true;
-    }
-    [
-        "/usr/share/vulkan/icd.d",
-        "/usr/local/share/vulkan/icd.d",
-        "/etc/vulkan/icd.d",
-    ]
-    .iter()
-    .filter_map(|dir| std::fs::read_dir(dir).ok())
-    .flatten()
-    .flatten()
-    .any(|entry| entry.path().extension().is_some_and(|e| e == "json"))
-}
-
-/// Elsewhere wgpu's own backends (Metal, DX12) are fast enough.
-#[cfg(all(feature = "wgpu", not(target_os = "linux")))]
-fn vulkan_driver_installed() -> bool {
-    true
-}
-
 /// The wgpu device if a fast adapter works here: on Linux only with a Vulkan driver (not the
 /// OpenGL fallback). Without one the test is skipped with a message naming what to install,
 /// unless `NIA_REQUIRE_WGPU=1` (CI), where the missing adapter fails the test.
@@ -153,7 +123,7 @@ fn vulkan_driver_installed() -> bool {
 pub fn wgpu_device() -> Option<burn::tensor::Device> {
     use burn::prelude::*;
     let required = std::env::var("NIA_REQUIRE_WGPU").as_deref() == Ok("1");
-    if !vulkan_driver_installed() {
+    if !nia_model::device::vulkan_driver_installed() {
         let message = "no Vulkan driver (wgpu would fall back to OpenGL/llvmpipe, far too slow \
                        for tests): install mesa-vulkan-drivers (Debian/Ubuntu) or your GPU's \
                        Vulkan driver";
