@@ -8,23 +8,21 @@ use anyhow::Context;
 use burn::optim::AdamConfig;
 use burn::prelude::*;
 use clap::Args;
-use glam::{Vec2, Vec3};
-use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
-use nia_data::geometry::camera::Camera;
-use nia_data::geometry::raster::rasterize;
-use nia_data::geometry::rays::{near_far, pixel_ray, Aabb, RayBundle};
-use nia_data::geometry::visibility::visibility;
+use nia_data::geometry::rays::RayBundle;
 use nia_data::rng::Rng;
-use nia_data::scene::{SceneBody, SceneInput, SourceView, RAY_BOX_PADDING_M};
+use nia_data::scene::SceneInput;
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::loss::render_loss;
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::timing::{Stage, StageTimes};
 use nia_model::{ModelConfig, NiaModel};
+use serde::Serialize;
 
 use crate::output::progress_bar;
-use serde::Serialize;
+use scene::bench_scene;
+
+mod scene;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -136,75 +134,6 @@ fn median(values: &[f64]) -> f64 {
     let mut sorted = values.to_vec();
     sorted.sort_by(f64::total_cmp);
     sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN)
-}
-
-/// The benchmark scene and `rays` rays of a target camera that hit the ray box.
-fn bench_scene(args: &BenchArgs) -> anyhow::Result<(SceneInput, RayBundle)> {
-    let model = ProceduralBody::generate(&ProceduralSpec::default())?;
-    let vertices = model.lbs(&SmplParams::default()).vertices;
-    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-    for v in &vertices {
-        lo = lo.min(*v);
-        hi = hi.max(*v);
-    }
-    let centre = (lo + hi) * 0.5;
-    let size = args.size;
-    let f = size as f32 * 1.4;
-    let camera_at = |angle: f32| {
-        let eye = centre + Vec3::new(2.5 * angle.sin(), 0.1, 2.5 * angle.cos());
-        Camera::look_at(eye, centre, Vec3::Y, f, f, size, size)
-    };
-    let mut rng = Rng::new(7);
-    let mut views = Vec::new();
-    for i in 0..args.views {
-        let camera = camera_at(i as f32 * std::f32::consts::TAU / args.views as f32)?;
-        let vis = visibility(&camera, &vertices, &model.faces, 0.02)?;
-        let image = (0..3 * (size * size) as usize)
-            .map(|_| rng.uniform())
-            .collect();
-        // The body's silhouette: what a person mask would be (read by the visual hull only).
-        let mask = rasterize(&camera, &vertices, &model.faces)?
-            .mask()
-            .iter()
-            .map(|&m| m as u8 as f32)
-            .collect();
-        views.push(SourceView {
-            camera,
-            image,
-            mask,
-            vertex_visibility: vis.iter().map(|&b| b as f32).collect(),
-        });
-    }
-    let input = SceneInput {
-        views,
-        body: SceneBody {
-            vertices,
-            faces: model.faces.clone(),
-            rh: Vec3::ZERO,
-            th: Vec3::ZERO,
-        },
-    };
-    let ray_box = Aabb::from_points(&input.body.vertices)
-        .context("the procedural body has no finite vertices")?
-        .padded(RAY_BOX_PADDING_M);
-    let target = camera_at(0.9)?;
-    let mut rays = RayBundle::default();
-    let mut tries = 0;
-    while rays.len() < args.rays {
-        tries += 1;
-        anyhow::ensure!(
-            tries < 1_000_000,
-            "could not find {} rays hitting the body box",
-            args.rays
-        );
-        let px = Vec2::new(rng.range(0.0, size as f32), rng.range(0.0, size as f32));
-        let ray = pixel_ray(&target, px);
-        if let Some((near, far)) = near_far(&ray, &ray_box) {
-            let pixel = px.y as u32 * size + px.x as u32;
-            rays.push(ray, near, far, pixel);
-        }
-    }
-    Ok((input, rays))
 }
 
 /// The forward's colours and opacities as one host vector, refused if any is not finite.
@@ -333,7 +262,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     config
         .check()
         .map_err(|e| anyhow::anyhow!("--voxel-size-m: {e}"))?;
-    let (input, rays) = bench_scene(&args).context("building the benchmark scene")?;
+    let (input, rays) =
+        bench_scene(args.size, args.views, args.rays).context("building the benchmark scene")?;
     device.seed(0);
     let model = config.init(&device);
 
