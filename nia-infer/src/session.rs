@@ -36,12 +36,27 @@ pub struct SessionArgs {
     /// subject's dataset, as `eval` uses).
     #[arg(long, value_parser = parse_views)]
     pub views: Option<ViewList>,
+    #[command(flatten)]
+    pub stage_times: StageTimesArgs,
+}
+
+/// `--no-stage-times`, for every command that reports per-stage timings (`eval` and the
+/// commands of [`SessionArgs`]).
+#[derive(Args, Debug)]
+pub struct StageTimesArgs {
     /// Leaves out the per-stage timings of the report (`stage_ms`). Timing a stage waits for
     /// the device at its end, six times per network call; on a GPU those waits add time and
     /// keep the host's work for the next call from overlapping the device's. On the CPU
     /// backends it changes only the report (`orbit` never times its stages).
     #[arg(long)]
     pub no_stage_times: bool,
+}
+
+impl StageTimesArgs {
+    /// Whether to time the stages.
+    pub fn timed(&self) -> bool {
+        !self.no_stage_times
+    }
 }
 
 /// What every rendering command's report starts with.
@@ -84,7 +99,7 @@ impl RenderSession {
             opened,
             views,
             options,
-            timed: !args.no_stage_times,
+            timed: args.stage_times.timed(),
         })
     }
 

@@ -207,13 +207,18 @@ fn steady_figures_are_medians_of_the_listed_repetitions() {
 /// On wgpu the forward's figure is taken without stage timings (a device synchronisation at
 /// the end of every stage), as the PyTorch references take theirs, and the stage table comes
 /// from forwards of their own. Runs where a Vulkan driver is installed (Mesa's software one in
-/// CI, `NIA_REQUIRE_WGPU=1`); elsewhere wgpu would fall back to OpenGL, far too slow.
+/// CI; `NIA_REQUIRE_WGPU=1` makes a missing one a failure); elsewhere wgpu would fall back to
+/// OpenGL, far too slow.
 #[cfg(feature = "wgpu")]
 #[test]
 fn on_wgpu_the_stages_are_timed_in_forwards_of_their_own() {
-    let required = std::env::var("NIA_REQUIRE_WGPU").as_deref() == Ok("1");
-    if !required && !nia_model::device::vulkan_driver_installed() {
-        eprintln!("skipped: no Vulkan driver (install mesa-vulkan-drivers)");
+    if !nia_model::device::vulkan_driver_installed() {
+        let message = "no Vulkan driver (install mesa-vulkan-drivers)";
+        assert!(
+            std::env::var("NIA_REQUIRE_WGPU").as_deref() != Ok("1"),
+            "NIA_REQUIRE_WGPU=1 but {message}"
+        );
+        eprintln!("skipped: {message}");
         return;
     }
     let mut args = vec!["bench", "--backend", "wgpu"];

@@ -21,6 +21,7 @@ use serde::Serialize;
 
 use crate::model_load::{parse_switch, LoadedModel, LpipsArgs, ModelArgs};
 use crate::output::{progress_bar, write_json, write_text};
+use crate::session::StageTimesArgs;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 #[value(rename_all = "snake_case")]
@@ -96,11 +97,8 @@ pub struct EvalArgs {
     /// Skip the grid and blend-weight PNGs.
     #[arg(long)]
     pub no_pictures: bool,
-    /// Leaves out each image's per-stage timings (`stage_ms`). Timing a stage waits for the
-    /// device at its end, six times per network call; on a GPU those waits add time. On the
-    /// CPU backends it changes only the report.
-    #[arg(long)]
-    pub no_stage_times: bool,
+    #[command(flatten)]
+    pub stage_times: StageTimesArgs,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -238,7 +236,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             task,
             samples,
             chunk: loaded.chunk(&args.model, samples, &adaptive),
-            timed: !args.no_stage_times,
+            timed: args.stage_times.timed(),
             render: adaptive,
             lpips: lpips.as_ref().map(|(_, net)| net.clone()),
         },
@@ -275,7 +273,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         smpl_alignment: data_config.smpl_alignment,
         reference_frame: args.ref_frame,
         samples,
-        stage_times: !args.no_stage_times,
+        stage_times: args.stage_times.timed(),
         lpips: lpips.as_ref().map(|(files, _)| files.clone()),
         overall: overall.into(),
         subjects,
