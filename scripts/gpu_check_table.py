@@ -160,3 +160,42 @@ for name, label, expected in [("render_wgpu", "512x512 images, wgpu", True),
               f"{img['point_evaluations']} network points, {img['colour_evaluations']} coloured; stages (ms) "
               + (", ".join(f"{k2} {v:.0f}" for k2, v in sorted(img["stage_ms"].items())) or "not timed"))
 print(f"GPU memory of the wgpu render: {mem('render_wgpu')}")
+
+
+def render_images(name):
+    """(target view, seconds) of each image of a render's report, or [] where it did not run."""
+    path = os.path.join(out, name, "render.json")
+    if not os.path.exists(path):
+        return []
+    return [(img["target_view"], img["seconds"]) for img in json.load(open(path))["images"]]
+
+
+def goal(label, value, limit, what):
+    """One line of the goals: met where VALUE <= LIMIT."""
+    if value is None:
+        return f"- {label}: not measured"
+    return f"- {label}: {'met' if value <= limit else 'not met'} ({what})"
+
+
+# Issue 38's goals, side by side in this run. A steady 512x512 image is the fastest of the
+# warm-cache renders with the default chunk (timed and untimed), view by view; without the
+# chunks step, the fresh render's later images (its first pays the start-up).
+print()
+print("Goals (issue 38), this run:")
+fwd = nia.get("forward_s") if nia else None
+step = nia.get("train_step_s") if nia else None
+ref_fwd = ref.get("forward_s") if ref else None
+ref_step = ref.get("train_step_s") if ref else None
+print(goal("forward no slower than PyTorch CUDA", fwd / ref_fwd if fwd and ref_fwd else None, 1.0,
+           f"{ratio(fwd, ref_fwd)}: {fmt(fwd)} against {fmt(ref_fwd)}"))
+print(goal("training step no slower than PyTorch CUDA", step / ref_step if step and ref_step else None, 1.0,
+           f"{ratio(step, ref_step)}: {fmt(step)} against {fmt(ref_step)}"))
+print(goal("training step at the paper's size in 0.15 s", step, 0.15, fmt(step)))
+steady = {}
+warm = [img for name in ("render_chunk_default", "render_chunk_untimed") for img in render_images(name)]
+for view, seconds in warm or render_images("render_wgpu")[1:]:
+    steady[view] = min(seconds, steady.get(view, seconds))
+worst = max(steady.values()) if steady else None
+print(goal("a 512x512 image with the paper network in 0.5 s", worst, 0.5,
+           ", ".join(f"view {v} {s:.2f} s" for v, s in sorted(steady.items()))
+           + (" (warm caches, default chunk)" if warm else " (the fresh render's later images)")))
