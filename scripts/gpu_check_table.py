@@ -31,8 +31,13 @@ def fmt(x, unit="s", digits=3):
     return "-" if x is None else f"{x:.{digits}f} {unit}".strip()
 
 
+def quotient(a, b):
+    return a / b if a is not None and b else None
+
+
 def ratio(a, b):
-    return f"{a / b:.2f}x" if a is not None and b else "-"
+    q = quotient(a, b)
+    return "-" if q is None else f"{q:.2f}x"
 
 
 def mem(name):
@@ -135,6 +140,7 @@ if tiny:
           f"({tiny['forward_rays_per_s']:.0f} rays/s), training step {fmt(tiny.get('train_step_s'), digits=4)} "
           f"({tiny.get('train_rays_per_s') or 0:.0f} rays/s); first forward {tiny['first_forward_s']:.2f} s")
 print()
+renders = {}  # each render folder's report, read once, for the goals below
 # (folder, label, whether a missing one is worth a line: the optional steps' only when prepared)
 for name, label, expected in [("render_wgpu", "512x512 images, wgpu", True),
                               ("render_baseline", f"512x512 images, wgpu, commit {base}", bool(base)),
@@ -148,7 +154,7 @@ for name, label, expected in [("render_wgpu", "512x512 images, wgpu", True),
         if expected:
             print(f"{label}: not rendered")
         continue
-    r = json.load(open(path))
+    r = renders[name] = json.load(open(path))
     wall = ""
     if read(f"{name}_wall.txt"):
         t0, t1 = map(float, read(f"{name}_wall.txt").split())
@@ -164,10 +170,7 @@ print(f"GPU memory of the wgpu render: {mem('render_wgpu')}")
 
 def render_images(name):
     """(target view, seconds) of each image of a render's report, or [] where it did not run."""
-    path = os.path.join(out, name, "render.json")
-    if not os.path.exists(path):
-        return []
-    return [(img["target_view"], img["seconds"]) for img in json.load(open(path))["images"]]
+    return [(img["target_view"], img["seconds"]) for img in renders.get(name, {}).get("images", [])]
 
 
 def goal(label, value, limit, what):
@@ -186,9 +189,9 @@ fwd = nia.get("forward_s") if nia else None
 step = nia.get("train_step_s") if nia else None
 ref_fwd = ref.get("forward_s") if ref else None
 ref_step = ref.get("train_step_s") if ref else None
-print(goal("forward no slower than PyTorch CUDA", fwd / ref_fwd if fwd and ref_fwd else None, 1.0,
+print(goal("forward no slower than PyTorch CUDA", quotient(fwd, ref_fwd), 1.0,
            f"{ratio(fwd, ref_fwd)}: {fmt(fwd)} against {fmt(ref_fwd)}"))
-print(goal("training step no slower than PyTorch CUDA", step / ref_step if step and ref_step else None, 1.0,
+print(goal("training step no slower than PyTorch CUDA", quotient(step, ref_step), 1.0,
            f"{ratio(step, ref_step)}: {fmt(step)} against {fmt(ref_step)}"))
 print(goal("training step at the paper's size in 0.15 s", step, 0.15, fmt(step)))
 steady = {}
