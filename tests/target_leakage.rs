@@ -72,7 +72,6 @@ fn render(model: &NiaModel, source: &SceneSource, device: &Device) -> (Vec<f32>,
     };
     let options = RenderOptions {
         visual_hull: true,
-        hull_dilate_px: 2,
         supersample: 2,
         ..RenderOptions::default()
     };

@@ -20,102 +20,6 @@ fn view_direction_feature_is_difference_and_cosine() {
     }
 }
 
-mod depth_test {
-    use glam::{Vec2, Vec3};
-    use nia_data::geometry::camera::Camera;
-    use nia_data::scene::SourceDepth;
-
-    const SIZE: u32 = 16;
-    const TOL: f32 = 0.03;
-    /// Camera depth of the occluder.
-    const WALL_Z: f32 = 2.0;
-
-    /// A camera at the origin looking down +z (f = SIZE: 1 pixel = 1/16 m at 1 m).
-    fn camera() -> Camera {
-        let f = SIZE as f32;
-        Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::NEG_Y, f, f, SIZE, SIZE).unwrap()
-    }
-
-    /// A wall at z = 2 covering the image's left half (x < 0 in the world; the principal
-    /// point is at u = 8, so pixel columns 0..=7 have their centres on it).
-    fn depth() -> SourceDepth {
-        let v = [
-            Vec3::new(-10.0, -10.0, WALL_Z),
-            Vec3::new(-0.0625, -10.0, WALL_Z),
-            Vec3::new(-0.0625, 10.0, WALL_Z),
-            Vec3::new(-10.0, 10.0, WALL_Z),
-        ];
-        SourceDepth::rasterise(&[camera()], &v, &[[0, 1, 2], [0, 2, 3]], TOL).unwrap()
-    }
-
-    #[test]
-    fn a_point_behind_the_body_is_hidden_and_one_in_front_is_not() {
-        let d = depth();
-        let covered = Vec2::new(3.0, 8.0);
-        assert_eq!(d.unhidden(0, covered, 3.0), 0.0, "behind the wall");
-        assert_eq!(d.unhidden(0, covered, 1.5), 1.0, "in front of it");
-        assert_eq!(
-            d.unhidden(0, covered, WALL_Z + 0.5 * TOL),
-            1.0,
-            "within tol"
-        );
-        assert_eq!(d.unhidden(0, covered, WALL_Z + 2.0 * TOL), 0.0, "past tol");
-    }
-
-    #[test]
-    fn empty_pixels_and_pixels_outside_the_image_pass() {
-        let d = depth();
-        assert_eq!(d.unhidden(0, Vec2::new(12.0, 8.0), 3.0), 1.0, "uncovered");
-        assert_eq!(
-            d.unhidden(0, Vec2::new(-5.0, 8.0), 3.0),
-            1.0,
-            "left of the image"
-        );
-        assert_eq!(
-            d.unhidden(0, Vec2::new(30.0, 40.0), 3.0),
-            1.0,
-            "below the image"
-        );
-        assert_eq!(
-            d.unhidden(0, Vec2::new(f32::NAN, 8.0), 1.0),
-            0.0,
-            "NaN projection"
-        );
-    }
-
-    #[test]
-    fn the_share_is_bilinear_across_an_occlusion_edge() {
-        let d = depth();
-        // Column 7 is the wall's last, column 8 the first empty one.
-        for (u, expected) in [
-            (7.0, 0.0),
-            (7.25, 0.25),
-            (7.5, 0.5),
-            (7.75, 0.75),
-            (8.0, 1.0),
-        ] {
-            let got = d.unhidden(0, Vec2::new(u, 8.3), 3.0);
-            assert!(
-                (got - expected).abs() < 1e-6,
-                "u = {u}: {got} vs {expected}"
-            );
-        }
-    }
-
-    #[test]
-    fn a_bad_tolerance_or_mixed_sizes_are_errors_naming_them() {
-        let v = [Vec3::new(0.0, 0.0, 2.0), Vec3::X, Vec3::Y];
-        for tol in [-0.01, f32::NAN, f32::INFINITY] {
-            let err = SourceDepth::rasterise(&[camera()], &v, &[[0, 1, 2]], tol).unwrap_err();
-            assert!(err.to_string().contains("tol_m"), "{err}");
-        }
-        let mut small = camera();
-        small.width = SIZE / 2;
-        let err = SourceDepth::rasterise(&[camera(), small], &v, &[[0, 1, 2]], TOL).unwrap_err();
-        assert!(err.to_string().contains("cameras"), "{err}");
-    }
-}
-
 mod visual_hull {
     use glam::Vec2;
     use nia_data::scene::VisualHull;
@@ -129,20 +33,20 @@ mod visual_hull {
             .collect()
     }
 
-    fn hull(dilate_px: usize) -> VisualHull {
-        VisualHull::new(&[&left_half()], SIZE, SIZE, dilate_px).unwrap()
+    fn hull() -> VisualHull {
+        VisualHull::new(&[&left_half()], SIZE, SIZE).unwrap()
     }
 
     #[test]
     fn inside_the_mask_reads_one_and_outside_reads_zero() {
-        let h = hull(0);
+        let h = hull();
         assert_eq!(h.inside(0, Vec2::new(3.0, 8.0)), 1.0, "on the person");
         assert_eq!(h.inside(0, Vec2::new(12.0, 8.0)), 0.0, "off the person");
     }
 
     #[test]
     fn the_read_is_bilinear_across_the_outline() {
-        let h = hull(0);
+        let h = hull();
         // Column 7 is the person's last, column 8 the first empty one.
         for (u, expected) in [(7.0, 1.0), (7.25, 0.75), (7.5, 0.5), (8.0, 0.0)] {
             let got = h.inside(0, Vec2::new(u, 8.3));
@@ -152,7 +56,7 @@ mod visual_hull {
 
     #[test]
     fn a_view_that_does_not_see_the_point_does_not_carve_it() {
-        let h = hull(0);
+        let h = hull();
         for uv in [
             Vec2::new(-5.0, 8.0),
             Vec2::new(40.0, 8.0),
@@ -165,88 +69,27 @@ mod visual_hull {
     }
 
     #[test]
-    fn dilation_moves_the_outline_out_by_whole_pixels() {
-        let h = hull(2);
-        assert_eq!(
-            h.inside(0, Vec2::new(9.0, 8.0)),
-            1.0,
-            "column 9 is inside now"
-        );
-        assert_eq!(h.inside(0, Vec2::new(9.5, 8.0)), 0.5);
-        assert_eq!(h.inside(0, Vec2::new(10.0, 8.0)), 0.0);
-    }
-
-    #[test]
     fn bad_masks_are_errors_naming_the_view_and_what_was_expected() {
         let short = vec![1.0f32; SIZE * SIZE - 1];
-        let err = VisualHull::new(&[&left_half(), &short], SIZE, SIZE, 0).unwrap_err();
+        let err = VisualHull::new(&[&left_half(), &short], SIZE, SIZE).unwrap_err();
         assert!(err.to_string().contains("views[1].mask"), "{err}");
         for bad in [f32::NAN, 1.5, -0.1] {
             let mut m = left_half();
             m[37] = bad;
-            let err = VisualHull::new(&[&m], SIZE, SIZE, 0).unwrap_err();
+            let err = VisualHull::new(&[&m], SIZE, SIZE).unwrap_err();
             assert!(err.to_string().contains("views[0].mask[37]"), "{err}");
         }
-        let err = VisualHull::new(&[&left_half()], SIZE, SIZE, 1000).unwrap_err();
-        assert!(err.to_string().contains("dilate_px"), "{err}");
-        let err = VisualHull::new(&[], 0, SIZE, 0).unwrap_err();
+        let err = VisualHull::new(&[], 0, SIZE).unwrap_err();
         assert!(err.to_string().contains("image size"), "{err}");
     }
 }
 
-/// o_n's mask test (`SourceMasks::shows_person`): the mask as it is, bilinear, and nothing
-/// seen where the view shows nothing (off the image, behind the camera).
-mod mask_test {
-    use glam::Vec2;
+/// The masks the visual hull reads: with the fitted body's silhouette counted as person
+/// (`masks_with_body`), and bad masks refused.
+mod source_masks {
     use nia_data::scene::SourceMasks;
 
     const SIZE: usize = 16;
-
-    /// A 16 x 16 mask whose columns 0..=7 are the person, with a one-pixel hole at (3, 8).
-    fn left_half_with_hole() -> Vec<f32> {
-        let mut m: Vec<f32> = (0..SIZE * SIZE)
-            .map(|i| ((i % SIZE) < 8) as u8 as f32)
-            .collect();
-        m[8 * SIZE + 3] = 0.0;
-        m
-    }
-
-    fn masks() -> SourceMasks {
-        SourceMasks::new("o_n's mask test", &[&left_half_with_hole()], SIZE, SIZE, 0).unwrap()
-    }
-
-    #[test]
-    fn the_person_reads_one_and_holes_and_background_read_zero() {
-        let m = masks();
-        assert_eq!(m.shows_person(0, Some(Vec2::new(2.0, 4.0))), 1.0);
-        assert_eq!(
-            m.shows_person(0, Some(Vec2::new(3.0, 8.0))),
-            0.0,
-            "the hole"
-        );
-        assert_eq!(m.shows_person(0, Some(Vec2::new(12.0, 8.0))), 0.0);
-        // Half-way between the hole and the person beside it.
-        let got = m.shows_person(0, Some(Vec2::new(3.5, 8.0)));
-        assert!((got - 0.5).abs() < 1e-6, "{got}");
-    }
-
-    #[test]
-    fn a_view_that_shows_nothing_at_the_point_does_not_see_it() {
-        let m = masks();
-        for uv in [
-            Vec2::new(-5.0, 8.0),
-            Vec2::new(2.0, -3.0),
-            Vec2::new(2.0, 40.0),
-            Vec2::new(f32::NAN, 8.0),
-            Vec2::new(f32::INFINITY, f32::NEG_INFINITY),
-        ] {
-            assert_eq!(m.shows_person(0, Some(uv)), 0.0, "{uv:?}");
-        }
-        assert_eq!(m.shows_person(0, None), 0.0, "behind the camera");
-        // Half a pixel off the image's left edge, on a person column: half the weight.
-        let got = m.shows_person(0, Some(Vec2::new(-0.5, 4.0)));
-        assert!((got - 0.5).abs() < 1e-6, "{got}");
-    }
 
     /// The body's silhouette joins the masks before carving (`masks_with_body`): a wall over
     /// the image's left half (pixel columns 0..=7) as the body, and a mask of that half with
@@ -304,10 +147,10 @@ mod mask_test {
     #[test]
     fn bad_masks_are_errors_naming_the_reader_and_the_view() {
         let short = vec![1.0f32; SIZE * SIZE - 1];
-        let err = SourceMasks::new("o_n's mask test", &[&short], SIZE, SIZE, 0).unwrap_err();
+        let err = SourceMasks::new("visual hull", &[&short], SIZE, SIZE).unwrap_err();
         let msg = err.to_string();
         assert!(
-            msg.contains("o_n's mask test") && msg.contains("views[0].mask"),
+            msg.contains("visual hull") && msg.contains("views[0].mask"),
             "{msg}"
         );
     }

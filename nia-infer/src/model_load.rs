@@ -63,10 +63,6 @@ pub struct ModelArgs {
     /// model's `[render]` setting; off where it has none).
     #[arg(long, value_parser = parse_switch)]
     pub visual_hull: Option<bool>,
-    /// Pixels the masks are grown by before carving (default: the model's `[render]`
-    /// setting, 0).
-    #[arg(long)]
-    pub hull_dilate_px: Option<usize>,
     /// The fitted body's silhouette, shrunk by N pixels, counts as person in every source mask
     /// before carving; `off` uses the masks as they are (default: the model's `[render]`
     /// setting, off).
@@ -138,7 +134,6 @@ impl ModelArgs {
             ("early_termination", self.early_termination.is_some()),
             ("colour_culling", self.colour_culling.is_some()),
             ("visual_hull", self.visual_hull.is_some()),
-            ("hull_dilate_px", self.hull_dilate_px.is_some()),
             ("hull_body_erode_px", self.hull_body_erode_px.is_some()),
             ("supersample", self.supersample.is_some()),
             ("c0_weight_scale", self.c0_weight_scale.is_some()),
@@ -157,9 +152,6 @@ impl ModelArgs {
         }
         if let Some(on) = self.visual_hull {
             options.visual_hull = on;
-        }
-        if let Some(px) = self.hull_dilate_px {
-            options.hull_dilate_px = px;
         }
         if let Some(OffOrPixels(px)) = self.hull_body_erode_px {
             options.hull_body_erode_px = px;

@@ -350,7 +350,7 @@ fn the_visual_hull_skips_exactly_what_it_zeroes() {
         .model
         .encode(&input, None, &c.device, None)
         .unwrap()
-        .with_visual_hull(&input, Some(1), None)
+        .with_visual_hull(&input, true, None)
         .unwrap();
     let size = [image.width() as usize, image.height() as usize];
     let render = |adaptive: RenderOptions| {

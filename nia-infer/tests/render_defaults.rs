@@ -16,12 +16,14 @@ fn fixture_run() -> serde_json::Value {
 fn carving_is_off_unless_asked_for() {
     assert!(!RenderOptions::default().visual_hull);
     assert!(!RenderOptions::exhaustive().visual_hull);
-    assert_eq!(RenderOptions::default().hull(), None);
     // A `[render]` section without the key does not carve.
     let options: RenderOptions = toml::from_str("skip_empty_space = true").unwrap();
     assert!(!options.visual_hull);
-    let options: RenderOptions = toml::from_str("visual_hull = true\nhull_dilate_px = 5").unwrap();
-    assert_eq!(options.hull(), Some(5));
+    let options: RenderOptions = toml::from_str("visual_hull = true").unwrap();
+    assert!(options.visual_hull);
+    // The removed dilation is an unknown key in a config.
+    let err = toml::from_str::<RenderOptions>("hull_dilate_px = 0").unwrap_err();
+    assert!(err.to_string().contains("hull_dilate_px"), "{err}");
     // Nor does a section without `hull_body_erode_px` add the body to the masks.
     assert_eq!(options.hull_body_erode_px, None);
     let options: RenderOptions = toml::from_str("hull_body_erode_px = 2").unwrap();
@@ -67,20 +69,18 @@ fn a_model_file_from_before_carving_loads_without_it() {
     );
     let settings = RunSettings::from_json(&run).unwrap();
     assert!(!settings.render.visual_hull);
-    assert_eq!(settings.render.hull(), None);
     assert_eq!(settings.render.hull_body_erode_px, None);
 }
 
 /// A model file written while carving defaulted to on carries the whole `[render]` section
-/// (the trainer writes every key), so it keeps carving with its dilation after this change;
-/// one that said off stays off.
+/// (the trainer writes every key), so it keeps carving after this change; one that said off
+/// stays off.
 #[test]
 fn a_model_file_that_carved_keeps_carving() {
-    for (on, px) in [(true, 5), (true, 0), (false, 5)] {
+    for on in [true, false] {
         let mut run = fixture_run();
         let mut written = serde_json::to_value(RenderOptions {
             visual_hull: on,
-            hull_dilate_px: px,
             ..RenderOptions::default()
         })
         .unwrap();
@@ -88,6 +88,6 @@ fn a_model_file_that_carved_keeps_carving() {
         written["empty_space_m"] = run["render"]["empty_space_m"].clone();
         run["render"] = written;
         let settings = RunSettings::from_json(&run).unwrap();
-        assert_eq!(settings.render.hull(), on.then_some(px), "{on} {px}");
+        assert_eq!(settings.render.visual_hull, on);
     }
 }

@@ -56,15 +56,6 @@ pub struct ModelConfig {
     /// model files and checkpoints written before this switch carry) or once per ray at the
     /// expected surface point (not in the paper; see `ibr::surface`).
     pub source_colours_at: Option<SourceColoursAt>,
-    /// o_n also passes a depth test against the posed body's z-buffer in each source view,
-    /// with this tolerance in metres (not in the paper; `None`, also what older model files
-    /// carry, is the paper's per-vertex visibility alone; see `nia_data::scene::source_depth`).
-    pub visibility_depth_tol_m: Option<f32>,
-    /// o_n also reads each source view's person mask at the point's projection, so a view
-    /// whose mask says background there (a segmentation hole, a lost hand) does not count as
-    /// seeing the point (not in the paper; `None` or `false`, also what older model files
-    /// carry, is off; see `nia_data::scene::source_masks`).
-    pub visibility_masks: Option<bool>,
 }
 
 /// Where the source colours c_n are read (`ibr::surface`).
@@ -128,13 +119,6 @@ impl ModelConfig {
             ));
         }
         self.ray_sampler.check()?;
-        if let Some(tol) = self.visibility_depth_tol_m {
-            if !(tol.is_finite() && tol >= 0.0) {
-                return Err(format!(
-                    "`visibility_depth_tol_m` = {tol}, expected a finite value >= 0 metres"
-                ));
-            }
-        }
         if !(bv.norm_epsilon.is_finite() && bv.norm_epsilon > 0.0) {
             return Err(format!(
                 "`body_volume.norm_epsilon` = {}, expected a finite value > 0",

@@ -100,31 +100,6 @@ pub fn mask_loss(acc: Tensor<1>, on_body: Tensor<1>) -> Result<Tensor<1>, ShapeE
     Ok((acc - on_body).square().mean())
 }
 
-/// The IBR-only loss (switchable, `train.ibr_loss_weight`; not in the paper):
-/// `mean |C_ibr - C_gt|^2`, with C_ibr the source colours composited under the view weights
-/// alone, renormalised without c0 ([`crate::renderer::RenderOutput::rgb_ibr`]). NIA eq. 6
-/// supervises the NeRF colour C0 on its own next to the blend C; this term does the same for
-/// the image-based part, so F_B's view weights must pick the view that matches the target
-/// whatever share c0 gets, and (with `source_colours_at = surface`) the expected depth is
-/// pulled to where the chosen views agree with the target pixel.
-///
-/// # Shapes
-/// - `rgb_ibr`, `gt`: `[R, 3]`
-/// - output: `[1]`
-pub fn ibr_loss(rgb_ibr: Tensor<2>, gt: Tensor<2>) -> Result<Tensor<1>, ShapeError> {
-    let [r, c] = gt.dims();
-    ShapeError::check("IBR loss `gt` [R, 3]", &[r, c], &[None, Some(3)])?;
-    ShapeError::check(
-        "IBR loss `rgb_ibr` [R, 3]",
-        &rgb_ibr.dims(),
-        &[Some(r), Some(3)],
-    )?;
-    if r == 0 {
-        return Err(ShapeError::empty("IBR loss rays R"));
-    }
-    Ok((rgb_ibr - gt).square().mean())
-}
-
 /// The distortion loss of mip-NeRF 360 (Barron et al. 2022, eq. 15; switchable,
 /// `train.distortion_loss_weight`; not in NIA):
 ///

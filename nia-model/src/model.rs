@@ -65,12 +65,6 @@ pub struct NiaModel {
     /// Where the source colours are read.
     #[module(skip)]
     pub source_colours_at: SourceColoursAt,
-    /// Tolerance of o_n's depth test, metres (`None`: the paper's o_n).
-    #[module(skip)]
-    pub visibility_depth_tol_m: Option<f32>,
-    /// o_n also reads the source masks (`ModelConfig::visibility_masks`).
-    #[module(skip)]
-    pub visibility_masks: bool,
 }
 
 impl ModelConfig {
@@ -94,8 +88,6 @@ impl ModelConfig {
             box_enlarge: self.box_enlarge,
             ray_sampler: self.ray_sampler,
             source_colours_at: self.source_colours_at.unwrap_or_default(),
-            visibility_depth_tol_m: self.visibility_depth_tol_m,
-            visibility_masks: self.visibility_masks.unwrap_or(false),
         }
     }
 }

@@ -41,10 +41,8 @@ pub const MIN_OCCUPANCY_CELL_M: f32 = 0.005;
 pub const DEFAULT_TERMINATION: f32 = 1e-3;
 /// Default per-ray budget of culled weight (`colour_culling`).
 pub const DEFAULT_COLOUR_CULLING: f32 = 1e-3;
-/// Default of [`RenderOptions::hull_dilate_px`]: the masks as they are.
-pub const DEFAULT_HULL_DILATE_PX: usize = 0;
-/// Largest [`RenderOptions::hull_dilate_px`] accepted.
-pub const MAX_HULL_DILATE_PX: usize = 256;
+/// Largest [`RenderOptions::hull_body_erode_px`] accepted.
+pub const MAX_HULL_BODY_ERODE_PX: usize = 256;
 /// Default of [`RenderOptions::supersample`]: one ray through each pixel's centre (NeRF's,
 /// NHP's and NIA's rendering).
 pub const DEFAULT_SUPERSAMPLE: usize = 1;
@@ -84,9 +82,6 @@ pub struct RenderOptions {
     /// zero wherever a source view's person mask says empty space, and with skipping those
     /// samples are not evaluated. Off (the default) gives the paper's density.
     pub visual_hull: bool,
-    /// Pixels the masks are grown by before carving (noisy masks of real captures need a
-    /// margin; the synthetic masks are exact).
-    pub hull_dilate_px: usize,
     /// The fitted body's silhouette in each source view, shrunk by this many pixels, counts as
     /// person before carving (`nia_data::scene::masks_with_body`; `None`, the default: the
     /// masks as they are). A segmentation network that cuts a band out of the person or loses a
@@ -112,7 +107,6 @@ impl Default for RenderOptions {
             early_termination: DEFAULT_TERMINATION,
             colour_culling: DEFAULT_COLOUR_CULLING,
             visual_hull: false,
-            hull_dilate_px: DEFAULT_HULL_DILATE_PX,
             hull_body_erode_px: None,
             supersample: DEFAULT_SUPERSAMPLE,
             c0_weight_scale: 1.0,
@@ -168,20 +162,13 @@ impl RenderOptions {
                 self.colour_culling.to_string(),
             );
         }
-        if self.hull_dilate_px > MAX_HULL_DILATE_PX {
-            return bad(
-                "hull_dilate_px",
-                &format!("at most {MAX_HULL_DILATE_PX} pixels"),
-                self.hull_dilate_px.to_string(),
-            );
-        }
         if let Some(px) = self
             .hull_body_erode_px
-            .filter(|&px| px > MAX_HULL_DILATE_PX)
+            .filter(|&px| px > MAX_HULL_BODY_ERODE_PX)
         {
             return bad(
                 "hull_body_erode_px",
-                &format!("at most {MAX_HULL_DILATE_PX} pixels"),
+                &format!("at most {MAX_HULL_BODY_ERODE_PX} pixels"),
                 px.to_string(),
             );
         }
@@ -212,12 +199,6 @@ impl RenderOptions {
     /// `None` when culling is off.
     pub fn culling(&self) -> Option<f32> {
         (self.colour_culling > 0.0).then_some(self.colour_culling)
-    }
-
-    /// The dilation of visual-hull carving (`SceneEncoding::with_visual_hull`); `None` when
-    /// carving is off.
-    pub fn hull(&self) -> Option<usize> {
-        self.visual_hull.then_some(self.hull_dilate_px)
     }
 
     /// c0's blend-weight scale (`SceneEncoding::with_c0_weight_scale`); `None` at 1, the

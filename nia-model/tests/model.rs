@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use burn::prelude::*;
 use nia_model::config::SourceColoursAt;
-use nia_model::loss::{ibr_loss, render_loss};
+use nia_model::loss::render_loss;
 use nia_model::renderer::termination::TERMINATION_SEGMENTS;
 use nia_model::renderer::RenderOutput;
 use nia_model::{ModelConfig, Variant};
@@ -100,16 +100,16 @@ fn any_number_of_source_views_runs_with_the_same_weights() {
 
 #[test]
 fn a_training_step_has_finite_gradients_everywhere_it_should() {
-    training_step_gradients(None, false);
+    training_step_gradients(None);
 }
 
-/// The same with source colours read at the expected surface point and the IBR-only loss.
+/// The same with source colours read at the expected surface point.
 #[test]
-fn a_surface_training_step_with_the_ibr_loss_has_finite_gradients() {
-    training_step_gradients(Some(SourceColoursAt::Surface), true);
+fn a_surface_training_step_has_finite_gradients() {
+    training_step_gradients(Some(SourceColoursAt::Surface));
 }
 
-fn training_step_gradients(at: Option<SourceColoursAt>, with_ibr_loss: bool) {
+fn training_step_gradients(at: Option<SourceColoursAt>) {
     let device = Device::ndarray().autodiff();
     device.seed(4);
     let config = ModelConfig::tiny().with_source_colours_at(at);
@@ -124,11 +124,7 @@ fn training_step_gradients(at: Option<SourceColoursAt>, with_ibr_loss: bool) {
         .render(&scene, &rays, SAMPLES, Some(&jitter), None)
         .unwrap();
     let gt = Tensor::<2>::ones([rays.len(), 3], &device).mul_scalar(0.5);
-    let rgb_ibr = out.rgb_ibr.clone().unwrap();
-    let mut loss = render_loss(out.rgb, out.rgb0, gt.clone()).unwrap().total;
-    if with_ibr_loss {
-        loss = loss + ibr_loss(rgb_ibr, gt).unwrap();
-    }
+    let loss = render_loss(out.rgb, out.rgb0, gt).unwrap().total;
     let grads = loss.backward();
     fn check<const D: usize>(name: &str, w: Tensor<D>, grads: &burn::tensor::Gradients) {
         let g = w
@@ -754,45 +750,6 @@ fn c0_shuffling_changes_the_blend_but_not_the_nerf_composite() {
     }
 }
 
-#[test]
-fn the_depth_test_tolerance_is_checked_and_optional() {
-    let mut config = ModelConfig::tiny();
-    assert!(config.check().is_ok(), "no depth test: the paper's o_n");
-    for tol in [0.0, 0.03] {
-        config.visibility_depth_tol_m = Some(tol);
-        assert!(config.check().is_ok(), "{tol}");
-    }
-    for tol in [-0.01, f32::NAN, f32::INFINITY] {
-        config.visibility_depth_tol_m = Some(tol);
-        let err = config.check().unwrap_err();
-        assert!(err.contains("visibility_depth_tol_m"), "{err}");
-    }
-    // Model files written before the switch carry no such key: the paper's o_n.
-    let mut json: serde_json::Value = serde_json::to_value(ModelConfig::tiny()).unwrap();
-    json.as_object_mut()
-        .unwrap()
-        .remove("visibility_depth_tol_m");
-    let old: ModelConfig = serde_json::from_value(json).unwrap();
-    assert_eq!(old.visibility_depth_tol_m, None);
-}
-
-/// The mask test of o_n is off unless asked for; model files written before the switch carry
-/// no such key and keep the paper's o_n.
-#[test]
-fn the_mask_test_is_off_by_default_and_in_older_model_files() {
-    let device = Device::ndarray();
-    assert!(!ModelConfig::tiny().init(&device).visibility_masks);
-    let mut config = ModelConfig::tiny();
-    config.visibility_masks = Some(true);
-    assert!(config.init(&device).visibility_masks);
-    let mut json: serde_json::Value = serde_json::to_value(&config).unwrap();
-    assert_eq!(json["visibility_masks"], true);
-    json.as_object_mut().unwrap().remove("visibility_masks");
-    let old: ModelConfig = serde_json::from_value(json).unwrap();
-    assert_eq!(old.visibility_masks, None);
-    assert!(!old.init(&device).visibility_masks);
-}
-
 /// The person masks the visual hull reads are checked with the rest of the scene: a mask of
 /// the wrong size or with a value outside [0, 1] is an error naming the view, and a hull
 /// built from another scene's views is refused.
@@ -814,11 +771,11 @@ fn bad_person_masks_are_errors_naming_the_view() {
     fewer.views.pop();
     let err = encoded
         .clone()
-        .with_visual_hull(&fewer, Some(0), None)
+        .with_visual_hull(&fewer, true, None)
         .unwrap_err();
     assert!(err.to_string().contains("visual hull"), "{err}");
     assert!(encoded
-        .with_visual_hull(&good, None, None)
+        .with_visual_hull(&good, false, None)
         .unwrap()
         .visual_hull
         .is_none());

@@ -300,146 +300,6 @@ fn the_surface_read_has_the_finite_difference_gradient_in_depth() {
     );
 }
 
-/// o_n with the depth test (`visibility_depth_tol_m`) against the paper's o_n on the same
-/// scene, at every vertex and at every vertex moved 6 cm further along view 0's line of sight:
-/// inside the body, behind the surface view 0 sees, where the nearest face (and so the
-/// paper's o_n) is often still that visible surface.
-#[test]
-fn the_depth_test_hides_what_the_body_hides_and_keeps_what_a_view_sees() {
-    let dev = device();
-    let input = scene(3, SIZE);
-    let plain = ModelConfig::tiny()
-        .init(&dev)
-        .encode(&input, None, &dev, None)
-        .unwrap();
-    let mut config = ModelConfig::tiny();
-    config.visibility_depth_tol_m = Some(0.03);
-    let tested = config.init(&dev).encode(&input, None, &dev, None).unwrap();
-    let centre = input.views[0].camera.centre();
-    let vertices = &input.body.vertices;
-    let behind: Vec<Vec3> = vertices
-        .iter()
-        .map(|&v| v + (v - centre).normalize() * 0.06)
-        .collect();
-    let m = vertices.len();
-    let o = |encoded: &SceneEncoding, points: &[Vec3]| {
-        let dirs = vec![Vec3::Z; points.len()];
-        // View 0's row of the [N, M] visibility.
-        PointInputs::compute(&encoded.geometry, points, &dirs, None).visibility[..m].to_vec()
-    };
-    for points in [&vertices[..], &behind[..]] {
-        for (a, b) in o(&plain, points).iter().zip(&o(&tested, points)) {
-            assert!(b.is_finite() && (0.0..=1.0).contains(b), "o_n = {b}");
-            assert!(*b <= a + 1e-6, "the test can only lower o_n: {b} > {a}");
-        }
-    }
-    let share = |o: Vec<f32>, of: &[f32]| -> f32 {
-        o.iter().zip(of).map(|(x, w)| x * w).sum::<f32>() / of.iter().sum::<f32>()
-    };
-    let seen = o(&plain, vertices);
-    let behind_plain = o(&plain, &behind);
-    assert!(
-        seen.iter().sum::<f32>() > 100.0,
-        "view 0 sees too few vertices"
-    );
-    // What view 0 sees stays seen: only vertices that the 3 x 3 rule lets through next to an
-    // occlusion edge lose o_n.
-    let kept = share(o(&tested, vertices), &seen);
-    // Behind the seen surface the paper's o_n often stays up (nearest face: that surface);
-    // the test removes it but along the outline, where neighbour pixels are empty.
-    let left_plain = share(behind_plain.clone(), &seen);
-    let left_tested = share(o(&tested, &behind), &seen);
-    // Measured at 32 px (pixels of several centimetres, much of the body near an outline):
-    // kept 0.90, behind 0.54 -> 0.22.
-    assert!(
-        kept > 0.85,
-        "kept {kept} of view 0's o_n on its visible vertices"
-    );
-    assert!(
-        left_plain > 0.4,
-        "the paper's o_n behind the surface: {left_plain}"
-    );
-    assert!(
-        left_tested < 0.5 * left_plain,
-        "{left_tested} of o_n left behind the surface (paper's o_n: {left_plain})"
-    );
-}
-
-/// o_n with the mask test (`visibility_masks`) against the paper's o_n on the same scene, whose
-/// view 0 mask has a square hole over the body (a segmentation network's hole): at vertices
-/// whose projection's four pixels all lie in the hole view 0's o_n is 0, at vertices whose four
-/// pixels are all person it is the paper's, and it is never above the paper's.
-#[test]
-fn the_mask_test_drops_a_view_where_its_mask_has_a_hole() {
-    let dev = device();
-    let mut input = scene(3, SIZE);
-    let s = SIZE as usize;
-    let in_hole = |x: usize, y: usize| (12..20).contains(&x) && (10..22).contains(&y);
-    for y in 0..s {
-        for x in 0..s {
-            if in_hole(x, y) {
-                input.views[0].mask[y * s + x] = 0.0;
-            }
-        }
-    }
-    let plain = ModelConfig::tiny()
-        .init(&dev)
-        .encode(&input, None, &dev, None)
-        .unwrap();
-    let mut config = ModelConfig::tiny();
-    config.visibility_masks = Some(true);
-    let tested = config.init(&dev).encode(&input, None, &dev, None).unwrap();
-    let vertices = &input.body.vertices;
-    let m = vertices.len();
-    let dirs = vec![Vec3::Z; m];
-    let o_plain = PointInputs::compute(&plain.geometry, vertices, &dirs, None).visibility;
-    let o_tested = PointInputs::compute(&tested.geometry, vertices, &dirs, None).visibility;
-    for (a, b) in o_plain.iter().zip(&o_tested) {
-        assert!(b.is_finite() && (0.0..=1.0).contains(b), "o_n = {b}");
-        assert!(*b <= a + 1e-6, "the test can only lower o_n: {b} > {a}");
-    }
-    let mask = &input.views[0].mask;
-    let camera = &input.views[0].camera;
-    let (mut holed, mut kept) = (0, 0);
-    for (i, &v) in vertices.iter().enumerate() {
-        let Some((uv, _)) = camera.project(v) else {
-            continue;
-        };
-        let (x0, y0) = (uv.x.floor(), uv.y.floor());
-        if x0 < 0.0 || y0 < 0.0 || x0 + 1.0 >= SIZE as f32 || y0 + 1.0 >= SIZE as f32 {
-            continue;
-        }
-        let (x0, y0) = (x0 as usize, y0 as usize);
-        let four = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)];
-        if four.iter().all(|&(x, y)| in_hole(x, y)) {
-            assert_eq!(o_tested[i], 0.0, "vertex {i} projects into the hole");
-            holed += usize::from(o_plain[i] > 0.5);
-        } else if four.iter().all(|&(x, y)| mask[y * s + x] == 1.0) {
-            assert!(
-                (o_tested[i] - o_plain[i]).abs() <= 1e-6,
-                "vertex {i} on the person: {} against {}",
-                o_tested[i],
-                o_plain[i]
-            );
-            kept += usize::from(o_plain[i] > 0.5);
-        }
-    }
-    assert!(
-        holed >= 20 && kept >= 20,
-        "{holed} seen vertices in the hole, {kept} on the person: too few to test"
-    );
-    // Views 1 and 2 keep their masks (the silhouettes): most of what they see stays seen.
-    // Measured 0.75 at 32 px: a quarter of the vertices a view sees lie within a pixel of its
-    // outline, where the bilinear read of the mask is below 1.
-    let share = |o: &[f32]| o[m..].iter().sum::<f32>();
-    assert!(
-        share(&o_tested) > 0.7 * share(&o_plain),
-        "views 1-2 kept {} of {}",
-        share(&o_tested),
-        share(&o_plain)
-    );
-}
-
 /// The body's silhouette in the hull (`[render] hull_body_erode_px`): a band cut across view
 /// 0's mask (rows 12..=15 of 32, as a segmentation network cuts one) has the plain hull carve
 /// the body's vertices behind it; with the silhouette counted as person few of them are carved
@@ -457,7 +317,7 @@ fn the_body_in_the_hull_keeps_what_a_cut_mask_would_carve() {
     let hull_of = |body| {
         scene
             .clone()
-            .with_visual_hull(&input, Some(0), body)
+            .with_visual_hull(&input, true, body)
             .unwrap()
             .visual_hull
             .expect("a hull")
@@ -500,13 +360,18 @@ fn the_body_in_the_hull_keeps_what_a_cut_mask_would_carve() {
 
 /// The visual hull (`[render] visual_hull`) on one encoding: the density is the plain density
 /// times the hull of the source masks (here the body's rasterised silhouettes),
-/// about 1 on the body and exactly 0 for more than half of the points 15 cm off it.
+/// about 1 on the body and exactly 0 for more than half of the points 15 cm off it. At 128 px,
+/// the quickstart's size: at 32 px most vertices sit on a silhouette's rim pixel, where the
+/// bilinear read of the mask is about half.
 #[test]
 fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() {
-    let (_, input, model, plain_scene) = tiny_encoded();
+    let dev = device();
+    let input = scene(3, 128);
+    let model = ModelConfig::tiny().init(&dev);
+    let plain_scene = model.encode(&input, None, &dev, None).unwrap();
     let hulled_scene = plain_scene
         .clone()
-        .with_visual_hull(&input, Some(1), None)
+        .with_visual_hull(&input, true, None)
         .unwrap();
     let hull = hulled_scene.visual_hull.clone().expect("a hull");
     let vertices = &input.body.vertices;
@@ -536,13 +401,13 @@ fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() 
         );
         let expected: Vec<f32> = a.iter().zip(&hull).map(|(a, h)| a * h).collect();
         assert_close(&b, &expected, VALUE_TOL, "sigma = plain sigma * hull");
-        let kept = hull.iter().filter(|&&h| h >= 0.99).count() as f32 / hull.len() as f32;
         let carved = hull.iter().filter(|&&h| h == 0.0).count() as f32 / hull.len() as f32;
-        // Measured at 32 px (a pixel is 5.6 cm at the body, thinner than the hands, which the
-        // rasterised masks partly miss): 0.975 of the vertices kept, 0.013 carved; 15 cm off
-        // the body (under 3 px) 0.59 carved to 0, 0.20 kept (the hull is loose between views).
+        let mean = hull.iter().sum::<f32>() / hull.len() as f32;
+        // Measured at 128 px: on the vertices a mean of 0.70, 0.34 of them at 1 (rim vertices
+        // read about half of a mask pixel in some view) and 0.004 carved to 0; 15 cm off the
+        // body 0.87 carved to 0 (the hull is loose between views).
         if on_body {
-            assert!(kept > 0.95, "{kept} of the vertices inside every mask");
+            assert!(mean > 0.6, "mean hull {mean} on the vertices");
             assert!(carved < 0.03, "{carved} of the vertices carved");
         } else {
             assert!(carved > 0.5, "{carved} of the points 15 cm off carved to 0");
@@ -560,7 +425,7 @@ fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() 
 #[test]
 fn padded_point_inputs_are_the_inputs_of_the_repeated_last_point() {
     let (_, input, _, scene) = tiny_encoded();
-    let hull = scene.with_visual_hull(&input, Some(1), None).unwrap();
+    let hull = scene.with_visual_hull(&input, true, None).unwrap();
     let geometry = &hull.geometry;
     let cameras = &geometry.cameras;
     let scales = &hull

@@ -84,7 +84,6 @@ const KEYS: &[(&str, &str)] = &[
     ("train", "encoder_weights"),
     ("train", "mask_loss_weight"),
     ("train", "distortion_loss_weight"),
-    ("train", "ibr_loss_weight"),
     ("train", "colour_gain_tolerance"),
     ("synth", "subjects"),
     ("synth", "frames"),
@@ -455,7 +454,7 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
             &["5e-4", "1e-9", "1.0", "1e30"],
             &["0.0", "-1.0", "nan", "inf", "-inf"],
         ),
-        "mask_loss_weight" | "distortion_loss_weight" | "ibr_loss_weight" => (
+        "mask_loss_weight" | "distortion_loss_weight" => (
             &["0.0", "-0.0", "0.1", "1e30"],
             &["-1.0", "nan", "inf", "-1e-9"],
         ),

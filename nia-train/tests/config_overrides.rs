@@ -28,7 +28,7 @@ fn overrides_write_over_the_file() {
             "optim.lr=2e-3",
             "render.skip_empty_space=false",
             "model.source_colours_at=surface",
-            "train.ibr_loss_weight=0.5",
+            "train.distortion_loss_weight=0.5",
         ]),
     )
     .unwrap();
@@ -43,7 +43,7 @@ fn overrides_write_over_the_file() {
         config.model.source_colours_at,
         Some(nia_model::config::SourceColoursAt::Surface)
     );
-    assert_eq!(config.train.ibr_loss_weight, 0.5);
+    assert_eq!(config.train.distortion_loss_weight, 0.5);
     // Keys the overrides do not touch keep the file's values.
     assert_eq!(config.train.rays_per_step, 32);
     assert_eq!(
@@ -121,8 +121,11 @@ fn bad_overrides_name_the_setting_or_the_key() {
     assert!(m.contains("steps"), "{m}");
     let (_, m) = message(&["train.mask_loss_weight=-1"]);
     assert!(m.contains("train.mask_loss_weight"), "{m}");
-    let (_, m) = message(&["train.ibr_loss_weight=nan"]);
-    assert!(m.contains("train.ibr_loss_weight"), "{m}");
+    let (_, m) = message(&["train.distortion_loss_weight=nan"]);
+    assert!(m.contains("train.distortion_loss_weight"), "{m}");
+    // A removed switch is an unknown key.
+    let (_, m) = message(&["train.ibr_loss_weight=0"]);
+    assert!(m.contains("ibr_loss_weight"), "{m}");
     let (_, m) = message(&["model.source_colours_at=\"expected\""]);
     assert!(
         m.contains("model.source_colours_at") && m.contains("`samples` or `surface`"),

@@ -173,7 +173,6 @@ fn one_device_reference(config_path: &Path) -> (Vec<f32>, Vec<f64>, u64) {
     assert!(
         t.mask_loss_weight == 0.0
             && t.distortion_loss_weight == 0.0
-            && t.ibr_loss_weight == 0.0
             && t.c0_shuffle == 0.0,
         "the reference implements the paper's loss only"
     );

@@ -3,14 +3,12 @@
 //! batch reuses (SMPL frame, ray box, nearest-surface index, voxel box).
 
 pub mod point_inputs;
-pub mod source_depth;
 pub mod source_masks;
 pub mod visual_hull;
 
 pub use point_inputs::{
     projection_grid, view_direction_feature, PointInputs, VIEW_DIR_FEATURE_DIM,
 };
-pub use source_depth::SourceDepth;
 pub use source_masks::{masks_with_body, MaskError, SourceMasks};
 pub use visual_hull::VisualHull;
 
@@ -163,11 +161,6 @@ pub struct SceneGeometry {
     pub faces: Vec<[u32; 3]>,
     /// The voxel grid of the body volume (SMPL frame).
     pub voxel_box: VoxelBox,
-    /// The depth test of o_n (`None`: the paper's per-vertex visibility alone); see
-    /// [`Self::with_depth_test`].
-    pub source_depth: Option<SourceDepth>,
-    /// The mask test of o_n (`None`: off, the paper's); see [`Self::with_mask_test`].
-    pub source_masks: Option<SourceMasks>,
 }
 
 impl SceneGeometry {
@@ -267,38 +260,7 @@ impl SceneGeometry {
             vertices_world: body.vertices.clone(),
             faces: body.faces.clone(),
             voxel_box,
-            source_depth: None,
-            source_masks: None,
         })
-    }
-
-    /// The same geometry whose o_n also passes the depth test of [`source_depth`] with
-    /// tolerance `tol_m` metres: the posed body is rasterised into every source view.
-    pub fn with_depth_test(mut self, tol_m: f32) -> Result<Self, SceneError> {
-        self.source_depth = Some(SourceDepth::rasterise(
-            &self.cameras,
-            &self.vertices_world,
-            &self.faces,
-            tol_m,
-        )?);
-        Ok(self)
-    }
-
-    /// The same geometry whose o_n also reads the source views' person masks at the point's
-    /// projection ([`source_masks`]): `input` must be the scene this geometry was made from
-    /// (its masks were checked by [`Self::new`]; a different view count is an error).
-    pub fn with_mask_test(mut self, input: &SceneInput) -> Result<Self, SceneError> {
-        if input.views.len() != self.num_views() {
-            return Err(invalid(
-                "views (o_n's mask test)",
-                format!("the geometry's {} source views", self.num_views()),
-                input.views.len(),
-            ));
-        }
-        let [h, w] = self.image_hw;
-        let masks: Vec<&[f32]> = input.views.iter().map(|v| v.mask.as_slice()).collect();
-        self.source_masks = Some(SourceMasks::new("o_n's mask test", &masks, w, h, 0)?);
-        Ok(self)
     }
 
     /// Number of source views N.

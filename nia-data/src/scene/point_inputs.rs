@@ -32,9 +32,7 @@ pub struct PointInputs {
     pub proj_grid: Vec<f32>,
     /// [N, M, 4] d_hat_n = (d - d_n, d . d_n).
     pub view_dir_features: Vec<f32>,
-    /// [N, M] o_n: visibility interpolated on the nearest body face (times the depth test of
-    /// [`super::SourceDepth`] and the mask test of [`super::SourceMasks`] when the geometry
-    /// has them).
+    /// [N, M] o_n: visibility interpolated on the nearest body face.
     pub visibility: Vec<f32>,
     /// [M, 3] unit target directions d (input of gamma(d)).
     pub dirs: Vec<f32>,
@@ -113,25 +111,6 @@ impl PointInputs {
                         0.0
                     };
                 });
-            if let Some(depth) = &geometry.source_depth {
-                let camera = &geometry.cameras[view];
-                out.par_iter_mut()
-                    .zip(image_points.par_iter())
-                    .for_each(|(o, &x)| {
-                        *o *= match camera.project(x) {
-                            Some((uv, z)) => depth.unhidden(view, uv, z),
-                            None => 0.0,
-                        };
-                    });
-            }
-            if let Some(masks) = &geometry.source_masks {
-                let camera = &geometry.cameras[view];
-                out.par_iter_mut()
-                    .zip(image_points.par_iter())
-                    .for_each(|(o, &x)| {
-                        *o *= masks.shows_person(view, camera.project(x).map(|(uv, _)| uv));
-                    });
-            }
         }
         let corners = match volume {
             Some((scales, points)) => scales

@@ -1,21 +1,6 @@
-//! The source views' person masks as read at a point's projection: by the visual hull's
-//! carving ([`super::VisualHull`], the masks dilated, pixels outside the image reading 1,
-//! optionally with the fitted body's silhouette counted as person: [`masks_with_body`]) and
-//! by o_n's mask test (not in the paper; `ModelConfig::visibility_masks`, the masks as they
-//! are, pixels outside the image reading 0).
-//!
-//! The mask test asks whether source view n shows the person where x projects:
-//!
-//! ```text
-//! o_n(x) = o_vertex_n(x) * sum_k a_k M_n(p_k)
-//! ```
-//!
-//! with `p_k` the four pixels around the projection, `a_k` their bilinear weights and `M_n`
-//! view n's mask. The source images are black outside their masks, so where a segmentation
-//! network left a hole in the person, lost a hand or cut a limb short, the pixels the blend
-//! fetches are black; SMPL's per-vertex visibility still says the view sees the point. With
-//! the test the view counts as not seeing it, and F_B (which reads o_n) and the view
-//! statistics' weights turn to the other views and to c0 (docs/robustness.md).
+//! The source views' person masks as read at a point's projection (the visual hull's carving,
+//! [`super::VisualHull`]), and the masks with the fitted body's silhouette counted as person
+//! ([`masks_with_body`]).
 
 use glam::{Vec2, Vec3};
 
@@ -27,7 +12,7 @@ use crate::geometry::raster::{rasterize, MeshError};
 pub enum MaskError {
     #[error("{what}: {field}: expected {expected}, got {got}")]
     Invalid {
-        /// The reader the masks were given to ("visual hull", "o_n's mask test").
+        /// The reader the masks were given to ("visual hull").
         what: &'static str,
         field: String,
         expected: String,
@@ -40,11 +25,9 @@ pub enum MaskError {
     },
 }
 
-/// The person masks of N source views, optionally dilated, one image size.
+/// The person masks of N source views, one image size.
 #[derive(Debug, Clone)]
 pub struct SourceMasks {
-    /// Pixels the masks were grown by.
-    pub dilate_px: usize,
     width: usize,
     height: usize,
     /// [N][H * W] masks in [0, 1].
@@ -52,15 +35,13 @@ pub struct SourceMasks {
 }
 
 impl SourceMasks {
-    /// `masks` ([N][H * W] person masks in [0, 1], row-major, one image size), each grown by
-    /// `dilate_px` pixels (the largest value in a `2 dilate_px + 1` square). `what` names the
-    /// reader in errors.
+    /// `masks` ([N][H * W] person masks in [0, 1], row-major, one image size). `what` names
+    /// the reader in errors.
     pub fn new(
         what: &'static str,
         masks: &[&[f32]],
         width: usize,
         height: usize,
-        dilate_px: usize,
     ) -> Result<Self, MaskError> {
         let invalid = |field: String, expected: String, got: String| MaskError::Invalid {
             what,
@@ -73,13 +54,6 @@ impl SourceMasks {
                 "image size".into(),
                 "a non-empty image".into(),
                 format!("{width}x{height}"),
-            ));
-        }
-        if dilate_px > width.max(height) {
-            return Err(invalid(
-                "dilate_px".into(),
-                format!("at most the image's larger side ({})", width.max(height)),
-                dilate_px.to_string(),
             ));
         }
         let mut maps = Vec::with_capacity(masks.len());
@@ -101,10 +75,9 @@ impl SourceMasks {
                     mask[i].to_string(),
                 ));
             }
-            maps.push(dilate(mask, width, height, dilate_px));
+            maps.push(mask.to_vec());
         }
         Ok(SourceMasks {
-            dilate_px,
             width,
             height,
             maps,
@@ -142,13 +115,6 @@ impl SourceMasks {
             }
         }
         value.clamp(0.0, 1.0)
-    }
-
-    /// o_n's mask factor for view `view` at the projection `uv` (`None`: the point is behind
-    /// the camera): [`Self::read`] with pixels outside the image reading 0, since the view
-    /// shows nothing there (its colour read pads with zeros).
-    pub fn shows_person(&self, view: usize, uv: Option<Vec2>) -> f32 {
-        uv.map_or(0.0, |uv| self.read(view, uv, 0.0))
     }
 }
 

@@ -1,6 +1,5 @@
-//! Visual-hull carving of the density (not in the paper; `[render] visual_hull` and
-//! `hull_dilate_px`, at evaluation and inference only): the source views' person masks, dilated
-//! by a margin, and how far inside all of them a point projects.
+//! Visual-hull carving of the density (not in the paper; `[render] visual_hull`, at evaluation
+//! and inference only): how far inside all the source views' person masks a point projects.
 //!
 //! F_sigma reads the person's outline only through SMPL-anchored features and pixel features of
 //! the masked source images, a few pixels wide after the encoder's strides, so on a person
@@ -11,12 +10,12 @@
 //! visual hull, Laurentini 1994). The carving multiplies the density by
 //!
 //! ```text
-//! hull(x) = min_n sum_k a_k M'_n(p_k)
+//! hull(x) = min_n sum_k a_k M_n(p_k)
 //! ```
 //!
 //! with `p_k` the four pixels around x's projection in view n, `a_k` their bilinear weights and
-//! `M'_n` view n's mask dilated by `dilate_px` pixels (a square window: the margin noisy masks
-//! need; the synthetic masks are exact). Pixels outside the image read 1 (no evidence either
+//! `M_n` view n's mask (growing the masks by a margin was tried for noisy masks and did not
+//! help: docs/robustness.md, "Tried and not kept"). Pixels outside the image read 1 (no evidence either
 //! way), so a view that does not see a point never carves it. The hull is loose between the
 //! source views (three views carve a hexagon around a round limb) and tight where a target ray
 //! grazes the person along a source camera's line of sight: at the outline of a target view
@@ -38,29 +37,18 @@ use glam::{Vec2, Vec3};
 use super::source_masks::{MaskError, SourceMasks};
 use crate::geometry::camera::Camera;
 
-/// The dilated masks of the source views.
+/// The masks of the source views.
 #[derive(Debug, Clone)]
 pub struct VisualHull {
     masks: SourceMasks,
 }
 
 impl VisualHull {
-    /// The hull of `masks` ([N][H * W] person masks in [0, 1], row-major, one image size),
-    /// each grown by `dilate_px` pixels (the largest value in a `2 dilate_px + 1` square).
-    pub fn new(
-        masks: &[&[f32]],
-        width: usize,
-        height: usize,
-        dilate_px: usize,
-    ) -> Result<Self, MaskError> {
+    /// The hull of `masks` ([N][H * W] person masks in [0, 1], row-major, one image size).
+    pub fn new(masks: &[&[f32]], width: usize, height: usize) -> Result<Self, MaskError> {
         Ok(VisualHull {
-            masks: SourceMasks::new("visual hull", masks, width, height, dilate_px)?,
+            masks: SourceMasks::new("visual hull", masks, width, height)?,
         })
-    }
-
-    /// Pixels the masks were grown by.
-    pub fn dilate_px(&self) -> usize {
-        self.masks.dilate_px
     }
 
     /// Number of views N.
@@ -84,7 +72,7 @@ impl VisualHull {
             .fold(1.0, f32::min)
     }
 
-    /// How far inside view `view`'s dilated mask the projection `uv` (pixels, OpenCV centres
+    /// How far inside view `view`'s mask the projection `uv` (pixels, OpenCV centres
     /// at integer coordinates) lies, in [0, 1]: the bilinear read of the four pixels around
     /// it, pixels outside the image reading 1. A non-finite projection reads 1 as well: a
     /// point behind the camera or at its centre is not seen by the view, which then says

@@ -46,8 +46,7 @@ pub struct PointOutput {
     pub blend_weights: Tensor<2>,
     /// [M, 3] the image-based part of the colour alone: the source colours under the blend
     /// weights renormalised over the views (the plain mean where they are all ~0). An
-    /// instrument (what the source views say at the point), and the input of the switchable
-    /// IBR-only loss (`loss::ibr_loss`).
+    /// instrument (what the source views say at the point).
     pub ibr_colour: Tensor<2>,
 }
 

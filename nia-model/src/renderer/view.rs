@@ -68,7 +68,7 @@ pub fn prepare_scene(
         .with_termination(options.termination())
         .with_colour_culling(options.culling())
         .with_c0_weight_scale(options.c0_scale())
-        .with_visual_hull(input, options.hull(), options.hull_body_erode_px)
+        .with_visual_hull(input, options.visual_hull, options.hull_body_erode_px)
 }
 
 /// `base` (a [`prepare_scene`] of the reference pose) rendered in `reposer`'s target pose: the

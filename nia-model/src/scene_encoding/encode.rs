@@ -34,14 +34,7 @@ impl NiaModel {
         times: Option<&mut StageTimes>,
     ) -> Result<SceneEncoding, ModelError> {
         let mut watch = Stopwatch::new(times, device);
-        let mut geometry = SceneGeometry::new(input, self.voxel_grid())?;
-        if let Some(tol) = self.visibility_depth_tol_m {
-            geometry = geometry.with_depth_test(tol)?;
-        }
-        if self.visibility_masks {
-            geometry = geometry.with_mask_test(input)?;
-        }
-        let geometry = Arc::new(geometry);
+        let geometry = Arc::new(SceneGeometry::new(input, self.voxel_grid())?);
         let n = input.views.len();
         let [h, w] = geometry.image_hw;
         let mut pixels = Vec::with_capacity(n * 3 * h * w);

@@ -89,18 +89,18 @@ impl SceneEncoding {
     }
 
     /// This encoding with visual-hull carving from the person masks of `input` (the scene this
-    /// encoding was made from), each grown by `dilate_px` pixels (`None`: off), and with
-    /// `body_erode_px` the body's silhouette shrunk by that many pixels counted as person
+    /// encoding was made from) when `carve` is set, and with `body_erode_px` the body's
+    /// silhouette shrunk by that many pixels counted as person
     /// ([`nia_data::scene::masks_with_body`]).
     pub fn with_visual_hull(
         mut self,
         input: &SceneInput,
-        dilate_px: Option<usize>,
+        carve: bool,
         body_erode_px: Option<usize>,
     ) -> Result<Self, ModelError> {
-        self.visual_hull = match dilate_px {
-            None => None,
-            Some(px) => {
+        self.visual_hull = match carve {
+            false => None,
+            true => {
                 let [h, w] = self.geometry.image_hw;
                 if input.views.len() != self.num_views() {
                     return Err(ModelError::Input(format!(
@@ -128,7 +128,7 @@ impl SceneEncoding {
                     Some(m) => m.iter().map(Vec::as_slice).collect(),
                     None => masks,
                 };
-                let hull = VisualHull::new(&masks, w, h, px).map_err(SceneError::from)?;
+                let hull = VisualHull::new(&masks, w, h).map_err(SceneError::from)?;
                 Some(Arc::new(hull))
             }
         };

@@ -46,6 +46,9 @@ pub enum CheckpointError {
         path: PathBuf,
         source: serde_json::Error,
     },
+    /// A switch nia-rs no longer has, at a value other than its neutral one.
+    #[error("{}: {message}", path.display())]
+    Removed { path: PathBuf, message: String },
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
@@ -213,9 +216,18 @@ fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, Checkpoin
     })
 }
 
-/// `config.json` of a checkpoint folder.
+/// `config.json` of a checkpoint folder (switches removed since it was written dropped at
+/// their neutral value, refused at any other: [`super::removed_switches`]).
 pub fn read_config(dir: &Path) -> Result<SavedConfig, CheckpointError> {
-    read_json(&dir.join(CONFIG_FILE))
+    let path = dir.join(CONFIG_FILE);
+    let mut doc: serde_json::Value = read_json(&path)?;
+    super::removed_switches::strip_removed_switches(&mut doc).map_err(|message| {
+        CheckpointError::Removed {
+            path: path.clone(),
+            message,
+        }
+    })?;
+    serde_json::from_value(doc).map_err(|source| CheckpointError::Json { path, source })
 }
 
 /// Steps completed when the checkpoint in `dir` was taken (its `step.json`).

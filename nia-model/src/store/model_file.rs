@@ -233,6 +233,7 @@ impl ModelFile {
         let mut header: serde_json::Value =
             serde_json::from_slice(&bytes[PREAMBLE_BYTES..header_end])
                 .map_err(|e| header_err(e.to_string()))?;
+        super::removed_switches::strip_removed_switches(&mut header).map_err(&header_err)?;
         // Switches added to the network config after a file was written take their defaults
         // (the behaviour the file was trained with).
         if let (Some(model), Ok(serde_json::Value::Object(defaults))) = (

@@ -217,11 +217,6 @@ pub struct TrainSection {
     /// `nia_model::loss::distortion_loss`).
     #[serde(default)]
     pub distortion_loss_weight: f32,
-    /// Weight of the IBR-only loss `mean |C_ibr - C_gt|^2`: the source colours under the view
-    /// weights alone (renormalised, without c0) are supervised as the paper supervises C0 alone
-    /// (0: the paper's loss only; see `nia_model::loss::ibr_loss`).
-    #[serde(default)]
-    pub ibr_loss_weight: f32,
     /// Fraction of training points whose c0 in the blend is another point's (0: off, the
     /// paper's training; see `nia_model::ibr::c0_shuffle`).
     #[serde(default)]
@@ -414,13 +409,6 @@ impl TrainConfig {
                 "train.colour_gain_tolerance",
                 "a relative gain in [0, 1]",
                 t.colour_gain_tolerance.to_string(),
-            ));
-        }
-        if !(t.ibr_loss_weight.is_finite() && t.ibr_loss_weight >= 0.0) {
-            return Err(bad(
-                "train.ibr_loss_weight",
-                "a finite value >= 0",
-                t.ibr_loss_weight.to_string(),
             ));
         }
         if t.checkpoint_every == 0 {

@@ -12,7 +12,7 @@ use nia_data::rng::Rng;
 use nia_data::scene::SceneInput;
 use nia_model::ibr::c0_shuffle::C0Shuffle;
 use nia_model::loss::{
-    colour_matched_target, distortion_loss, ibr_loss, mask_loss, render_loss, RenderLoss,
+    colour_matched_target, distortion_loss, mask_loss, render_loss, RenderLoss,
 };
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::cut::chunked_gradients;
@@ -266,22 +266,7 @@ fn chunk_loss(
     } else {
         None
     };
-    let ibr = if config.train.ibr_loss_weight > 0.0 {
-        // NiaModel::render always fills the IBR-only composite; its absence is an error, not a
-        // loss term silently left out.
-        let rgb_ibr = out.rgb_ibr.clone().ok_or_else(|| {
-            ChunkStop::Model(ModelError::Input(
-                "train.ibr_loss_weight > 0 but the render has no IBR-only composite".into(),
-            ))
-        })?;
-        Some(ibr_loss(rgb_ibr, gt.clone()).map_err(shape)?)
-    } else {
-        None
-    };
     let mut loss = render_loss(out.rgb, out.rgb0, gt).map_err(shape)?;
-    if let Some(ibr) = ibr {
-        loss.total = loss.total + ibr.mul_scalar(config.train.ibr_loss_weight);
-    }
     if config.train.mask_loss_weight > 0.0 {
         let on_body: Vec<f32> = rays.on_body[range]
             .iter()

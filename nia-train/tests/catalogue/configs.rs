@@ -14,7 +14,7 @@ const EDITS: &[(&str, &[&str], &str, &str)] = &[
     ("config_nan_learning_rate", &["tiny.toml", "optim.lr", "positive", "NaN"], "[train]", "[optim]\nlr = nan\n\n[train]"),
     ("config_early_termination_out_of_range", &["tiny.toml", "render.early_termination", "[0, 1)", "1.5"], "[train]", "[render]\nearly_termination = 1.5\n\n[train]"),
     ("config_colour_culling_out_of_range", &["tiny.toml", "render.colour_culling", "[0, 1)", "-0.5"], "[train]", "[render]\ncolour_culling = -0.5\n\n[train]"),
-    ("config_hull_dilation_too_large", &["tiny.toml", "render.hull_dilate_px", "at most 256", "1000"], "[train]", "[render]\nhull_dilate_px = 1000\n\n[train]"),
+    ("config_hull_erosion_too_large", &["tiny.toml", "render.hull_body_erode_px", "at most 256", "1000"], "[train]", "[render]\nhull_body_erode_px = 1000\n\n[train]"),
     ("config_supersample_zero", &["tiny.toml", "render.supersample", "1 to 8", "0"], "[train]", "[render]\nsupersample = 0\n\n[train]"),
     ("config_c0_shuffle_out_of_range", &["tiny.toml", "train.c0_shuffle", "[0, 1]", "2"], "samples = 4", "samples = 4\nc0_shuffle = 2.0"),
     ("config_ratio_out_of_range", &["tiny.toml", "data.ratio", "(0, 1]", "1.5"], "ratio = 1.0", "ratio = 1.5"),
