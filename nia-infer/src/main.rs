@@ -55,7 +55,7 @@ enum Cli {
 /// Runs the subcommand; on failure prints the error and its causes on one line to stderr
 /// (no backtrace, whatever `RUST_BACKTRACE` says) and exits with status 1.
 fn main() -> ExitCode {
-    if let Err(e) = nia_infer::heap::keep_freed_memory() {
+    if let Err(e) = nia_eval::heap::keep_freed_memory() {
         eprintln!("error: {e}");
         return ExitCode::FAILURE;
     }

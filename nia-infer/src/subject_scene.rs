@@ -13,7 +13,7 @@ use nia_data::dataset::loader::{
 use nia_data::dataset::sampling::BoxPadding;
 use nia_data::dataset::{DatasetConfig, Subject};
 use nia_data::geometry::camera::Camera;
-use nia_infer::run_settings::RunSettings;
+use nia_eval::run_settings::RunSettings;
 
 use crate::model_load::smpl_path;
 

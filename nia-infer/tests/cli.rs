@@ -178,7 +178,6 @@ fn bad_render_flags_fail_naming_the_flag() {
         String::from_utf8_lossy(&out.stderr).into_owned()
     };
     for (flag, value, expected) in [
-        ("--hull-dilate-px", "1000", "256"),
         ("--hull-body-erode-px", "1000", "256"),
         ("--hull-body-erode-px", "on", "off or a number of pixels"),
         ("--visual-hull", "maybe", "on or off"),

@@ -13,7 +13,7 @@ use common::{
 };
 use nia_data::dataset::protocol::EvalSplit;
 use nia_data::dataset::OpenedDataset;
-use nia_infer::eval::{eval_items, evaluate_images, EvalOptions, EvalTask};
+use nia_eval::eval::{eval_items, evaluate_images, EvalOptions, EvalTask};
 use nia_model::store::checkpoint;
 use nia_model::store::model_file::{ModelFile, MAGIC};
 use nia_train::config::TrainConfig;

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use nia_infer::run_settings::RunSettings;
+use nia_eval::run_settings::RunSettings;
 use nia_model::render_options::RenderOptions;
 use nia_model::store::model_file::ModelFile;
 

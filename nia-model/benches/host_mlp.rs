@@ -9,8 +9,8 @@ use std::time::Instant;
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use nia_model::host_mlp::{FirstLayerAddend, HostMlp};
-use nia_model::readback::host_values;
+use nia_model::kernels::host_mlp::{FirstLayerAddend, HostMlp};
+use nia_model::kernels::readback::host_values;
 
 const REPS: usize = 7;
 

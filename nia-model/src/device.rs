@@ -276,7 +276,7 @@ pub fn is_host(device: &Device) -> bool {
 /// Whether `device` is a GPU backend whose kernels add `f32` atomically in global memory. burn's
 /// scatter-add is then one kernel with a thread per value, of any length; without, it is one
 /// serial loop per column, which Mesa's software Vulkan got wrong from 65,536 rows (so
-/// [`crate::blocked_rows`] and [`crate::row_scatter`] cut it into blocks there). False on the
+/// [`crate::kernels::blocked_rows`] and [`crate::kernels::row_scatter`] cut it into blocks there). False on the
 /// CPU backends and on cubecl's CPU runtime.
 pub fn adds_floats_atomically(device: &Device) -> bool {
     #[cfg(feature = "wgpu")]

@@ -15,14 +15,11 @@
 //!
 //! Beside them: [`config`] (the network's sizes and switches), [`model`] (the module tree),
 //! [`render_options`] (the `[render]` section), [`error`], [`loss`] (NIA eq. 6), [`lpips`]
-//! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints) and the tensor
-//! helpers ([`shape`], [`softmax`], [`linear_rows`], [`host_mlp`] (linear stacks fused on
-//! the host), [`host_buffer`], [`readback`], [`timing`], [`device`]), and the row gathers
-//! with their own backwards: [`weighted_rows`] (flex), [`tap_gather`], [`tap_scatter`] (a GPU
-//! kernel) and [`row_scatter`]
-//! (training on the GPU backends), [`blocked_rows`].
+//! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints), [`fitting`]
+//! (SMPL fitted to photos), the tensor helpers ([`shape`], [`softmax`], [`timing`],
+//! [`device`]) and [`kernels`]: the operations nia-rs writes itself (host and GPU kernels
+//! with their backwards).
 
-pub mod blocked_rows;
 pub mod body_volume;
 pub mod config;
 pub mod device;
@@ -30,29 +27,20 @@ pub mod encoder;
 pub mod error;
 pub mod field;
 pub mod fitting;
-pub mod host_buffer;
-pub mod host_mlp;
-pub mod host_op;
 pub mod ibr;
-pub mod linear_host;
-pub mod linear_rows;
+pub mod kernels;
 pub mod loss;
 pub mod lpips;
 pub mod model;
-pub mod readback;
 pub mod render_options;
 pub mod renderer;
-pub mod row_scatter;
 pub mod sampler;
 pub mod scene_encoding;
 pub mod shape;
 pub mod softmax;
 pub mod store;
-pub mod tap_gather;
-pub mod tap_scatter;
 pub mod timing;
 pub mod variant;
-pub mod weighted_rows;
 
 pub use config::ModelConfig;
 pub use error::ModelError;

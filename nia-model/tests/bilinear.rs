@@ -89,7 +89,7 @@ fn check_on(dev: &Device, what: &str) {
     let (maps_ref, grid_ref) = grads_of(true);
     assert_close(&maps_got, &maps_ref, 1e-5, &format!("{what}: d/d maps"));
     // With a grid that carries no gradient, as the network's reads have (on flex: the weighted
-    // gather of `nia_model::weighted_rows`, its own backward), the same d/d maps.
+    // gather of `nia_model::kernels::weighted_rows`, its own backward), the same d/d maps.
     let maps = tensor(maps_values(), [N, C, H, W], &ad).require_grad();
     let proj = tensor(grid.clone(), [N, m, 2], &ad);
     let g = (sample(maps.clone(), proj).unwrap() * tensor(upstream.clone(), [N, m, C], &ad))

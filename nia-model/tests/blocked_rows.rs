@@ -1,6 +1,6 @@
 #![allow(deprecated)] // Device::ndarray(): the reference CPU backend.
 
-//! Row gathers and scatter-adds of many indices ([`nia_model::blocked_rows`]): the same as one
+//! Row gathers and scatter-adds of many indices ([`nia_model::kernels::blocked_rows`]): the same as one
 //! `select` / `select_assign` on the CPU backends, and with more than 65,536 indices (where
 //! burn-cubecl's `select_assign` went wrong on lavapipe) the same numbers, and the same
 //! gradients, on wgpu as on ndarray: in blocks of 32,768 rows on a device without float
@@ -11,7 +11,7 @@ mod common;
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 use nia_data::rng::Rng;
-use nia_model::blocked_rows::{
+use nia_model::kernels::blocked_rows::{
     scatter_add_rows, scatter_block_rows, select_rows, ATOMIC_SCATTER_VALUES, MAX_SCATTER_INDICES,
 };
 use nia_model::device::adds_floats_atomically;

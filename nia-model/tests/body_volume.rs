@@ -561,7 +561,7 @@ fn trilinear_matches_dense_grid_sample() {
         // Rows and corners laid out for different reads are an error, not a wrong read.
         assert!(sample_with(&rows_for(CornerRead::ByCorner), &corner_tensors, 7).is_err());
         // On flex the read is one weighted gather with its own backward
-        // (`nia_model::weighted_rows`): the values and the features' gradient of ndarray's
+        // (`nia_model::kernels::weighted_rows`): the values and the features' gradient of ndarray's
         // tensor read.
         let upstream = normals(&mut rng, n * points.len() * c);
         let read_with_gradient = |device: &Device| {
@@ -794,7 +794,7 @@ fn host_read_matches_the_tensor_read_on_every_scale() {
     // Through a reduction to d = 4: the 5-channel scale is stored reduced per site (4 <= 5),
     // the 3-channel one as it is; the reduced read equals the reduction of the full read.
     use burn::nn::LinearConfig;
-    use nia_model::linear_rows::linear_rows;
+    use nia_model::kernels::linear_rows::linear_rows;
     let linear = LinearConfig::new(8, 4).init(&dev);
     let reducing = HostVolume::read(&volume, Some(linear.weight.val())).unwrap();
     assert_eq!(reducing.channels(), 3 + 4);

@@ -1114,7 +1114,7 @@ fn host_blend_survives_extreme_logits_and_refuses_bad_input() {
 /// first-layer addend repeats with its period, and bad shapes are errors that name the stack.
 #[test]
 fn host_mlp_taps_adds_and_refuses_bad_shapes() {
-    use nia_model::host_mlp::{FirstLayerAddend, HostLinear, HostMlp};
+    use nia_model::kernels::host_mlp::{FirstLayerAddend, HostLinear, HostMlp};
     let dev = device();
     // x -> 2x - 1 (ReLU) -> y + 3: the tap is relu(2x - 1 + addend), the output that plus 3.
     let first = linear(vec![2.0], vec![-1.0], 1, 1, &dev);

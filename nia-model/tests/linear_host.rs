@@ -1,4 +1,4 @@
-//! The linear layer as one host operation with its own backward (`nia_model::linear_host`)
+//! The linear layer as one host operation with its own backward (`nia_model::kernels::linear_host`)
 //! against burn's `Linear::forward` and `relu`: values and the gradients of the input, the
 //! weight and the bias, on flex with and without autodiff.
 
@@ -10,7 +10,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use common::{relative_gap, tensor, values as read};
 use nia_data::rng::Rng;
-use nia_model::linear_host::linear;
+use nia_model::kernels::linear_host::linear;
 
 /// `n` values in [-1, 1) drawn from `seed`.
 fn values(n: usize, seed: u64) -> Vec<f32> {

@@ -1,8 +1,8 @@
 //! The weighted row gather as one operation with a one-buffer backward
-//! (`nia_model::tap_gather`, what training on a GPU backend runs for the bilinear and trilinear
+//! (`nia_model::kernels::tap_gather`, what training on a GPU backend runs for the bilinear and trilinear
 //! reads) against the tensor form the other backends run (a gather, a product and a sum per
 //! tap): values and the gradients of the rows and of the weights, on ndarray and on wgpu
-//! (where the rows' gradient is the `nia_model::tap_scatter` kernel on a device that adds
+//! (where the rows' gradient is the `nia_model::kernels::tap_scatter` kernel on a device that adds
 //! floats atomically).
 
 mod common;
@@ -10,7 +10,7 @@ mod common;
 use burn::prelude::*;
 use common::{relative_gap, tensor, values};
 use nia_data::rng::Rng;
-use nia_model::tap_gather::tap_gather;
+use nia_model::kernels::tap_gather::tap_gather;
 
 /// A read: `k` taps for each of `l` outputs from `r` rows of `c` values.
 struct Case {
@@ -158,7 +158,7 @@ fn tap_gather_on_wgpu_matches_ndarray() {
     };
     let device = common::device();
     // Where the device adds floats atomically (lavapipe does) the rows' gradient is the
-    // weighted scatter-add kernel (`nia_model::tap_scatter`): small cases, one of 8 x 5,000 x
+    // weighted scatter-add kernel (`nia_model::kernels::tap_scatter`): small cases, one of 8 x 5,000 x
     // 16 threads, and every tap on one row (all threads add to the same 16 values).
     eprintln!(
         "wgpu device adds floats atomically: {}",

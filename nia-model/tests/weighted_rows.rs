@@ -1,5 +1,5 @@
 //! The weighted row gather as one host operation with its own backward
-//! (`nia_model::weighted_rows`) against the tensor read it replaces on flex (row gathers,
+//! (`nia_model::kernels::weighted_rows`) against the tensor read it replaces on flex (row gathers,
 //! weights, a sum over the taps): values and the table's gradient.
 
 mod common;
@@ -7,7 +7,7 @@ mod common;
 use burn::prelude::*;
 use common::{relative_gap, values as read};
 use nia_data::rng::Rng;
-use nia_model::weighted_rows::{weighted_rows, Taps};
+use nia_model::kernels::weighted_rows::{weighted_rows, Taps};
 
 /// `n` values in [-1, 1) drawn from `seed`.
 fn values(n: usize, seed: u64) -> Vec<f32> {

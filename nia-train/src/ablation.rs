@@ -19,8 +19,8 @@ use std::time::Instant;
 
 use image::RgbImage;
 use nia_data::dataset::protocol::{EvalItem, EvalSplit};
-use nia_infer::eval::{eval_items, evaluate_images, EvalError, EvalOptions, EvalTask, ImageResult};
-use nia_infer::pictures::{rgb8, row, save_png};
+use nia_eval::eval::{eval_items, evaluate_images, EvalError, EvalOptions, EvalTask, ImageResult};
+use nia_eval::pictures::{rgb8, row, save_png};
 use nia_model::renderer::call_size::rays_per_chunk;
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::variant::Variant;

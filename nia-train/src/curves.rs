@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use nia_infer::plot::{panels_svg, Curve, Panel, PlotError};
+use nia_eval::plot::{panels_svg, Curve, Panel, PlotError};
 use plotters::style::RGBColor;
 
 use crate::events::TrainEvent;

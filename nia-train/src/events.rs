@@ -55,7 +55,7 @@ pub enum TrainEvent {
         lpips: Option<f64>,
         /// Mean blend weight of the NeRF colour c0 on person pixels some source view sees.
         c0_share_seen: Option<f64>,
-        /// PSNR of the IBR-only and NeRF-only composites (`nia_infer::diagnostics`).
+        /// PSNR of the IBR-only and NeRF-only composites (`nia_eval::diagnostics`).
         psnr_ibr: f64,
         psnr_nerf: f64,
         /// The PSNR split into the pixels next to the person's outline and the rest.

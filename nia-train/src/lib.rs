@@ -1,6 +1,6 @@
 //! nia-train as a library: the run configuration, the data of a run, the training loop and the
 //! events the loop reports. Checkpoints are [`nia_model::store::checkpoint`]; validation and
-//! the final evaluation are [`nia_infer::eval`]. The library never prints; the binary
+//! the final evaluation are [`nia_eval::eval`]. The library never prints; the binary
 //! (`main.rs`) turns events into a progress bar, a JSONL log, TensorBoard event files
 //! ([`tensorboard`]) and the curves picture ([`curves`]).
 

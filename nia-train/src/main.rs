@@ -119,7 +119,7 @@ const CURVES_FILE: &str = "curves.svg";
 const TENSORBOARD_DIR: &str = "tensorboard";
 
 fn main() -> anyhow::Result<()> {
-    nia_infer::heap::keep_freed_memory()?;
+    nia_eval::heap::keep_freed_memory()?;
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Synth(args)) => synth_cmd::run(args),
@@ -521,7 +521,7 @@ fn tensorboard_record(tb: &mut EventWriter, event: &TrainEvent) -> anyhow::Resul
 }
 
 /// `, LPIPS 0.1234 (alex)` when LPIPS was scored.
-fn lpips_text(value: Option<f64>, files: Option<&nia_infer::perceptual::LpipsFiles>) -> String {
+fn lpips_text(value: Option<f64>, files: Option<&nia_eval::perceptual::LpipsFiles>) -> String {
     match (value, files) {
         (Some(v), Some(f)) => format!(", LPIPS {v:.4} ({})", f.net.name()),
         (Some(v), None) => format!(", LPIPS {v:.4}"),

@@ -16,7 +16,7 @@ use nia_data::body::reposing::Reposer;
 use nia_data::body::SmplParams;
 use nia_data::dataset::sampling::BoxPadding;
 use nia_data::dataset::zju::read_params;
-use nia_infer::pictures::{rgb8, save_gif, save_png};
+use nia_eval::pictures::{rgb8, save_gif, save_png};
 use nia_model::timing::StageTimes;
 use serde::Serialize;
 

@@ -94,7 +94,7 @@ struct BackendCheck {
 #[derive(Serialize)]
 struct Report {
     backend: String,
-    /// The heap policy of this process ([`nia_infer::heap`]).
+    /// The heap policy of this process ([`nia_eval::heap`]).
     heap: String,
     rays: usize,
     samples: usize,
@@ -466,7 +466,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let report = Report {
         backend: args.backend.name().to_string(),
-        heap: nia_infer::heap::current()
+        heap: nia_eval::heap::current()
             .map_or("system (policy not set)", |p| p.name())
             .to_string(),
         rays: rays.len(),

@@ -3,7 +3,7 @@
 //! `metrics.csv` and a `report.md` table; comparison grids (sources | prediction | ground
 //! truth | error map) and blend-weight maps (channel 0 = NeRF, 1..N = source views) as PNGs.
 
-use nia_infer::diagnostics::{diagnostics_table, BlendDiagnostics};
+use nia_eval::diagnostics::{diagnostics_table, BlendDiagnostics};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -13,9 +13,9 @@ use clap::{Args, ValueEnum};
 use nia_data::dataset::protocol::{EvalSplit, SubjectSplit};
 use nia_data::dataset::smpl_alignment::SmplAlignment;
 use nia_data::dataset::ProtocolName;
-use nia_infer::eval::{eval_items, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult};
-use nia_infer::perceptual::LpipsFiles;
-use nia_infer::pictures::{save_evaluated, ERROR_MAP_MAX};
+use nia_eval::eval::{eval_items, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult};
+use nia_eval::perceptual::LpipsFiles;
+use nia_eval::pictures::{save_evaluated, ERROR_MAP_MAX};
 use nia_model::render_options::RenderOptions;
 use serde::Serialize;
 

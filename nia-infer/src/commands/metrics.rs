@@ -11,7 +11,7 @@ use anyhow::{bail, Context};
 use clap::Args;
 use nia_data::dataset::image_io::{read_mask, read_rgb_f32};
 use nia_data::metrics::{evaluate, ImageView, SsimOptions, NHP_SSIM_DATA_RANGE};
-use nia_infer::perceptual::lpips_masked_crop;
+use nia_eval::perceptual::lpips_masked_crop;
 
 use crate::model_load::LpipsArgs;
 

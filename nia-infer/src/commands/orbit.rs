@@ -9,7 +9,7 @@ use std::process::Command;
 use anyhow::Context;
 use clap::Args;
 use nia_data::geometry::orbit::Ring;
-use nia_infer::pictures::{rgb8, save_gif, save_png};
+use nia_eval::pictures::{rgb8, save_gif, save_png};
 use serde::Serialize;
 
 use crate::output::{progress_bar, write_json};

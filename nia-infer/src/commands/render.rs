@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use nia_infer::pictures::{blend_weight_maps, grey8, rgb8, save_png};
+use nia_eval::pictures::{blend_weight_maps, grey8, rgb8, save_png};
 use nia_model::render_options::RenderOptions;
 use nia_model::timing::StageTimes;
 use serde::Serialize;

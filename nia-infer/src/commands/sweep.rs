@@ -9,13 +9,13 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use nia_data::dataset::protocol::{EvalItem, EvalSplit};
-use nia_infer::eval::{eval_items, EvalOptions, EvalSummary, EvalTask};
+use nia_eval::eval::{eval_items, EvalOptions, EvalSummary, EvalTask};
 use nia_model::render_options::RenderOptions;
 use serde::Serialize;
 
 use crate::model_load::{LoadedModel, ModelArgs};
 use crate::output::{progress_bar, write_text};
-use nia_infer::plot::{pareto_front, scatter_svg, Series};
+use nia_eval::plot::{pareto_front, scatter_svg, Series};
 use plotters::style::RGBColor;
 
 #[derive(Args, Debug)]

@@ -22,7 +22,7 @@ use nia_data::dataset::sampling::BoxPadding;
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::orbit::Ring;
 use nia_data::geometry::rays::Aabb;
-use nia_infer::pictures::{grey8, rgb8};
+use nia_eval::pictures::{grey8, rgb8};
 use nia_model::render_options::RenderOptions;
 use nia_model::renderer::image::RenderedImage;
 use nia_model::scene_encoding::SceneEncoding;

@@ -31,7 +31,7 @@ use rayon::prelude::*;
 
 use nia_data::geometry::sparse::{NeighbourMaps, Rulebook, KERNEL_VOLUME};
 
-use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
+use crate::kernels::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 
 /// A rulebook in host memory for the host kernels: the neighbour map and its inverse
 /// ([`NeighbourMaps`], kept with the rulebook, so that the loader's workers can build them).
@@ -211,7 +211,7 @@ impl<B: Backend + SparseConvKernels, C: CheckpointStrategy> SparseConvBackend fo
 }
 
 /// The sparse convolution by the host kernels of this module (the device must be flex, with or
-/// without autodiff: [`crate::host_op::runs_on_host`]).
+/// without autodiff: [`crate::kernels::host_op::runs_on_host`]).
 ///
 /// # Shapes
 /// - features: `[N, P_in, C_in]`

@@ -25,9 +25,9 @@ use rayon::prelude::*;
 use super::network::BodyVolume;
 use super::trilinear::{TrilinearCorners, CORNERS};
 use super::BodyVolumeError;
-use crate::host_buffer::zeroed;
-use crate::host_mlp::HostLinear;
-use crate::readback::host_values;
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_mlp::HostLinear;
+use crate::kernels::readback::host_values;
 
 /// Points per parallel task.
 const POINTS_PER_TASK: usize = 256;

@@ -12,7 +12,7 @@
 //! - forward: `out_b = cols_b W` with `cols_b = rows[index_b]` (reshaped to `[K_b, 27 C_in]`);
 //! - backward: `dW += cols_b^T d out_b`, `d rows[index_b] += d out_b W^T`.
 //!
-//! The scatter-adds run as [`crate::row_scatter`] runs them (atomic adds on the GPU backends).
+//! The scatter-adds run as [`crate::kernels::row_scatter`] runs them (atomic adds on the GPU backends).
 // ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
 #![allow(deprecated)]
 
@@ -27,7 +27,7 @@ use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, NdArray, Ten
 use burn::prelude::*;
 use burn::tensor::Slice;
 
-use crate::row_scatter::{blocks, range, RowScatter};
+use crate::kernels::row_scatter::{blocks, range, RowScatter};
 use nia_data::geometry::sparse::KERNEL_VOLUME;
 
 /// The product as a backend operation: ndarray and (with the `wgpu` feature) the cubecl

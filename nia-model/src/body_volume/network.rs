@@ -27,7 +27,7 @@ use super::sparse_conv::{ConvMethod, RulebookTensors, SparseConv3d, SparseConv3d
 use super::trilinear::{self, CornerRead, SiteRows, TrilinearTensors};
 use super::view_rows::ViewRows;
 use super::BodyVolumeError;
-use crate::blocked_rows::scatter_add_rows;
+use crate::kernels::blocked_rows::scatter_add_rows;
 
 /// Scales read back (1/2, 1/4, 1/8, 1/16 resolution).
 pub const NUM_SCALES: usize = 4;

@@ -16,7 +16,7 @@ use burn::tensor::activation::relu;
 use super::site_norm_op::site_norm_relu;
 use super::BodyVolumeError;
 use crate::device::computes_on_cpu;
-use crate::host_op::runs_on_host;
+use crate::kernels::host_op::runs_on_host;
 
 /// Configuration of [`SiteNorm`].
 #[derive(Config, Debug)]

@@ -25,8 +25,8 @@ use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex};
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use crate::host_buffer::zeroed;
-use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 
 /// Rows (sites) of a block of the sums over sites.
 pub const ROWS_PER_BLOCK: usize = 512;

@@ -27,9 +27,9 @@ use super::host_conv::{sparse_conv_host, HostRules};
 use super::im2col_op::im2col_product;
 use super::view_rows::ViewRows;
 use super::BodyVolumeError;
-use crate::blocked_rows::{scatter_add_rows, select_rows};
+use crate::kernels::blocked_rows::{scatter_add_rows, select_rows};
 use crate::device::computes_on_cpu;
-use crate::host_op::runs_on_host;
+use crate::kernels::host_op::runs_on_host;
 use nia_data::geometry::sparse::{Rulebook, RulebookKind, KERNEL_VOLUME};
 
 /// PyTorch's (and spconv's) default convolution init: Kaiming uniform with `a = sqrt(5)`, i.e.
@@ -183,8 +183,8 @@ pub const GATHER_CHUNK_BYTES: usize = 16 << 20;
 /// its tracked gathers had a backward each (64 MiB blocks were slower then, docs/speed.md,
 /// "Kernel launches"); it now runs [`super::im2col_op`], whose backward gathers each block
 /// again and scatter-adds its column gradient in one kernel where the device adds floats
-/// atomically ([`crate::blocked_rows::ATOMIC_SCATTER_VALUES`]), else in blocks of
-/// [`crate::blocked_rows::MAX_SCATTER_INDICES`] rows.
+/// atomically ([`crate::kernels::blocked_rows::ATOMIC_SCATTER_VALUES`]), else in blocks of
+/// [`crate::kernels::blocked_rows::MAX_SCATTER_INDICES`] rows.
 pub const GPU_IM2COL_BLOCK_BYTES: usize = 64 << 20;
 
 /// The `Im2col` block size for gathering from `rows` (module docs).

@@ -13,8 +13,8 @@
 //! the backend's read ([`CornerRead`]) and used: `[N, P_s, C] -> [N, M, C]`, differentiable in
 //! the features: row gathers from the features with a zero row appended ([`SiteRows`]) and a
 //! weighted sum over the corners. On flex that read is one weighted gather with its own
-//! backward from corners kept in host memory ([`crate::weighted_rows`]); in training on a GPU
-//! backend it is one operation with its own backward ([`crate::tap_gather`]).
+//! backward from corners kept in host memory ([`crate::kernels::weighted_rows`]); in training on a GPU
+//! backend it is one operation with its own backward ([`crate::kernels::tap_gather`]).
 
 use std::sync::Arc;
 
@@ -25,11 +25,11 @@ use super::sparse_conv::{
 };
 use super::view_rows::per_view_rows;
 use super::BodyVolumeError;
-use crate::blocked_rows::select_rows;
+use crate::kernels::blocked_rows::select_rows;
 use crate::device::computes_on_cpu;
-use crate::host_op::runs_on_host;
-use crate::tap_gather::tap_gather;
-use crate::weighted_rows::{weighted_rows, Taps};
+use crate::kernels::host_op::runs_on_host;
+use crate::kernels::tap_gather::tap_gather;
+use crate::kernels::weighted_rows::{weighted_rows, Taps};
 pub use nia_data::geometry::sparse::{TrilinearCorners, CORNERS};
 
 /// How [`sample`] reads the 8 corners of a block of points.
@@ -107,7 +107,7 @@ pub struct TrilinearTensors {
     pub read: CornerRead,
     /// On flex, for [`CornerRead::Stacked`]: the corners' sites and weights in host memory
     /// (`[M * 8]` each), which [`sample`] reads as one weighted gather with its own backward
-    /// ([`crate::weighted_rows`]); every read shares them.
+    /// ([`crate::kernels::weighted_rows`]); every read shares them.
     pub host: Option<(Arc<Vec<u32>>, Arc<Vec<f32>>)>,
     /// M.
     pub num_points: usize,

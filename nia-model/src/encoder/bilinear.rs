@@ -18,9 +18,9 @@
 //! weights stay differentiable in the grid (the surface read's gradient in the expected depth,
 //! see `ibr::surface`). That tensor read runs on every backend and stays the reference; on flex
 //! (training included) a read whose grid carries no gradient is instead one weighted gather
-//! with its own backward ([`crate::weighted_rows`]), its taps computed on the host from the
+//! with its own backward ([`crate::kernels::weighted_rows`]), its taps computed on the host from the
 //! grid with the same coordinates and weights. In training on a GPU backend the four corners'
-//! gathers run as one operation with its own backward ([`crate::tap_gather`]).
+//! gathers run as one operation with its own backward ([`crate::kernels::tap_gather`]).
 
 use std::sync::Arc;
 
@@ -29,14 +29,14 @@ use burn::tensor::ops::GridSampleOptions;
 use rayon::prelude::*;
 
 use super::channels_last::channels_last_rows;
-use crate::blocked_rows::select_rows;
+use crate::kernels::blocked_rows::select_rows;
 use crate::device::computes_on_cpu;
-use crate::host_buffer::zeroed;
-use crate::host_op::runs_on_host;
-use crate::readback::host_values_of;
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_op::runs_on_host;
+use crate::kernels::readback::host_values_of;
 use crate::shape::ShapeError;
-use crate::tap_gather::tap_gather;
-use crate::weighted_rows::{weighted_rows, Taps};
+use crate::kernels::tap_gather::tap_gather;
+use crate::kernels::weighted_rows::{weighted_rows, Taps};
 
 /// Reads N maps at M points each: [`ViewRows::new`] then [`ViewRows::sample`]. A caller that
 /// reads the same maps many times (every ray chunk of an image) keeps the [`ViewRows`].

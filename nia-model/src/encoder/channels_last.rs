@@ -21,8 +21,8 @@ use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex, Tensor
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use crate::host_buffer::zeroed;
-use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 
 /// The layout change as a backend operation: flex, and autodiff over flex with this module's
 /// backward.
@@ -149,7 +149,7 @@ impl<B: Backend + ChannelsLastKernels, C: CheckpointStrategy> ChannelsLastBacken
 
 /// `[N, C, H, W]` maps -> their `[N H W + 1, C]` channels-last rows and a zero row, by the host
 /// operation (the device must be flex, with or without autodiff:
-/// [`crate::host_op::runs_on_host`]).
+/// [`crate::kernels::host_op::runs_on_host`]).
 pub fn channels_last_rows(maps: Tensor<4>) -> Tensor<2> {
     Tensor::from_dispatch(<Dispatch as ChannelsLastBackend>::channels_last_rows(
         maps.into_dispatch(),

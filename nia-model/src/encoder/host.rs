@@ -20,7 +20,7 @@ use rayon::prelude::*;
 
 use crate::encoder::pyramid_host::{HostMaps, HostPyramid};
 use crate::encoder::{BasicBlock, ImageEncoder, IMAGENET_MEAN, IMAGENET_STD};
-use crate::readback::host_values_of;
+use crate::kernels::readback::host_values_of;
 use crate::shape::ShapeError;
 
 /// Output pixels per tile: one im2col buffer and one `gemm` of `TILE x K x C_out` each.

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 use crate::encoder::bilinear::ViewRows;
 use crate::encoder::{bilinear_matrix, check_reduction_weight, FeaturePyramid};
-use crate::readback::host_values_of;
+use crate::kernels::readback::host_values_of;
 use crate::shape::ShapeError;
 
 /// One output index's two source taps along an axis: `(i0, i1, lambda)`, value
@@ -221,7 +221,7 @@ pub fn reduce_to_rows(pyramid: &HostPyramid, weight: Tensor<2>) -> Result<ViewRo
 mod tests {
     use super::*;
     use crate::encoder::ImageEncoderConfig;
-    use crate::readback::host_values;
+    use crate::kernels::readback::host_values;
     use burn::tensor::Distribution;
 
     fn close(a: &[f32], b: &[f32], tol: f32) {

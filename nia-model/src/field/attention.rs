@@ -27,9 +27,9 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 
 use super::attention_op::view_attention;
-use crate::host_op::runs_on_host;
-use crate::linear_host::linear;
-use crate::linear_rows::linear_rows;
+use crate::kernels::host_op::runs_on_host;
+use crate::kernels::linear_host::linear;
+use crate::kernels::linear_rows::linear_rows;
 use crate::shape::ShapeError;
 use crate::softmax::stable_softmax;
 

@@ -17,9 +17,9 @@ use rayon::prelude::*;
 
 use super::attention::ViewCrossAttention;
 use super::attention_op::dot;
-use crate::host_buffer::zeroed;
-use crate::host_mlp::HostLinear;
-use crate::readback::host_view_of;
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_mlp::HostLinear;
+use crate::kernels::readback::host_view_of;
 use crate::shape::ShapeError;
 
 /// Points per parallel task (its two projections of N x 128 rows stay in cache).

@@ -25,8 +25,8 @@ use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex};
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use crate::host_buffer::zeroed;
-use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 
 /// The weighted sum as a backend operation: flex, and autodiff over flex with this module's
 /// backward.
@@ -289,7 +289,7 @@ impl<B: Backend + ViewAttentionKernels, C: CheckpointStrategy> ViewAttentionBack
 }
 
 /// `O_i = sum_j softmax_j(Q_i . K_j / sqrt(d)) V_j` by the host operation (the device must be
-/// flex, with or without autodiff: [`crate::host_op::runs_on_host`]).
+/// flex, with or without autodiff: [`crate::kernels::host_op::runs_on_host`]).
 ///
 /// # Shapes
 /// - `q`, `k`, `v`: `[N, M, d]` (views first); output `[N, M, d]`

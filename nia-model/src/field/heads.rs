@@ -18,7 +18,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, softplus};
 
-use crate::linear_host::linear;
+use crate::kernels::linear_host::linear;
 use crate::shape::ShapeError;
 
 /// Number of linear layers of F_sigma and F_c0 (paper).

@@ -3,7 +3,7 @@
 //!
 //! The three MLP stacks run as [`HostMlp`]s: each task carries its rows through every layer in
 //! cache, where the tensor path allocates, zeroes, copies and revisits every layer's output on
-//! the calling thread ([`crate::host_mlp`]). F_B's tokens and per-point part are laid out on
+//! the calling thread ([`crate::kernels::host_mlp`]). F_B's tokens and per-point part are laid out on
 //! the host as [`Blender::tokens`] lays them out (with the view statistics' weighted means and
 //! variances); after F_B the softmax, c0's rescaled odds, the mix and the IBR-only colour
 //! run in one host pass too ([`crate::ibr::blend_host`]). The activations of F_sigma and F_c0
@@ -18,12 +18,12 @@ use super::heads::{ColourHead, ColourHeadOutput, DensityHead};
 use super::positional_encoding::PositionalEncoding;
 use rayon::prelude::*;
 
-use crate::host_buffer::zeroed;
-use crate::host_mlp::{FirstLayerAddend, HostMlp, ROWS_PER_TASK};
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_mlp::{FirstLayerAddend, HostMlp, ROWS_PER_TASK};
 use crate::ibr::blend_host::blend_on_host;
 use crate::ibr::blender::{BlendInputs, Blender, PointColour, TOKEN_EXTRA_DIM};
 use crate::ibr::view_statistics::STATISTICS_FLOOR;
-use crate::readback::host_view_of;
+use crate::kernels::readback::host_view_of;
 use crate::shape::ShapeError;
 use nia_data::scene::VIEW_DIR_FEATURE_DIM;
 

@@ -12,9 +12,9 @@ use crate::error::ModelError;
 use crate::ibr::blend_host::IBR_ONLY_FLOOR;
 use crate::ibr::blender::BlendInputs;
 use crate::ibr::fetch_source_colours_from;
-use crate::linear_rows::linear_rows;
+use crate::kernels::linear_rows::linear_rows;
 use crate::model::NiaModel;
-use crate::readback::host_view_of;
+use crate::kernels::readback::host_view_of;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::{Stage, StageTimes, Stopwatch};
 

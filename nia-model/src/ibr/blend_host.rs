@@ -11,7 +11,7 @@
 use rayon::prelude::*;
 
 use super::c0_weight_scale::check_c0_weight_scale;
-use crate::host_mlp::ROWS_PER_TASK;
+use crate::kernels::host_mlp::ROWS_PER_TASK;
 use crate::shape::ShapeError;
 
 /// Weight a view keeps in the IBR-only colour whatever its blend weight, so a point that puts

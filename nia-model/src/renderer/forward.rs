@@ -13,7 +13,7 @@ use nia_data::geometry::rays::RayBundle;
 
 use super::quadrature::{render_rays_delta, RenderOutput};
 use super::shape_buckets::pads_to_buckets;
-use crate::blocked_rows::scatter_add_rows;
+use crate::kernels::blocked_rows::scatter_add_rows;
 use crate::config::SourceColoursAt;
 use crate::error::ModelError;
 use crate::field::PointOutput;

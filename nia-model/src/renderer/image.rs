@@ -14,7 +14,7 @@
 
 use burn::prelude::*;
 
-use crate::readback::host_values;
+use crate::kernels::readback::host_values;
 use nia_data::geometry::rays::RayBundle;
 
 use crate::error::ModelError;

@@ -24,7 +24,7 @@ use glam::Vec3;
 use crate::error::ModelError;
 use crate::field::PointOutput;
 use crate::model::NiaModel;
-use crate::readback::host_values;
+use crate::kernels::readback::host_values;
 use crate::renderer::colour_culling::cull;
 use crate::renderer::shape_buckets::{bucket_len, pad_to, pads_to_buckets};
 use crate::sampler::RaySamples;

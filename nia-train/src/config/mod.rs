@@ -7,7 +7,7 @@ use nia_data::dataset::smpl_alignment::AlignmentError;
 use nia_data::dataset::smpl_jitter::MAX_SMPL_JITTER_M;
 use nia_data::dataset::DataConfig;
 use nia_data::synth::SynthSection;
-use nia_infer::perceptual::LpipsFiles;
+use nia_eval::perceptual::LpipsFiles;
 use nia_model::device::{Backend, DeviceSpec};
 use nia_model::render_options::RenderOptions;
 use nia_model::store::checkpoint;

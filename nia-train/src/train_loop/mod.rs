@@ -22,12 +22,12 @@ use std::time::Instant;
 use burn::optim::AdamConfig;
 use nia_data::dataset::loader::{BandGrid, BodyVolumeGrid, SceneLoader};
 use nia_data::dataset::protocol::EvalSplit;
-use nia_infer::eval::{
+use nia_eval::eval::{
     eval_items, evaluate_images, evaluate_items, EvalError, EvalOptions, EvalSummary, EvalTask,
 };
-use nia_infer::pictures::{comparison_grid, save_evaluated};
+use nia_eval::pictures::{comparison_grid, save_evaluated};
 use nia_model::body_volume::NUM_SCALES;
-use nia_model::host_op::runs_on_host;
+use nia_model::kernels::host_op::runs_on_host;
 use nia_model::loss::psnr_from_mse;
 use nia_model::renderer::call_size::rays_per_chunk;
 use nia_model::sampler::RaySampler;

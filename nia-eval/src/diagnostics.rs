@@ -282,7 +282,7 @@ pub fn diagnostics_table(rows: &[(String, BlendDiagnostics)]) -> String {
         ));
     }
     md.push_str(
-        "\nInstruments of the hybrid (`nia_infer::diagnostics`): c0 share = mean NeRF-colour weight of the blend on person pixels whose surface some source view sees (seen) or none sees (unseen); seen = share of person pixels seen; PSNR of the NeRF-only and IBR-only composites on the scored region; depth error = mean |expected depth - rasterised SMPL depth| on opaque person pixels; mean opacity off and on the person's mask; the image's PSNR on the scored pixels next to the person mask's boundary (either side, 8-neighbourhood) and on the rest.\n",
+        "\nInstruments of the hybrid (`nia_eval::diagnostics`): c0 share = mean NeRF-colour weight of the blend on person pixels whose surface some source view sees (seen) or none sees (unseen); seen = share of person pixels seen; PSNR of the NeRF-only and IBR-only composites on the scored region; depth error = mean |expected depth - rasterised SMPL depth| on opaque person pixels; mean opacity off and on the person's mask; the image's PSNR on the scored pixels next to the person mask's boundary (either side, 8-neighbourhood) and on the rest.\n",
     );
     md
 }

@@ -1,6 +1,6 @@
 #![allow(deprecated)] // Device::ndarray(): burn deprecates it; it is the reference CPU backend.
 
-//! LPIPS as evaluation scores it ([`nia_infer::perceptual`]): on the full image it is the
+//! LPIPS as evaluation scores it ([`nia_eval::perceptual`]): on the full image it is the
 //! `lpips` package's distance (nia-model's fixtures: narrow random trunks, the package's own
 //! forward); on a mask it is the distance of the zeroed, cropped (and, below the network's
 //! minimum size, zero-padded) pair, as SSIM is scored.
@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use nia_data::metrics::ImageView;
-use nia_infer::perceptual::{lpips_masked_crop, LpipsFiles};
+use nia_eval::perceptual::{lpips_masked_crop, LpipsFiles};
 use nia_model::lpips::LpipsNet;
 
 /// nia-model's LPIPS tolerance against the package (f32 through up to 13 convs).

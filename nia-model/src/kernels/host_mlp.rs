@@ -15,8 +15,8 @@
 use burn::nn::Linear;
 use rayon::prelude::*;
 
-use crate::host_buffer::zeroed;
-use crate::readback::host_values_of;
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::readback::host_values_of;
 use crate::shape::ShapeError;
 
 /// Rows per parallel task: a task's two scratch buffers of 256 rows x 256 channels are 512 KiB,

@@ -1,11 +1,11 @@
 //! The taps' weighted scatter-add, `rows[index[j, l]] += weight[j, l] * grad[l]` for K taps and
-//! L outputs: the rows' gradient of [`crate::tap_gather`], as one GPU kernel of our own where
+//! L outputs: the rows' gradient of [`crate::kernels::tap_gather`], as one GPU kernel of our own where
 //! the device adds floats atomically ([`crate::device::cube_adds_floats_atomically`]).
 //!
 //! Without it (ndarray, devices without float atomics) the tensor form runs
-//! ([`crate::row_scatter::weighted_scatter_tensor_form`], or [`crate::tap_gather`]'s blocks of
+//! ([`crate::kernels::row_scatter::weighted_scatter_tensor_form`], or [`crate::kernels::tap_gather`]'s blocks of
 //! it): the output gradient weighted by every tap into a `[K L, C]` buffer, then a scatter-add
-//! ([`crate::row_scatter::RowScatter::scatter_add_rows`]). On a GPU that was a copy of the
+//! ([`crate::kernels::row_scatter::RowScatter::scatter_add_rows`]). On a GPU that was a copy of the
 //! block's taps, a product and a scatter-add per block of at most 64 MiB of values, 16 blocks
 //! for a body-volume read at the paper's size. The kernel runs one thread per (tap, output,
 //! channel), reads the weight, the index and the gradient where they are and adds atomically:

@@ -1,7 +1,7 @@
 //! The scatter-add of gradient rows on a backend's primitives, for the hand-written backwards
-//! of the GPU training operations ([`crate::body_volume::im2col_op`], [`crate::tap_gather`]).
+//! of the GPU training operations ([`crate::body_volume::im2col_op`], [`crate::kernels::tap_gather`]).
 //!
-//! As [`crate::blocked_rows`] runs it at the tensor level: an element-wise `scatter` with `Add`
+//! As [`crate::kernels::blocked_rows`] runs it at the tensor level: an element-wise `scatter` with `Add`
 //! in blocks of [`RowScatter::scatter_rows`] rows on the cubecl backends (atomic adds, no fixed
 //! order; [`MAX_SCATTER_INDICES`] rows where the device has no float atomics), one
 //! `select_assign` on ndarray (the tests' reference, whose callers block their rows as a device
@@ -18,9 +18,10 @@ use burn::backend::Cube;
 use burn::backend::{Backend, NdArray, TensorMetadata};
 use burn::tensor::{IndexingUpdateOp, Slice};
 
-use crate::blocked_rows::MAX_SCATTER_INDICES;
+use crate::kernels::blocked_rows::MAX_SCATTER_INDICES;
 #[cfg(feature = "wgpu")]
-use crate::{blocked_rows::scatter_block_rows, device::cube_adds_floats_atomically};
+use crate::device::cube_adds_floats_atomically;
+use crate::kernels::blocked_rows::scatter_block_rows;
 
 /// `(start, len)` of the blocks of `step` (at least 1) among `k`.
 pub fn blocks(k: usize, step: usize) -> impl Iterator<Item = (usize, usize)> {
@@ -39,7 +40,7 @@ pub fn range(start: usize, len: usize) -> Slice {
 pub trait RowScatter: Backend {
     /// The most rows of `columns` values a caller should hand one [`Self::scatter_add_rows`]
     /// on `device` (it bounds the callers' intermediate buffers too):
-    /// [`crate::blocked_rows::scatter_block_rows`] on the cubecl backends,
+    /// [`crate::kernels::blocked_rows::scatter_block_rows`] on the cubecl backends,
     /// [`MAX_SCATTER_INDICES`] on ndarray.
     fn scatter_rows(device: &Self::Device, columns: usize) -> usize;
 
@@ -51,7 +52,7 @@ pub trait RowScatter: Backend {
 
     /// `rows` `[R, C]` with `weight[j, l] * grad[l]` added at row `index[j, l]` for every tap j
     /// and output l (`grad` `[L, C]`, `index` `[K, L]`, `weight` `[K, L]`): the rows' gradient
-    /// of [`crate::tap_gather`] ([`crate::tap_scatter`]).
+    /// of [`crate::kernels::tap_gather`] ([`crate::kernels::tap_scatter`]).
     fn weighted_scatter_add(
         rows: FloatTensor<Self>,
         grad: FloatTensor<Self>,
@@ -101,7 +102,7 @@ impl RowScatter for Cube {
         weight: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
         if cube_adds_floats_atomically(&rows.device()) {
-            crate::tap_scatter::cube::fused(rows, grad, index, weight)
+            crate::kernels::tap_scatter::cube::fused(rows, grad, index, weight)
         } else {
             weighted_scatter_tensor_form::<Self>(rows, grad, index, weight)
         }
@@ -135,7 +136,7 @@ impl RowScatter for Cube {
 
 /// [`RowScatter::weighted_scatter_add`] by tensor operations, on any [`RowScatter`] backend:
 /// the output gradient weighted by every tap into a `[K L, C]` buffer, then one
-/// [`RowScatter::scatter_add_rows`] ([`crate::tap_scatter`] is the GPU kernel without the buffer).
+/// [`RowScatter::scatter_add_rows`] ([`crate::kernels::tap_scatter`] is the GPU kernel without the buffer).
 ///
 /// # Shapes
 /// - `rows`: `[R, C]`; `grad`: `[L, C]`; `index`: `[K, L]` Int in `0..R`; `weight`: `[K, L]`;

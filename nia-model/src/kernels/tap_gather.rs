@@ -1,6 +1,6 @@
 //! Weighted row gathers, the bilinear and trilinear reads, as one operation with a hand-written
 //! backward (burn's backend extension), for training on the GPU backends (and on ndarray, where
-//! the tests compare it with the tensor form). [`crate::weighted_rows`] is the same read on
+//! the tests compare it with the tensor form). [`crate::kernels::weighted_rows`] is the same read on
 //! flex, as a host loop.
 //!
 //! `out[l] = sum_j weight[j, l] * rows[index[j, l]]` for L output rows and K taps (4 corners of
@@ -11,14 +11,14 @@
 //! weighted output gradient of all K taps of a block of rows into it at once:
 //! - forward, per block of outputs: `out_b = sum_j weight[j, b] * rows[index[j, b]]`;
 //! - backward: `d rows[index[j, l]] += weight[j, l] * d out[l]`: where the device adds floats
-//!   atomically, one [`crate::tap_scatter`] kernel for all taps and outputs; else one
+//!   atomically, one [`crate::kernels::tap_scatter`] kernel for all taps and outputs; else one
 //!   scatter-add per [`RowScatter::scatter_rows`] taps
-//!   ([`crate::blocked_rows::MAX_SCATTER_INDICES`] rows on a GPU without float atomics). Where
+//!   ([`crate::kernels::blocked_rows::MAX_SCATTER_INDICES`] rows on a GPU without float atomics). Where
 //!   the weights carry a gradient (the surface read's bilinear weights depend on the expected
 //!   depth), `d weight[j, l] = d out[l] . rows[index[j, l]]` from each block's rows gathered
 //!   again.
 //!
-//! The scatter-adds run as [`crate::row_scatter`] runs them (atomic adds on the GPU backends,
+//! The scatter-adds run as [`crate::kernels::row_scatter`] runs them (atomic adds on the GPU backends,
 //! in no fixed order).
 // ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
 #![allow(deprecated)]
@@ -34,7 +34,7 @@ use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, NdArray, Ten
 use burn::prelude::*;
 use burn::tensor::Slice;
 
-use crate::row_scatter::{blocks, range, RowScatter};
+use crate::kernels::row_scatter::{blocks, range, RowScatter};
 
 /// The read as a backend operation: ndarray and (with the `wgpu` feature) the cubecl backends,
 /// and autodiff over them with this module's backward.

@@ -2,7 +2,7 @@
 //! hand-written kernels on flex's buffers, with and without autodiff ([`linear_host`] and the
 //! body volume's [`host_conv`]).
 //!
-//! [`linear_host`]: crate::linear_host
+//! [`linear_host`]: crate::kernels::linear_host
 //! [`host_conv`]: crate::body_volume::host_conv
 
 use burn::backend::tensor::FloatTensor;

@@ -26,8 +26,8 @@ use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex, Tensor
 use burn::prelude::*;
 use rayon::prelude::*;
 
-use crate::host_buffer::zeroed;
-use crate::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 
 /// The taps of a read: K (index, weight) pairs for each of P points, read in V views. Output
 /// row `v P + p` reads table rows `index[p K + j] + v view_stride` with weights
@@ -263,7 +263,7 @@ impl<B: Backend + WeightedRowsKernels, C: CheckpointStrategy> WeightedRowsBacken
 }
 
 /// `table` read at `taps` by the host operation (the device must be flex, with or without
-/// autodiff: [`crate::host_op::runs_on_host`]).
+/// autodiff: [`crate::kernels::host_op::runs_on_host`]).
 ///
 /// # Shapes
 /// - `table`: `[T, C]`; output `[R, C]`

@@ -17,7 +17,7 @@ use burn::prelude::*;
 /// - output: `[A, B, d_out]`
 pub fn linear_rows(linear: &Linear, x: Tensor<3>) -> Tensor<3> {
     let [a, b, d] = x.dims();
-    let y = crate::linear_host::linear(linear, x.reshape([a * b, d]), false);
+    let y = crate::kernels::linear_host::linear(linear, x.reshape([a * b, d]), false);
     let d_out = y.dims()[1];
     y.reshape([a, b, d_out])
 }
