@@ -11,7 +11,13 @@ use std::path::{Path, PathBuf};
 /// Longest source file allowed outside tests and formats.
 const MAX_LINES: usize = 600;
 
-const CRATES: [&str; 5] = ["nia-data", "nia-model", "nia-eval", "nia-train", "nia-infer"];
+const CRATES: [&str; 5] = [
+    "nia-data",
+    "nia-model",
+    "nia-eval",
+    "nia-train",
+    "nia-infer",
+];
 
 fn workspace() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

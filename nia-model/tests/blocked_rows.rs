@@ -11,10 +11,10 @@ mod common;
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 use nia_data::rng::Rng;
+use nia_model::device::adds_floats_atomically;
 use nia_model::kernels::blocked_rows::{
     scatter_add_rows, scatter_block_rows, select_rows, ATOMIC_SCATTER_VALUES, MAX_SCATTER_INDICES,
 };
-use nia_model::device::adds_floats_atomically;
 
 const ROWS: usize = 500;
 const C: usize = 8;

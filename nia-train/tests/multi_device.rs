@@ -171,9 +171,7 @@ fn one_device_reference(config_path: &Path) -> (Vec<f32>, Vec<f64>, u64) {
     let config = TrainConfig::load(config_path).unwrap();
     let t = &config.train;
     assert!(
-        t.mask_loss_weight == 0.0
-            && t.distortion_loss_weight == 0.0
-            && t.c0_shuffle == 0.0,
+        t.mask_loss_weight == 0.0 && t.distortion_loss_weight == 0.0 && t.c0_shuffle == 0.0,
         "the reference implements the paper's loss only"
     );
     assert!(t.init_from.is_none() && t.encoder_weights.is_none());

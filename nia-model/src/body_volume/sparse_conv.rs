@@ -27,8 +27,8 @@ use super::host_conv::{sparse_conv_host, HostRules};
 use super::im2col_op::im2col_product;
 use super::view_rows::ViewRows;
 use super::BodyVolumeError;
-use crate::kernels::blocked_rows::{scatter_add_rows, select_rows};
 use crate::device::computes_on_cpu;
+use crate::kernels::blocked_rows::{scatter_add_rows, select_rows};
 use crate::kernels::host_op::runs_on_host;
 use nia_data::geometry::sparse::{Rulebook, RulebookKind, KERNEL_VOLUME};
 

@@ -25,8 +25,8 @@ use super::sparse_conv::{
 };
 use super::view_rows::per_view_rows;
 use super::BodyVolumeError;
-use crate::kernels::blocked_rows::select_rows;
 use crate::device::computes_on_cpu;
+use crate::kernels::blocked_rows::select_rows;
 use crate::kernels::host_op::runs_on_host;
 use crate::kernels::tap_gather::tap_gather;
 use crate::kernels::weighted_rows::{weighted_rows, Taps};

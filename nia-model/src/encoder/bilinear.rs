@@ -29,14 +29,14 @@ use burn::tensor::ops::GridSampleOptions;
 use rayon::prelude::*;
 
 use super::channels_last::channels_last_rows;
-use crate::kernels::blocked_rows::select_rows;
 use crate::device::computes_on_cpu;
+use crate::kernels::blocked_rows::select_rows;
 use crate::kernels::host_buffer::zeroed;
 use crate::kernels::host_op::runs_on_host;
 use crate::kernels::readback::host_values_of;
-use crate::shape::ShapeError;
 use crate::kernels::tap_gather::tap_gather;
 use crate::kernels::weighted_rows::{weighted_rows, Taps};
+use crate::shape::ShapeError;
 
 /// Reads N maps at M points each: [`ViewRows::new`] then [`ViewRows::sample`]. A caller that
 /// reads the same maps many times (every ray chunk of an image) keeps the [`ViewRows`].

@@ -18,11 +18,11 @@ use super::heads::{ColourHead, ColourHeadOutput, DensityHead};
 use super::positional_encoding::PositionalEncoding;
 use rayon::prelude::*;
 
-use crate::kernels::host_buffer::zeroed;
-use crate::kernels::host_mlp::{FirstLayerAddend, HostMlp, ROWS_PER_TASK};
 use crate::ibr::blend_host::blend_on_host;
 use crate::ibr::blender::{BlendInputs, Blender, PointColour, TOKEN_EXTRA_DIM};
 use crate::ibr::view_statistics::STATISTICS_FLOOR;
+use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_mlp::{FirstLayerAddend, HostMlp, ROWS_PER_TASK};
 use crate::kernels::readback::host_view_of;
 use crate::shape::ShapeError;
 use nia_data::scene::VIEW_DIR_FEATURE_DIM;

@@ -13,8 +13,8 @@ use crate::ibr::blend_host::IBR_ONLY_FLOOR;
 use crate::ibr::blender::BlendInputs;
 use crate::ibr::fetch_source_colours_from;
 use crate::kernels::linear_rows::linear_rows;
-use crate::model::NiaModel;
 use crate::kernels::readback::host_view_of;
+use crate::model::NiaModel;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::{Stage, StageTimes, Stopwatch};
 

@@ -34,7 +34,9 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use rayon::prelude::*;
 
-use crate::kernels::host_op::{contiguous_f32, dims, flex_tensor, runs_on_host, values, FlexTensor};
+use crate::kernels::host_op::{
+    contiguous_f32, dims, flex_tensor, runs_on_host, values, FlexTensor,
+};
 
 /// The linear layer as a backend operation: flex, and autodiff over flex with this module's
 /// backward.

@@ -18,10 +18,10 @@ use burn::backend::Cube;
 use burn::backend::{Backend, NdArray, TensorMetadata};
 use burn::tensor::{IndexingUpdateOp, Slice};
 
-use crate::kernels::blocked_rows::MAX_SCATTER_INDICES;
 #[cfg(feature = "wgpu")]
 use crate::device::cube_adds_floats_atomically;
 use crate::kernels::blocked_rows::scatter_block_rows;
+use crate::kernels::blocked_rows::MAX_SCATTER_INDICES;
 
 /// `(start, len)` of the blocks of `step` (at least 1) among `k`.
 pub fn blocks(k: usize, step: usize) -> impl Iterator<Item = (usize, usize)> {

@@ -80,6 +80,21 @@ pub mod cube {
             into_contiguous(index),
             into_contiguous(weight),
         );
+        // What the launch below relies on, checked: a caller's wrong shape must fail here, not
+        // read or write past a buffer on the device.
+        let (r, g, i, w) = (
+            rows.meta.shape().to_vec(),
+            grad.meta.shape().to_vec(),
+            index.meta.shape().to_vec(),
+            weight.meta.shape().to_vec(),
+        );
+        assert!(
+            r.len() == 2 && g.len() == 2 && i.len() == 2,
+            "tap scatter: rows {r:?}, grad {g:?} and index {i:?} must be matrices"
+        );
+        assert_eq!(i, w, "tap scatter: index and weight shapes [K, L]");
+        assert_eq!(i[1], g[0], "tap scatter: index [K, L] against grad [L, C]");
+        assert_eq!(r[1], g[1], "tap scatter: rows [R, C] against grad [L, C]");
         let units = index.meta.num_elements() * grad.meta.shape()[1];
         if units == 0 {
             return rows;
@@ -97,7 +112,8 @@ pub mod cube {
             dtype_to_storage_type(index.dtype),
         ];
         // Safety: the kernel indexes `index` and `weight` below K L, `grad` below L C and
-        // `rows` below R C (it skips indices past R), on contiguous tensors.
+        // `rows` below R C (it skips indices past R), on contiguous tensors whose shapes the
+        // asserts above tie together.
         unsafe {
             weighted_tap_scatter_kernel::launch_unchecked(
                 &client,

@@ -13,11 +13,11 @@ use nia_data::geometry::rays::RayBundle;
 
 use super::quadrature::{render_rays_delta, RenderOutput};
 use super::shape_buckets::pads_to_buckets;
-use crate::kernels::blocked_rows::scatter_add_rows;
 use crate::config::SourceColoursAt;
 use crate::error::ModelError;
 use crate::field::PointOutput;
 use crate::ibr::surface::{surface_colours, surface_composite};
+use crate::kernels::blocked_rows::scatter_add_rows;
 use crate::model::NiaModel;
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;

@@ -23,8 +23,8 @@ use glam::Vec3;
 
 use crate::error::ModelError;
 use crate::field::PointOutput;
-use crate::model::NiaModel;
 use crate::kernels::readback::host_values;
+use crate::model::NiaModel;
 use crate::renderer::colour_culling::cull;
 use crate::renderer::shape_buckets::{bucket_len, pad_to, pads_to_buckets};
 use crate::sampler::RaySamples;

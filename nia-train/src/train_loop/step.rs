@@ -11,9 +11,7 @@ use nia_data::dataset::sampling::TrainRays;
 use nia_data::rng::Rng;
 use nia_data::scene::SceneInput;
 use nia_model::ibr::c0_shuffle::C0Shuffle;
-use nia_model::loss::{
-    colour_matched_target, distortion_loss, mask_loss, render_loss, RenderLoss,
-};
+use nia_model::loss::{colour_matched_target, distortion_loss, mask_loss, render_loss, RenderLoss};
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::{ModelError, NiaModel};
