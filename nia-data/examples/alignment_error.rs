@@ -23,8 +23,8 @@ use std::time::Instant;
 use glam::Vec3;
 use nia_data::dataset::loader::{load_scene, LoaderConfig, SceneRequest, TargetKind};
 use nia_data::dataset::protocol::EvalSplit;
-use nia_data::dataset::smpl_alignment::SmplAlignment;
 use nia_data::dataset::{DataConfig, DatasetConfig, DatasetFormat, OpenedDataset, Subject};
+use nia_data::fitting::SmplAlignment;
 
 fn mean_cm(a: &[Vec3], b: &[Vec3]) -> f64 {
     let sum: f64 = a

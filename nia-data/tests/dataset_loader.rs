@@ -12,9 +12,9 @@ use nia_data::dataset::loader::{
 };
 use nia_data::dataset::protocol::{EvalSplit, FrameRange, Protocol, SubjectFrames, ViewSet};
 use nia_data::dataset::sampling::{border_band, sample_rays, BoxPadding, RaySamplingConfig};
-use nia_data::dataset::smpl_alignment::SmplAlignment;
 use nia_data::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use nia_data::dataset::{DatasetConfig, Subject};
+use nia_data::fitting::SmplAlignment;
 use nia_data::geometry::occupancy::OccupancyGrid;
 use nia_data::geometry::occupancy_memo::remembered;
 use nia_data::geometry::rays::mask_at_box;

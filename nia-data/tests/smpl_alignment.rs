@@ -1,4 +1,4 @@
-//! SMPL alignment (`nia_data::dataset::smpl_alignment`): a fit moved rigidly off the person
+//! SMPL alignment (`nia_data::fitting::align`): a fit moved rigidly off the person
 //! comes back onto it from three source masks, holds against flawed masks, stays within its
 //! bounds, keeps the params in step with the vertices, and refuses bad input by name.
 
@@ -6,10 +6,8 @@ use std::sync::{Arc, OnceLock};
 
 use glam::{Quat, Vec3};
 use nia_data::body::{ProceduralBody, ProceduralSpec, SmplParams};
-use nia_data::dataset::fit_alignment::align_fit;
-use nia_data::dataset::smpl_alignment::{
-    align_to_masks, AlignmentError, AlignmentView, RigidCorrection, SmplAlignment,
-};
+use nia_data::fitting::align::RigidCorrection;
+use nia_data::fitting::{align_fit, align_to_masks, AlignmentView, FitError, SmplAlignment};
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::raster::rasterize;
 use nia_data::scene::vertices_in_smpl_frame;
@@ -98,7 +96,9 @@ fn mean_error(a: &[Vec3], b: &[Vec3]) -> f32 {
 }
 
 fn corrected(fit: &[Vec3], correction: &RigidCorrection) -> Vec<Vec3> {
-    fit.iter().map(|&p| correction.apply_point(p)).collect()
+    fit.iter()
+        .map(|&p| correction.motion.apply_point(p))
+        .collect()
 }
 
 /// A fit 2.5 cm and 2 degrees off (the level-1 fit error is 1 cm and 1 degree per axis):
@@ -171,8 +171,8 @@ fn the_correction_stays_within_its_bounds() {
         ..SmplAlignment::default()
     };
     let c = align_to_masks(&fit, &views(&cams, &m), &bounds).unwrap();
-    assert!(c.translation.length() <= 0.02 + 1e-6, "{c:?}");
-    assert!(c.rotation_deg() <= 1.0 + 1e-3, "{c:?}");
+    assert!(c.motion.translation.length() <= 0.02 + 1e-6, "{c:?}");
+    assert!(c.motion.rotation_deg() <= 1.0 + 1e-3, "{c:?}");
     assert!(c.energy_after <= c.energy_before);
     // Within the bounds it still moves the right way.
     let after = mean_error(&corrected(&fit, &c), &body().0);
@@ -192,7 +192,7 @@ fn the_params_move_with_the_vertices() {
     };
     let local = vertices_in_smpl_frame(&fit, params.rh, params.th);
     let mut vertices = fit.clone();
-    c.apply(&mut vertices, &mut params);
+    c.motion.apply(&mut vertices, &mut params);
     let local_after = vertices_in_smpl_frame(&vertices, params.rh, params.th);
     for (a, b) in local.iter().zip(&local_after) {
         let d = Vec3::from_array(*a).distance(Vec3::from_array(*b));
@@ -209,18 +209,18 @@ fn views_without_a_person_take_no_part() {
     let fit = typical_fit();
     let c = align_to_masks(&fit, &views(&cams, &m), &SmplAlignment::default()).unwrap();
     assert_eq!(c.views_used, 2);
-    assert!(c.translation.is_finite() && c.rotation.is_finite());
+    assert!(c.motion.translation.is_finite() && c.motion.rotation.is_finite());
 
     let empty: Vec<Vec<bool>> = m.iter().map(|x| vec![false; x.len()]).collect();
     let c = align_to_masks(&fit, &views(&cams, &empty), &SmplAlignment::default()).unwrap();
     assert_eq!(c.views_used, 0);
-    assert_eq!(c.translation, Vec3::ZERO);
-    assert_eq!(c.rotation, Quat::IDENTITY);
+    assert_eq!(c.motion.translation, Vec3::ZERO);
+    assert_eq!(c.motion.rotation, Quat::IDENTITY);
     let c = align_to_masks(&fit, &[], &SmplAlignment::default()).unwrap();
-    assert_eq!((c.views_used, c.translation), (0, Vec3::ZERO));
+    assert_eq!((c.views_used, c.motion.translation), (0, Vec3::ZERO));
 }
 
-/// The loader's entry (`fit_alignment::align_fit`) aligns a scene's sources once: the same
+/// The loader's entry (`fitting::align_fit`) aligns a scene's sources once: the same
 /// fit, params, cameras, masks and settings give the remembered result; a pixel of one mask,
 /// a setting or the params changed give a new one; without a body model the pose refinement
 /// is refused by name.
@@ -264,9 +264,11 @@ fn the_loader_aligns_each_exact_input_once() {
     assert_eq!(field_of(e), "pose_iterations");
 }
 
-fn field_of(e: AlignmentError) -> String {
-    let AlignmentError::Invalid { field, .. } = e;
-    field
+fn field_of(e: FitError) -> String {
+    match e {
+        FitError::Invalid { field, .. } => field,
+        other => panic!("not an invalid-input error: {other}"),
+    }
 }
 
 #[test]

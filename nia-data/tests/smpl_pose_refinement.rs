@@ -1,4 +1,4 @@
-//! SMPL pose refinement (`nia_data::dataset::smpl_pose_refinement`): a fit whose joints are
+//! SMPL pose refinement (`nia_data::fitting::align::refine_pose`): a fit whose joints are
 //! bent off the person comes closer to it from three source masks, an exact fit stays, no
 //! joint leaves its bound, the refined params pose the refined vertices (offsets kept), and bad
 //! input is refused by name.
@@ -8,8 +8,7 @@ use std::sync::OnceLock;
 use glam::{Quat, Vec3};
 use nia_data::body::ProceduralBody;
 use nia_data::body::{pose_for_motion, BodyModel, MotionKind, ProceduralSpec, SmplParams};
-use nia_data::dataset::smpl_alignment::{AlignmentError, AlignmentView, SmplAlignment};
-use nia_data::dataset::smpl_pose_refinement::refine_pose;
+use nia_data::fitting::{refine_pose, AlignmentView, FitError, SmplAlignment};
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::raster::rasterize;
 
@@ -209,9 +208,11 @@ fn off_or_without_a_person_nothing_moves() {
     assert_eq!((report.steps, &params), (0, &fit));
 }
 
-fn field_of(e: AlignmentError) -> String {
-    let AlignmentError::Invalid { field, .. } = e;
-    field
+fn field_of(e: FitError) -> String {
+    match e {
+        FitError::Invalid { field, .. } => field,
+        other => panic!("not an invalid-input error: {other}"),
+    }
 }
 
 #[test]

@@ -184,10 +184,10 @@ impl AlignmentReport {
     pub fn of(scene: &Scene) -> Option<Self> {
         let c = scene.alignment.as_ref()?;
         Some(AlignmentReport {
-            translation_m: c.translation.to_array(),
-            rotation: c.rotation.to_scaled_axis().to_array(),
-            rotation_deg: c.rotation_deg(),
-            centre_m: c.centre.to_array(),
+            translation_m: c.motion.translation.to_array(),
+            rotation: c.motion.rotation.to_scaled_axis().to_array(),
+            rotation_deg: c.motion.rotation_deg(),
+            centre_m: c.motion.centre.to_array(),
             energy_before: c.energy_before,
             energy_after: c.energy_after,
             views_used: c.views_used,

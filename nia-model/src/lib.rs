@@ -15,8 +15,8 @@
 //!
 //! Beside them: [`config`] (the network's sizes and switches), [`model`] (the module tree),
 //! [`render_options`] (the `[render]` section), [`error`], [`loss`] (NIA eq. 6), [`lpips`]
-//! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints), [`fitting`]
-//! (SMPL fitted to photos), the tensor helpers ([`shape`], [`softmax`], [`timing`],
+//! (the perceptual metric), [`store`] (the `.nia` model file and checkpoints), the tensor
+//! helpers ([`shape`], [`softmax`], [`timing`],
 //! [`device`]) and [`kernels`]: the operations nia-rs writes itself (host and GPU kernels
 //! with their backwards).
 
@@ -26,7 +26,6 @@ pub mod device;
 pub mod encoder;
 pub mod error;
 pub mod field;
-pub mod fitting;
 pub mod ibr;
 pub mod kernels;
 pub mod loss;

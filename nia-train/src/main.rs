@@ -137,7 +137,7 @@ fn main() -> anyhow::Result<()> {
 
 /// `nia-train prepare`: one bar over the frames (read, fitted, written), then the summary.
 fn run_prepare(args: &nia_train::prepare::PrepareArgs) -> anyhow::Result<()> {
-    use nia_model::fitting::FitProgress;
+    use nia_data::fitting::FitProgress;
     use nia_train::prepare::PrepareEvent;
     let bar = ProgressBar::new(0);
     bar.set_style(

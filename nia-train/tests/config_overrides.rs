@@ -1,7 +1,7 @@
 //! `--set section.key=value` overrides of a run config: TOML values and bare words, nested
 //! keys, the order of several, and errors that name the override or the key.
 
-use nia_data::dataset::smpl_alignment::SmplAlignment;
+use nia_data::fitting::SmplAlignment;
 use nia_model::render_options::RenderOptions;
 use nia_model::sampler::RaySampler;
 use nia_train::config::{ConfigError, TrainConfig};

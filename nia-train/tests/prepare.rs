@@ -6,13 +6,20 @@ use std::path::{Path, PathBuf};
 
 use common::{fails_with, nia_train, run_ok, scratch};
 use nia_data::dataset::zju::{read_annots, read_params, read_vertices};
+use nia_data::formats::npy::write_object;
+use nia_data::formats::value::PyValue;
+use nia_data::synth::writer::annots_value;
 
 mod common;
 
 /// Image size of the tiny subject (pixels).
 const SIZE: u32 = 96;
 
-/// A fitter config small enough for a test (a few Adam steps per stage).
+/// Largest MPJPE and mean vertex error the tiny capture's fit may print, cm (measured
+/// 3.14 / 2.95 cm at 96 px, 3 views, 2 frames; 2 px of keypoint noise is about 2 cm there).
+const MAX_TEST_FIT_ERROR_CM: f32 = 6.0;
+
+/// A fitter config small enough for a test (a few solver steps per stage).
 const FIT_CONFIG: &str = r#"{"global_iterations": 10, "cold_iterations": 25, "warm_iterations": 10,
   "shape_iterations": 10, "shape_frames": 1, "silhouette_vertices": 200, "boundary_samples": 50}"#;
 
@@ -94,7 +101,20 @@ fn prepare_writes_the_zju_layout_the_readers_take() {
             .arg(generated.join("CoreView_1")),
     );
     let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(stdout.contains("MPJPE"), "{stdout}");
+    // "against the truth: MPJPE X cm (worst frame Y cm), mean vertex error Z cm": the fit of
+    // this tiny capture (3 views of 96 px, a few steps per stage) lands within a few cm.
+    let cm = |after: &str| -> f32 {
+        let tail = &stdout[stdout
+            .find(after)
+            .unwrap_or_else(|| panic!("{after}: {stdout}"))
+            + after.len()..];
+        tail.split_whitespace().next().unwrap().parse().unwrap()
+    };
+    let (mpjpe, vertices) = (cm("MPJPE "), cm("mean vertex error "));
+    assert!(
+        mpjpe.is_finite() && mpjpe < MAX_TEST_FIT_ERROR_CM && vertices < MAX_TEST_FIT_ERROR_CM,
+        "MPJPE {mpjpe} cm, vertices {vertices} cm: {stdout}"
+    );
     let subject = out.join("CoreView_1");
     let annots = read_annots(&subject.join("annots.npy")).unwrap();
     assert_eq!(annots.cams.len(), 3);
@@ -157,6 +177,53 @@ fn bad_inputs_are_refused_naming_the_file_and_nothing_is_written() {
             name: "a missing view",
             breaks: |input, _| std::fs::remove_dir_all(input.join("Camera_B3")).unwrap(),
             expected: &["Camera_B3/000000.jpg", "missing"],
+            colmap: false,
+        },
+        Case {
+            name: "a missing keypoint file",
+            breaks: |input, _| {
+                std::fs::remove_file(input.join("keypoints/Camera_B2/000001_keypoints.json"))
+                    .unwrap()
+            },
+            expected: &["Camera_B2/000001_keypoints.json", "missing"],
+            colmap: false,
+        },
+        Case {
+            name: "annots.npy listing fewer images than cameras in a frame",
+            breaks: |input, _| {
+                let path = input.join("annots.npy");
+                let annots = read_annots(&path).unwrap();
+                let cameras: Vec<_> = annots
+                    .cams
+                    .iter()
+                    .map(|c| c.camera(SIZE, SIZE).unwrap())
+                    .collect();
+                let mut value = annots_value(&cameras, annots.ims.len());
+                // Frame 1 lists two images for the three cameras.
+                if let PyValue::Dict(entries) = &mut value {
+                    for (key, frames) in entries.iter_mut() {
+                        if key == &PyValue::Str("ims".into()) {
+                            let PyValue::List(frames) = frames else {
+                                unreachable!()
+                            };
+                            let PyValue::Dict(frame) = &mut frames[1] else {
+                                unreachable!()
+                            };
+                            let PyValue::List(images) = &mut frame[0].1 else {
+                                unreachable!()
+                            };
+                            images.pop();
+                        }
+                    }
+                }
+                write_object(&path, &value).unwrap();
+            },
+            expected: &[
+                "annots.npy",
+                "ims[1]['ims']",
+                "expected 3 image paths",
+                "found 2",
+            ],
             colmap: false,
         },
         Case {

@@ -21,18 +21,15 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use crate::body::{BodyModel, SmplParams};
-use crate::dataset::fit_alignment::align_fit;
 pub use crate::dataset::requests::{eval_requests, train_requests};
 use crate::dataset::sampling::{
     sample_rays, BoxPadding, RaySamplingConfig, SamplingError, TrainRays,
 };
-use crate::dataset::smpl_alignment::{
-    AlignmentError, AlignmentView, RigidCorrection, SmplAlignment,
-};
 use crate::dataset::smpl_jitter::jitter_smpl;
-use crate::dataset::smpl_pose_refinement::PoseRefinement;
 use crate::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
 use crate::dataset::{DatasetError, Subject, ViewImage};
+use crate::fitting::align::{align_fit, AlignmentView, PoseRefinement, RigidCorrection};
+use crate::fitting::{FitError, SmplAlignment};
 use crate::geometry::occupancy_memo::shared_grid;
 use crate::geometry::rays::{mask_at_box, Aabb};
 use crate::geometry::sparse::{shared_pyramid, VoxelGridSpec};
@@ -66,10 +63,10 @@ pub enum LoaderError {
     Alignment {
         subject: String,
         frame: usize,
-        source: AlignmentError,
+        source: FitError,
     },
     #[error("loader setting `smpl_alignment`: {0}")]
-    AlignmentConfig(AlignmentError),
+    AlignmentConfig(FitError),
     #[error("loader setting `{field}`: expected {expected}, got {got}")]
     Config {
         field: &'static str,
@@ -105,7 +102,7 @@ pub struct LoaderConfig {
     #[serde(default)]
     pub smpl_jitter_m: f32,
     /// Every scene's fitted SMPL moved rigidly onto the person its source masks show
-    /// ([`align_to_masks`]) before anything else reads it (training and evaluation; then the
+    /// ([`crate::fitting::align_to_masks`]) before anything else reads it (training and evaluation; then the
     /// jitter). `None`: the stored fit.
     #[serde(default)]
     pub smpl_alignment: Option<SmplAlignment>,
@@ -469,7 +466,7 @@ impl SceneLoader {
         if let Some(alignment) = &config.smpl_alignment {
             alignment.validate().map_err(LoaderError::AlignmentConfig)?;
             if alignment.refines_pose() && source.body_model.is_none() {
-                return Err(LoaderError::AlignmentConfig(AlignmentError::no_body_model(
+                return Err(LoaderError::AlignmentConfig(FitError::no_body_model(
                     format!(
                         "{} ({:?} for training)",
                         alignment.pose_iterations, alignment.train_pose_iterations

@@ -14,7 +14,6 @@
 //! ```
 
 pub mod error;
-pub mod fit_alignment;
 pub mod image_io;
 pub mod inspect;
 pub mod loader;
@@ -23,10 +22,7 @@ pub mod opened;
 pub mod protocol;
 pub mod requests;
 pub mod sampling;
-pub(crate) mod silhouette_energy;
-pub mod smpl_alignment;
 pub mod smpl_jitter;
-pub mod smpl_pose_refinement;
 pub mod subject;
 pub mod vis_cache;
 pub mod zju;

@@ -12,9 +12,9 @@ use crate::body::{BodyError, BodyModel};
 use crate::dataset::loader::{LoaderConfig, SceneSource};
 use crate::dataset::protocol::{EvalSplit, Protocol, ProtocolError, SubjectSplit};
 use crate::dataset::sampling::{BoxPadding, RaySamplingConfig, NHP_BODY_FRACTION, NHP_BORDER_PX};
-use crate::dataset::smpl_alignment::SmplAlignment;
 use crate::dataset::vis_cache::VisibilityCache;
 use crate::dataset::{DatasetConfig, DatasetError, DatasetFormat, Subject};
+use crate::fitting::SmplAlignment;
 use crate::synth::{SynthSection, SynthSpec, BODY_MODEL_FILE, DESCRIPTION_FILE};
 
 /// Which split protocol the data follows.

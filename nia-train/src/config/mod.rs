@@ -3,9 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
-use nia_data::dataset::smpl_alignment::AlignmentError;
 use nia_data::dataset::smpl_jitter::MAX_SMPL_JITTER_M;
 use nia_data::dataset::DataConfig;
+use nia_data::fitting::FitError;
 use nia_data::synth::SynthSection;
 use nia_eval::perceptual::LpipsFiles;
 use nia_model::device::{Backend, DeviceSpec};
@@ -450,7 +450,7 @@ impl TrainConfig {
                 d.smpl_jitter_m.to_string(),
             ));
         }
-        if let Some(Err(AlignmentError::Invalid {
+        if let Some(Err(FitError::Invalid {
             field,
             expected,
             got,

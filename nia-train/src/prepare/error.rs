@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use nia_data::body::BodyError;
 use nia_data::dataset::image_io::ImageIoError;
 use nia_data::dataset::DatasetError;
+use nia_data::fitting::FitError;
 use nia_data::formats::FormatError;
 use nia_data::own_capture::OwnCaptureError;
-use nia_model::fitting::FitError;
 
 /// Errors of the prepare step. Every input error names the file (or folder) at fault.
 #[derive(Debug, thiserror::Error)]

@@ -1,5 +1,5 @@
 //! `nia-train prepare`: a user's calibrated multi-view capture (images, person masks, OpenPose
-//! keypoints, cameras) in, SMPL fitted per frame ([`nia_model::fitting`]), out the ZJU-MoCap
+//! keypoints, cameras) in, SMPL fitted per frame ([`nia_data::fitting`]), out the ZJU-MoCap
 //! layout the readers and the trainer take unchanged:
 //!
 //! ```text
@@ -27,12 +27,11 @@ use glam::Vec3;
 use nia_data::body::{BodyModel, SmplParams};
 use nia_data::dataset::image_io;
 use nia_data::dataset::zju::frame_number;
-use nia_data::own_capture::{keypoint_sources, keypoints_3d, KeypointLayout, KeypointSource};
-use nia_model::device::Backend;
-use nia_model::fitting::{
+use nia_data::fitting::{
     FitConfig, FitProgress, Fitter, FrameObservation, KeypointBinding, SilhouetteTarget,
     ViewObservation,
 };
+use nia_data::own_capture::{keypoint_sources, keypoints_3d, KeypointLayout, KeypointSource};
 use serde::Serialize;
 
 pub use error::PrepareError;
@@ -73,9 +72,6 @@ pub struct PrepareArgs {
     /// Fitter settings (JSON object with any keys of the fitter's config; the rest default).
     #[arg(long)]
     pub fit_config: Option<PathBuf>,
-    /// CPU backend of the fitter's autodiff: flex or ndarray.
-    #[arg(long, default_value = "flex", value_parser = str::parse::<Backend>)]
-    pub backend: Backend,
 }
 
 /// What [`run`] reports as it goes.
@@ -166,14 +162,20 @@ pub fn run(
         for (vf, (_, camera)) in files.iter().zip(&capture.views) {
             let kp = input::read_keypoints(&vf.keypoints, &mut layout)?;
             let mask = input::read_mask_bytes(&vf.mask, camera)?;
-            let silhouette =
-                SilhouetteTarget::new(&mask, camera.width, camera.height, config.boundary_samples)?;
+            let on_person: Vec<bool> = mask.iter().map(|&m| m != 0).collect();
+            // An empty mask (the person out of view) leaves the view to its keypoints.
+            let silhouette = SilhouetteTarget::from_mask(
+                &on_person,
+                camera.width,
+                camera.height,
+                config.boundary_samples,
+            )?;
             let keypoints: Vec<[f32; 3]> = kp.map(|k| k.points).unwrap_or_default();
             points.push(keypoints.clone());
             views.push(ViewObservation {
                 camera: *camera,
                 keypoints,
-                silhouette: Some(silhouette),
+                silhouette,
             });
         }
         if points.iter().all(|p| p.iter().all(|k| k[2] <= 0.0)) {
@@ -200,13 +202,8 @@ pub fn run(
     })?;
     let bindings = bindings(layout, &model);
 
-    let device = args
-        .backend
-        .device()
-        .map_err(|e| PrepareError::Usage(e.to_string()))?
-        .autodiff();
     let started = Instant::now();
-    let fitter = Fitter::new(&model, bindings, config, device)?;
+    let fitter = Fitter::new(&model, bindings, config)?;
     let fit = fitter.fit_subject(&observations, &mut |p| progress(PrepareEvent::Fit(p)))?;
     let seconds_per_frame = started.elapsed().as_secs_f32() / total as f32;
     drop(observations);

@@ -12,8 +12,8 @@ use glam::{Vec2, Vec3};
 use image::imageops::FilterType;
 use image::{Rgb, RgbImage};
 use nia_data::geometry::camera::Camera;
+use nia_data::geometry::distance_transform::boundary_pixels;
 use nia_data::geometry::raster::{rasterize, EMPTY_FACE};
-use nia_model::fitting::silhouette::boundary_pixels;
 
 use super::PrepareError;
 

@@ -1,74 +1,10 @@
-//! What the fitter is given per frame: each view's camera, 2D keypoints and silhouette, and how
-//! each keypoint relates to the body ([`KeypointBinding`]).
+//! What the fitter is given per frame: each view's camera, 2D keypoints and silhouette (how each
+//! keypoint relates to the body: [`KeypointBinding`]).
 
-use nia_data::body::NUM_JOINTS;
-use nia_data::geometry::camera::Camera;
-
+use super::keypoints::KeypointBinding;
 use super::silhouette::SilhouetteTarget;
 use super::FitError;
-
-/// Where one 2D keypoint sits on the body: a weighted sum of posed SMPL joints and vertices
-/// (an OpenPose `MidHip` is half of each hip joint; a `Nose` one vertex). Empty: the keypoint
-/// has no counterpart on the body and is ignored.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct KeypointBinding {
-    /// `(joint, weight)` pairs, joints in SMPL order.
-    pub joints: Vec<(usize, f32)>,
-    /// `(vertex, weight)` pairs, model vertex indices.
-    pub vertices: Vec<(usize, f32)>,
-}
-
-impl KeypointBinding {
-    /// One joint.
-    pub fn joint(j: usize) -> Self {
-        Self {
-            joints: vec![(j, 1.0)],
-            vertices: Vec::new(),
-        }
-    }
-
-    /// One vertex.
-    pub fn vertex(v: usize) -> Self {
-        Self {
-            joints: Vec::new(),
-            vertices: vec![(v, 1.0)],
-        }
-    }
-
-    /// The midpoint of two joints.
-    pub fn midpoint(a: usize, b: usize) -> Self {
-        Self {
-            joints: vec![(a, 0.5), (b, 0.5)],
-            vertices: Vec::new(),
-        }
-    }
-
-    /// Whether the keypoint has no counterpart on the body.
-    pub fn is_unmapped(&self) -> bool {
-        self.joints.is_empty() && self.vertices.is_empty()
-    }
-
-    /// Whether it is made of torso joints only (pelvis, hips, spine, neck, collars,
-    /// shoulders): the points that place the body before its limbs are posed.
-    pub fn is_torso(&self) -> bool {
-        const TORSO: [usize; 11] = [0, 1, 2, 3, 6, 9, 12, 13, 14, 16, 17];
-        !self.joints.is_empty()
-            && self.vertices.is_empty()
-            && self.joints.iter().all(|(j, _)| TORSO.contains(j))
-    }
-
-    /// Checks indices against a model of `vertex_count` vertices.
-    pub(crate) fn check(&self, keypoint: usize, vertex_count: usize) -> Result<(), FitError> {
-        let bad = |what: String| FitError::BadBinding { keypoint, what };
-        if let Some((j, _)) = self.joints.iter().find(|(j, _)| *j >= NUM_JOINTS) {
-            return Err(bad(format!("joint {j}, the body has {NUM_JOINTS}")));
-        }
-        if let Some((v, _)) = self.vertices.iter().find(|(v, _)| *v >= vertex_count) {
-            return Err(bad(format!("vertex {v}, the body has {vertex_count}")));
-        }
-        Ok(())
-    }
-}
+use crate::geometry::camera::Camera;
 
 /// One camera's view of one frame.
 #[derive(Debug, Clone)]

@@ -1,8 +1,16 @@
-//! `FitError`: why a fit could not start or finish, naming the frame and view.
+//! `FitError`: why a fit could not start or finish, naming the field, frame or view.
 
-/// Errors of the SMPL fitter. Frames and views are 0-based indices into the caller's lists.
+/// Errors of the SMPL fits (the loader's alignment and `prepare`'s fitter). Frames and views
+/// are 0-based indices into the caller's lists.
 #[derive(Debug, thiserror::Error)]
 pub enum FitError {
+    /// A setting or an input out of its range.
+    #[error("SMPL fit: {field}: expected {expected}, got {got}")]
+    Invalid {
+        field: String,
+        expected: String,
+        got: String,
+    },
     /// No frames were given.
     #[error("no frames to fit")]
     NoFrames,
@@ -50,17 +58,35 @@ pub enum FitError {
         got_w: u32,
         got_h: u32,
     },
-    /// A mask buffer of the wrong length, or an empty mask.
-    #[error("mask: {0}")]
-    Mask(String),
-    /// The objective or the parameters became NaN or infinite.
+    /// The energy or the parameters became NaN or infinite.
     #[error("frame {frame}: the {stage} stage diverged (non-finite {what})")]
     NonFinite {
         frame: usize,
         stage: &'static str,
         what: &'static str,
     },
-    /// The configuration is out of range.
-    #[error("fit config: {0}")]
-    Config(String),
+}
+
+impl FitError {
+    /// [`FitError::Invalid`] from its parts.
+    pub fn invalid(
+        field: impl Into<String>,
+        expected: impl Into<String>,
+        got: impl ToString,
+    ) -> Self {
+        FitError::Invalid {
+            field: field.into(),
+            expected: expected.into(),
+            got: got.to_string(),
+        }
+    }
+
+    /// The pose refinement asked for (`got`: the iterations) where no body model is at hand.
+    pub(crate) fn no_body_model(got: String) -> Self {
+        FitError::invalid(
+            "pose_iterations",
+            "0 when the scene source has no body model",
+            got,
+        )
+    }
 }

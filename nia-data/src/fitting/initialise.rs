@@ -1,11 +1,12 @@
-//! Placing the body before any gradient step: keypoints triangulated across views (linear DLT)
+//! Placing the body before the first solver step: keypoints triangulated across views (linear DLT)
 //! and the rigid motion that carries the model's torso keypoints onto them (Kabsch, via the
 //! polar decomposition of the cross-covariance).
 
+use crate::body::{BodyModel, Posed, SmplParams};
 use glam::{DMat3, DQuat, DVec3, Vec2, Vec3};
-use nia_data::body::{BodyModel, Posed, SmplParams};
 
-use super::observation::{FrameObservation, KeypointBinding};
+use super::keypoints::KeypointBinding;
+use super::observation::FrameObservation;
 
 /// Fewest triangulated torso keypoints the rigid placement needs (three non-collinear points
 /// fix a rotation).
