@@ -60,6 +60,7 @@ fn training_rays_follow_nhp_rules_and_are_deterministic() {
         rays_per_image: 256,
         body_fraction: 0.5,
         border_px: 3,
+        patch_px: 0,
     };
     let sample = |seed| {
         sample_rays(
@@ -111,6 +112,64 @@ fn training_rays_follow_nhp_rules_and_are_deterministic() {
     assert_eq!(rays, again);
     let other = sample(6);
     assert_ne!(rays.rays.pixels, other.rays.pixels);
+}
+
+/// Rays in patches (`patch_px`, the SSIM loss's): whole `P x P` squares of pixels, patch
+/// after patch, row-major, inside the body box, half of them centred on the person; the same
+/// seed the same rays; a patch larger than the image refused by name.
+#[test]
+fn training_rays_in_patches_are_whole_squares_in_the_box() {
+    let s = fixture_subject();
+    let view = s.load_view(1, 0).unwrap();
+    let vertices = s.load_vertices(1).unwrap();
+    let body_box = BoxPadding::nhp().body_box(&vertices).unwrap();
+    let (w, h) = (view.width() as usize, view.height() as usize);
+    let config = RaySamplingConfig {
+        rays_per_image: 64,
+        body_fraction: 0.5,
+        border_px: 3,
+        patch_px: 4,
+    };
+    let sample = |config: &RaySamplingConfig, seed| {
+        sample_rays(
+            &view.camera,
+            &view.image,
+            &view.mask,
+            &body_box,
+            config,
+            &mut Rng::new(seed),
+        )
+    };
+    let rays = sample(&config, 3).unwrap();
+    assert_eq!(rays.len(), 64);
+    let in_box = mask_at_box(&view.camera, &body_box);
+    for patch in rays.rays.pixels.chunks(16) {
+        let (x0, y0) = (patch[0] as usize % w, patch[0] as usize / w);
+        for (i, &p) in patch.iter().enumerate() {
+            assert_eq!(
+                (p as usize % w, p as usize / w),
+                (x0 + i % 4, y0 + i / 4),
+                "row-major square"
+            );
+            assert!(in_box[p as usize]);
+        }
+    }
+    // The first two patches are centred on the person.
+    for patch in 0..2 {
+        let centre = rays.rays.pixels[patch * 16 + 2 * 4 + 2] as usize;
+        let near = (0..16).any(|i| view.mask[rays.rays.pixels[patch * 16 + i] as usize]);
+        assert!(
+            near,
+            "patch {patch} around pixel {centre} touches the person"
+        );
+    }
+    assert_eq!(rays, sample(&config, 3).unwrap());
+    let huge = RaySamplingConfig {
+        patch_px: w.max(h) + 1,
+        ..config
+    };
+    let err = sample(&huge, 3).unwrap_err();
+    assert!(err.to_string().contains("patch_px"), "{err}");
 }
 
 #[test]

@@ -56,6 +56,10 @@ pub struct ModelConfig {
     /// model files and checkpoints written before this switch carry) or once per ray at the
     /// expected surface point (not in the paper; see `ibr::surface`).
     pub source_colours_at: Option<SourceColoursAt>,
+    /// The source images' per-view colour gains made consistent before anything reads them
+    /// (not in the paper; `None` or `false`, also what older model files carry, is off; see
+    /// `nia_data::scene::colour_balance`).
+    pub source_colour_balance: Option<bool>,
 }
 
 /// Where the source colours c_n are read (`ibr::surface`).

@@ -6,7 +6,9 @@ mod common;
 use burn::prelude::*;
 use common::{assert_close, central_difference, device, tensor, values};
 use nia_data::rng::Rng;
-use nia_model::loss::{colour_matched_target, distortion_loss, psnr_from_mse, render_loss};
+use nia_model::loss::{
+    colour_matched_target, distortion_loss, patch_ssim_loss, psnr_from_mse, render_loss,
+};
 use nia_model::renderer::{render_rays, sample_weights};
 use nia_model::sampler::{stratified_t, SamplerError};
 
@@ -497,4 +499,80 @@ fn distortion_loss_hand_values() {
         "far gap",
     );
     assert!(distortion_loss(Tensor::zeros([3, 2], &dev), t, delta).is_err());
+}
+
+/// The patch SSIM loss: 0 for a patch equal to its target, the hand value of one patch
+/// against its target (global means, sample variances, C1 = 1e-4, C2 = 9e-4), finite at a
+/// flat patch (zero variances), its gradient the central difference's, and a ray count that
+/// is no multiple of the patch refused.
+#[test]
+fn patch_ssim_loss_hand_values() {
+    let dev = device();
+    // Two 2 x 2 patches, three channels.
+    let gt: Vec<f32> = (0..24).map(|i| ((i * 7) % 11) as f32 / 11.0).collect();
+    let loss = |rgb: Vec<f32>| {
+        values(
+            patch_ssim_loss(
+                tensor(rgb, [8, 3], &dev),
+                tensor(gt.clone(), [8, 3], &dev),
+                2,
+            )
+            .unwrap(),
+        )[0]
+    };
+    assert!(loss(gt.clone()).abs() < VALUE_TOL, "a perfect prediction");
+    // One patch, one channel by hand: x = (0.1, 0.2, 0.3, 0.4), y = (0.4, 0.3, 0.2, 0.1).
+    let x = [0.1f32, 0.2, 0.3, 0.4];
+    let y = [0.4f32, 0.3, 0.2, 0.1];
+    let rgb: Vec<f32> = x.iter().flat_map(|&v| [v, v, v]).collect();
+    let target: Vec<f32> = y.iter().flat_map(|&v| [v, v, v]).collect();
+    let got = values(
+        patch_ssim_loss(tensor(rgb, [4, 3], &dev), tensor(target, [4, 3], &dev), 2).unwrap(),
+    )[0];
+    let (mu, var, cov) = (0.25f32, 0.05f32 / 3.0, -0.05f32 / 3.0);
+    let ssim = ((2.0 * mu * mu + 1e-4) * (2.0 * cov + 9e-4))
+        / ((2.0 * mu * mu + 1e-4) * (2.0 * var + 9e-4));
+    assert!(
+        (got - (1.0 - ssim)).abs() < 1e-4,
+        "{got} against {}",
+        1.0 - ssim
+    );
+    // A flat patch and a flat target: finite, and 0 where they agree.
+    let flat = vec![0.5f32; 12];
+    let flat_loss = values(
+        patch_ssim_loss(
+            tensor(flat.clone(), [4, 3], &dev),
+            tensor(flat, [4, 3], &dev),
+            2,
+        )
+        .unwrap(),
+    )[0];
+    assert!(flat_loss.is_finite() && flat_loss.abs() < VALUE_TOL);
+    // Gradient against central differences.
+    let start: Vec<f32> = (0..24).map(|i| ((i * 5) % 13) as f32 / 13.0).collect();
+    let ad = device().autodiff();
+    let rgb = Tensor::<2>::from_data(TensorData::new(start.clone(), [8, 3]), &ad).require_grad();
+    let l = patch_ssim_loss(
+        rgb.clone(),
+        Tensor::from_data(TensorData::new(gt.clone(), [8, 3]), &ad),
+        2,
+    )
+    .unwrap();
+    let grads = l.backward();
+    let g = values(rgb.grad(&grads).unwrap());
+    for i in [0, 5, 13, 22] {
+        let fd = central_difference(&start, i, FD_STEP, &loss);
+        assert!(
+            (g[i] - fd).abs() <= FD_ABS_TOL + FD_REL_TOL * fd.abs(),
+            "d/d rgb[{i}]: {} against {fd}",
+            g[i]
+        );
+    }
+    let err = patch_ssim_loss(
+        tensor(vec![0.0; 9], [3, 3], &dev),
+        tensor(vec![0.0; 9], [3, 3], &dev),
+        2,
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("patch_px"), "{err}");
 }

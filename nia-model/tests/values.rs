@@ -714,3 +714,65 @@ fn rescaling_c0s_weight_moves_only_the_blend() {
         assert!(changed > 0, "s = {scale}: the colour changes");
     }
 }
+
+/// Source colour balance (`model.source_colour_balance`): views of one uniformly coloured
+/// person through cameras with their own gains come out with one colour (the gains'
+/// geometric mean), a view of the consensus colour keeps it, and the encoding reads the
+/// balanced images when the switch is on and the images as given when it is off.
+#[test]
+fn colour_balance_undoes_each_cameras_gain() {
+    use nia_data::scene::colour_balance::{balance_source_colours, source_gains};
+    let dev = device();
+    let mut input = scene(3, SIZE);
+    let base = [0.5f32, 0.4, 0.3];
+    let gains = [[1.2f32, 0.9, 1.0], [0.8, 1.1, 1.05], [1.0, 1.0, 1.0]];
+    let s = SIZE as usize;
+    for (view, g) in input.views.iter_mut().zip(&gains) {
+        for c in 0..3 {
+            for p in 0..s * s {
+                view.image[c * s * s + p] = base[c] * g[c] * view.mask[p];
+            }
+        }
+    }
+    let estimated = source_gains(&input);
+    for c in 0..3 {
+        let geo = (gains[0][c] * gains[1][c] * gains[2][c]).powf(1.0 / 3.0);
+        for (n, g) in gains.iter().enumerate() {
+            let expected = geo / g[c];
+            assert!(
+                (estimated[n][c] - expected).abs() < 1e-3,
+                "view {n} channel {c}: {} against {expected}",
+                estimated[n][c]
+            );
+        }
+    }
+    let mut balanced = input.clone();
+    balance_source_colours(&mut balanced);
+    let centre_pixel = |view: &nia_data::scene::SourceView, c: usize| {
+        let p = (0..s * s).find(|&p| view.mask[p] > 0.5).unwrap();
+        view.image[c * s * s + p]
+    };
+    for c in 0..3 {
+        let first = centre_pixel(&balanced.views[0], c);
+        for view in &balanced.views[1..] {
+            assert!((centre_pixel(view, c) - first).abs() < 1e-3);
+        }
+    }
+    // Through the model: the encoding's images are the balanced ones with the switch on.
+    let mut config = ModelConfig::tiny();
+    config.source_colour_balance = Some(true);
+    let on = config.init(&dev).encode(&input, None, &dev, None).unwrap();
+    let off = ModelConfig::tiny()
+        .init(&dev)
+        .encode(&input, None, &dev, None)
+        .unwrap();
+    let images = |e: &SceneEncoding| values(e.images.clone());
+    let expected: Vec<f32> = balanced
+        .views
+        .iter()
+        .flat_map(|v| v.image.clone())
+        .collect();
+    assert_close(&images(&on), &expected, VALUE_TOL, "balanced images");
+    let given: Vec<f32> = input.views.iter().flat_map(|v| v.image.clone()).collect();
+    assert_close(&images(&off), &given, VALUE_TOL, "images as given");
+}

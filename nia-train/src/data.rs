@@ -111,7 +111,9 @@ impl TrainData {
             )
             .collect();
         let train_entries = protocol.train.clone();
-        let dataset = OpenedDataset::open(data, protocol, &subjects, config.train.rays_per_step)?;
+        let mut dataset =
+            OpenedDataset::open(data, protocol, &subjects, config.train.rays_per_step)?;
+        dataset.loader.sampling.patch_px = config.train.ssim_patch_px;
         let views = config.train.source_views;
         let mut train_frames = Vec::new();
         for (i, entry) in train_entries.iter().enumerate() {

@@ -135,6 +135,7 @@ impl DataConfig {
                 rays_per_image,
                 body_fraction: self.body_fraction,
                 border_px: self.border_px,
+                patch_px: 0,
             },
             box_padding: BoxPadding::nhp(),
             smpl_jitter_m: self.smpl_jitter_m,

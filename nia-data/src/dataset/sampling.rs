@@ -94,6 +94,11 @@ pub struct RaySamplingConfig {
     pub body_fraction: f32,
     /// Side of the erode/dilate square whose difference is excluded, pixels (0: none).
     pub border_px: usize,
+    /// Rays drawn in square patches of this side (0: one pixel at a time, NHP's): the patches'
+    /// pixels in row-major order, patch after patch, each patch inside the body box, for a loss
+    /// on patches (`train.ssim_patch_px`). The border band does not apply to patches.
+    #[serde(default)]
+    pub patch_px: usize,
 }
 
 impl Default for RaySamplingConfig {
@@ -102,6 +107,7 @@ impl Default for RaySamplingConfig {
             rays_per_image: NHP_RAYS_PER_IMAGE,
             body_fraction: NHP_BODY_FRACTION,
             border_px: NHP_BORDER_PX,
+            patch_px: 0,
         }
     }
 }
@@ -233,6 +239,14 @@ pub fn sample_rays(
             max: body_box.max.to_array(),
         });
     }
+    if config.patch_px > 0 {
+        let candidates = Candidates {
+            in_box: &in_box,
+            body: &body,
+            anywhere: &anywhere,
+        };
+        return sample_patches(camera, image, mask, body_box, config, &candidates, rng);
+    }
     let n = config.rays_per_image;
     let n_body = if body.is_empty() {
         0
@@ -254,6 +268,89 @@ pub fn sample_rays(
         rays.rays.push(ray, near, far, pixel);
         rays.rgb.push([image[p], image[p + 1], image[p + 2]]);
         rays.on_body.push(mask[pixel as usize]);
+    }
+    Ok(rays)
+}
+
+/// Where rays may start: `[H * W]` inside the body box, and the pixels (indices) on the
+/// person and anywhere in the box.
+struct Candidates<'a> {
+    in_box: &'a [bool],
+    body: &'a [u32],
+    anywhere: &'a [u32],
+}
+
+/// Tries for a patch whose every pixel lies in the body box before the draw gives up.
+const PATCH_TRIES: usize = 1000;
+
+/// [`sample_rays`] in `patch_px`-square patches (see [`RaySamplingConfig::patch_px`]):
+/// `rays_per_image / patch_px^2` patches (at least one), `body_fraction` of them centred on
+/// the person.
+fn sample_patches(
+    camera: &Camera,
+    image: &[f32],
+    mask: &[bool],
+    body_box: &Aabb,
+    config: &RaySamplingConfig,
+    candidates: &Candidates<'_>,
+    rng: &mut Rng,
+) -> Result<TrainRays, SamplingError> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let p = config.patch_px;
+    if p > w.min(h) {
+        return Err(SamplingError::Invalid {
+            field: "patch_px",
+            expected: format!("at most the image's shorter side ({})", w.min(h)),
+            got: p.to_string(),
+        });
+    }
+    let patches = (config.rays_per_image / (p * p)).max(1);
+    let n_body = if candidates.body.is_empty() {
+        0
+    } else {
+        (patches as f32 * config.body_fraction).floor() as usize
+    };
+    let mut rays = TrainRays::default();
+    for k in 0..patches {
+        let pool = if k < n_body {
+            candidates.body
+        } else {
+            candidates.anywhere
+        };
+        let corner = (0..PATCH_TRIES).find_map(|_| {
+            let centre = pool[rng.below(pool.len())] as usize;
+            let x0 = (centre % w).saturating_sub(p / 2).min(w - p);
+            let y0 = (centre / w).saturating_sub(p / 2).min(h - p);
+            let inside = (0..p).all(|j| (0..p).all(|i| candidates.in_box[(y0 + j) * w + x0 + i]));
+            inside.then_some((x0, y0))
+        });
+        let Some((x0, y0)) = corner else {
+            return Err(SamplingError::Invalid {
+                field: "patch_px",
+                expected: "patches that fit inside the body box's image".into(),
+                got: format!("{p} (no such patch in {PATCH_TRIES} draws)"),
+            });
+        };
+        for j in 0..p {
+            for i in 0..p {
+                let (x, y) = (x0 + i, y0 + j);
+                let pixel = (y * w + x) as u32;
+                let ray = pixel_ray(camera, crate::geometry::rays::pixel_centre(x, y));
+                // In the box's image, so the ray hits the box; a miss (it cannot happen) would
+                // break the patch, so it is refused rather than skipped.
+                let Some((near, far)) = near_far(&ray, body_box) else {
+                    return Err(SamplingError::Invalid {
+                        field: "patch_px",
+                        expected: "patch rays that hit the body box".into(),
+                        got: format!("a miss at pixel ({x}, {y})"),
+                    });
+                };
+                let q = pixel as usize * 3;
+                rays.rays.push(ray, near, far, pixel);
+                rays.rgb.push([image[q], image[q + 1], image[q + 2]]);
+                rays.on_body.push(mask[pixel as usize]);
+            }
+        }
     }
     Ok(rays)
 }

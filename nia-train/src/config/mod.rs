@@ -217,6 +217,16 @@ pub struct TrainSection {
     /// `nia_model::loss::distortion_loss`).
     #[serde(default)]
     pub distortion_loss_weight: f32,
+    /// Training rays drawn in square patches of this side (0: one pixel at a time, the
+    /// paper's); `rays_per_step` and `ray_chunk` must be multiples of its square. See
+    /// `nia_data::dataset::sampling::RaySamplingConfig::patch_px`.
+    #[serde(default)]
+    pub ssim_patch_px: usize,
+    /// Weight of the patch-wise structural loss `1 - mean SSIM` of the blended colour over the
+    /// patches (0: the paper's loss only; needs `ssim_patch_px`; see
+    /// `nia_model::loss::patch_ssim_loss`).
+    #[serde(default)]
+    pub ssim_loss_weight: f32,
     /// Fraction of training points whose c0 in the blend is another point's (0: off, the
     /// paper's training; see `nia_model::ibr::c0_shuffle`).
     #[serde(default)]
@@ -395,6 +405,35 @@ impl TrainConfig {
                 "a finite value >= 0",
                 t.mask_loss_weight.to_string(),
             ));
+        }
+        if !(t.ssim_loss_weight.is_finite() && t.ssim_loss_weight >= 0.0) {
+            return Err(bad(
+                "train.ssim_loss_weight",
+                "a finite value >= 0",
+                t.ssim_loss_weight.to_string(),
+            ));
+        }
+        if t.ssim_loss_weight > 0.0 && t.ssim_patch_px < 2 {
+            return Err(bad(
+                "train.ssim_patch_px",
+                "a patch side >= 2 (the SSIM loss reads patches)",
+                t.ssim_patch_px.to_string(),
+            ));
+        }
+        if t.ssim_patch_px > 0 {
+            let area = t.ssim_patch_px * t.ssim_patch_px;
+            for (key, value) in [
+                ("train.rays_per_step", t.rays_per_step),
+                ("train.ray_chunk", t.ray_chunk),
+            ] {
+                if value % area != 0 {
+                    return Err(bad(
+                        key,
+                        &format!("a multiple of ssim_patch_px^2 = {area}"),
+                        value.to_string(),
+                    ));
+                }
+            }
         }
         if !(t.distortion_loss_weight.is_finite() && t.distortion_loss_weight >= 0.0) {
             return Err(bad(

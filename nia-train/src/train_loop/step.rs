@@ -11,7 +11,9 @@ use nia_data::dataset::sampling::TrainRays;
 use nia_data::rng::Rng;
 use nia_data::scene::SceneInput;
 use nia_model::ibr::c0_shuffle::C0Shuffle;
-use nia_model::loss::{colour_matched_target, distortion_loss, mask_loss, render_loss, RenderLoss};
+use nia_model::loss::{
+    colour_matched_target, distortion_loss, mask_loss, patch_ssim_loss, render_loss, RenderLoss,
+};
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::{ModelError, NiaModel};
@@ -264,7 +266,18 @@ fn chunk_loss(
     } else {
         None
     };
+    let ssim = if config.train.ssim_loss_weight > 0.0 {
+        Some(
+            patch_ssim_loss(out.rgb.clone(), gt.clone(), config.train.ssim_patch_px)
+                .map_err(shape)?,
+        )
+    } else {
+        None
+    };
     let mut loss = render_loss(out.rgb, out.rgb0, gt).map_err(shape)?;
+    if let Some(ssim) = ssim {
+        loss.total = loss.total + ssim.mul_scalar(config.train.ssim_loss_weight);
+    }
     if config.train.mask_loss_weight > 0.0 {
         let on_body: Vec<f32> = rays.on_body[range]
             .iter()
