@@ -59,6 +59,11 @@ pub struct ModelArgs {
     /// evaluation; 0 turns it off (default: the model's `[render]` setting, 1e-3).
     #[arg(long)]
     pub colour_culling: Option<f32>,
+    /// Colour once per ray: the colour at the N samples of each ray with the largest weights,
+    /// composited with the ray's opacity (0: every sample, the paper's; default: the model's
+    /// `[render]` setting, 0).
+    #[arg(long)]
+    pub colour_points: Option<usize>,
     /// Visual-hull carving with the source views' person masks: on or off (default: the
     /// model's `[render]` setting; off where it has none).
     #[arg(long, value_parser = parse_switch)]
@@ -133,6 +138,7 @@ impl ModelArgs {
             ("empty_space_m", self.empty_space_m.is_some()),
             ("early_termination", self.early_termination.is_some()),
             ("colour_culling", self.colour_culling.is_some()),
+            ("colour_points", self.colour_points.is_some()),
             ("visual_hull", self.visual_hull.is_some()),
             ("hull_body_erode_px", self.hull_body_erode_px.is_some()),
             ("supersample", self.supersample.is_some()),
@@ -149,6 +155,9 @@ impl ModelArgs {
         }
         if let Some(e) = self.colour_culling {
             options.colour_culling = e;
+        }
+        if let Some(k) = self.colour_points {
+            options.colour_points = k;
         }
         if let Some(on) = self.visual_hull {
             options.visual_hull = on;

@@ -46,6 +46,8 @@ pub const MAX_HULL_BODY_ERODE_PX: usize = 256;
 /// Default of [`RenderOptions::supersample`]: one ray through each pixel's centre (NeRF's,
 /// NHP's and NIA's rendering).
 pub const DEFAULT_SUPERSAMPLE: usize = 1;
+/// Largest [`RenderOptions::colour_points`] accepted (more is the paper's every sample).
+pub const MAX_COLOUR_POINTS: usize = 16;
 /// Largest [`RenderOptions::supersample`] accepted (64 rays per pixel).
 pub const MAX_SUPERSAMPLE: usize = 8;
 
@@ -78,6 +80,11 @@ pub struct RenderOptions {
     /// Colour culling: per ray, samples whose weights sum to at most this get no colour
     /// evaluation (`renderer::colour_culling`); 0 colours every evaluated sample.
     pub colour_culling: f32,
+    /// Colour once per ray (not in the paper; `renderer::colour_once`): the density at every
+    /// kept sample, the colour at the `colour_points` samples of each ray with the largest
+    /// weights, composited with the ray's opacity (colour culling then does not apply). 0,
+    /// the default, colours every sample (the paper's).
+    pub colour_points: usize,
     /// Visual-hull carving (not in the paper; `nia_data::scene::visual_hull`): the density is
     /// zero wherever a source view's person mask says empty space, and with skipping those
     /// samples are not evaluated. Off (the default) gives the paper's density.
@@ -106,6 +113,7 @@ impl Default for RenderOptions {
             occupancy_cell_m: DEFAULT_OCCUPANCY_CELL_M,
             early_termination: DEFAULT_TERMINATION,
             colour_culling: DEFAULT_COLOUR_CULLING,
+            colour_points: 0,
             visual_hull: false,
             hull_body_erode_px: None,
             supersample: DEFAULT_SUPERSAMPLE,
@@ -179,6 +187,13 @@ impl RenderOptions {
                 self.c0_weight_scale.to_string(),
             );
         }
+        if self.colour_points > MAX_COLOUR_POINTS {
+            return bad(
+                "colour_points",
+                &format!("0 (every sample) to {MAX_COLOUR_POINTS} samples per ray"),
+                self.colour_points.to_string(),
+            );
+        }
         if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {
             return bad(
                 "supersample",
@@ -199,6 +214,12 @@ impl RenderOptions {
     /// `None` when culling is off.
     pub fn culling(&self) -> Option<f32> {
         (self.colour_culling > 0.0).then_some(self.colour_culling)
+    }
+
+    /// Samples coloured per ray (`SceneEncoding::with_colour_points`); `None` when every
+    /// sample is (the paper's).
+    pub fn colour_points(&self) -> Option<usize> {
+        (self.colour_points > 0).then_some(self.colour_points)
     }
 
     /// c0's blend-weight scale (`SceneEncoding::with_c0_weight_scale`); `None` at 1, the

@@ -97,15 +97,22 @@ impl NiaModel {
                 colour_evaluated: 0,
             });
         }
-        let adaptive = scene.termination.is_some() || scene.colour_culling.is_some();
+        let adaptive = scene.termination.is_some()
+            || scene.colour_culling.is_some()
+            || scene.colour_points.is_some();
         let (out, kept, evaluated, colour_evaluated) = if adaptive && jitter.is_none() {
-            let (out, index, coloured) = self.field_front_to_back(
-                scene,
-                ray_samples,
-                scene.termination,
-                scene.colour_culling,
-                watch,
-            )?;
+            let (out, index, coloured) = match scene.colour_points {
+                Some(k) => {
+                    self.field_colour_once(scene, ray_samples, scene.termination, k, watch)?
+                }
+                None => self.field_front_to_back(
+                    scene,
+                    ray_samples,
+                    scene.termination,
+                    scene.colour_culling,
+                    watch,
+                )?,
+            };
             let all_in_order =
                 index.len() == total && index.iter().enumerate().all(|(i, &f)| i == f);
             let evaluated = index.len();

@@ -4,7 +4,8 @@
 //! - [`forward`]: [`crate::NiaModel::render`], one batch of rays through sampler -> field ->
 //!   quadrature;
 //! - [`termination`] and [`colour_culling`]: what an inference render may leave out behind an
-//!   opaque front or under a negligible weight;
+//!   opaque front or under a negligible weight; [`colour_once`]: the colour at a few samples
+//!   of each ray only;
 //! - [`shape_buckets`]: the point counts of a GPU render's network calls padded to a few shapes;
 //! - [`image`]: whole target images in chunks of rays;
 //! - [`call_size`]: how many rays a chunk holds by default (more on a GPU);
@@ -13,6 +14,7 @@
 
 pub mod call_size;
 pub mod colour_culling;
+pub mod colour_once;
 mod forward;
 pub mod image;
 pub mod quadrature;

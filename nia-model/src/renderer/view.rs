@@ -67,6 +67,7 @@ pub fn prepare_scene(
         .with_occupancy(occupancy)
         .with_termination(options.termination())
         .with_colour_culling(options.culling())
+        .with_colour_points(options.colour_points())
         .with_c0_weight_scale(options.c0_scale())
         .with_visual_hull(input, options.visual_hull, options.hull_body_erode_px)
 }

@@ -58,6 +58,9 @@ pub struct SceneEncoding {
     /// Colour culling (`renderer::colour_culling`): the per-ray budget of weight whose samples get no
     /// colour evaluation, at inference. `None` (the default) colours every evaluated sample.
     pub colour_culling: Option<f32>,
+    /// Colour once per ray (`renderer::colour_once`): the colour at this many samples of each
+    /// ray, at inference. `None` (the default) colours every evaluated sample (the paper).
+    pub colour_points: Option<usize>,
     /// Training augmentation: F_B blends some points' c0 from other points (`ibr::c0_shuffle`).
     /// `None` (the default, and always at inference) blends every point's own c0.
     pub c0_shuffle: Option<C0Shuffle>,
@@ -157,6 +160,13 @@ impl SceneEncoding {
     /// This encoding with colour culling within a per-ray weight budget `epsilon` (`None`: off).
     pub fn with_colour_culling(mut self, epsilon: Option<f32>) -> Self {
         self.colour_culling = epsilon;
+        self
+    }
+
+    /// This encoding coloured at `k` samples per ray at inference
+    /// (`renderer::colour_once`; `None`: every evaluated sample, the paper's).
+    pub fn with_colour_points(mut self, k: Option<usize>) -> Self {
+        self.colour_points = k;
         self
     }
 
