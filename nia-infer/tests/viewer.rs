@@ -198,6 +198,9 @@ fn routes_give_pngs_state_and_4xx_for_bad_input() {
         (200, (64, 64)),
         "defaults: full size"
     );
+    // A drag's frame: full size, the fast mode.
+    let (status, _, body) = get(a, "/render?fast=1");
+    assert_eq!((status, png_size(&body)), (200, (64, 64)), "fast: full size");
     let (status, _, body) = get(a, "/source/1.png");
     assert_eq!((status, png_size(&body)), (200, (64, 64)));
 
@@ -207,6 +210,7 @@ fn routes_give_pngs_state_and_4xx_for_bad_input() {
         ("/render?frame=3", 400, "3 frames"),
         ("/render?mode=x", 400, "mode=x"),
         ("/render?scale=2", 400, "scale=2"),
+        ("/render?fast=2", 400, "fast=2"),
         ("/render?a=%zz", 400, "percent"),
         ("/render?client=c&seq=x", 400, "seq"),
         ("/source/9.png", 404, "no such source"),

@@ -101,7 +101,14 @@ pub struct ViewRequest {
     pub mode: Mode,
     /// Image size relative to the cameras', in [`SCALE_RANGE`].
     pub scale: f32,
+    /// A frame of a drag: the fast mode ([`FAST_COLOUR_POINTS`] coloured samples per ray, one
+    /// ray per pixel); otherwise the model's `[render]` settings, the picture the camera rests
+    /// on.
+    pub fast: bool,
 }
+
+/// Samples coloured per ray in the frames of a drag (`nia_model::renderer::colour_once`).
+pub const FAST_COLOUR_POINTS: usize = 1;
 
 /// A rendered view and what it cost.
 pub struct ViewFrame {
@@ -217,11 +224,12 @@ impl ViewerScene {
             request.scale,
         )?;
         let (encoding, body_box, pose_ms) = self.pose(request.frame)?;
-        // The previews of a drag (scale < 1) take one ray per pixel; the picture the camera
-        // rests on takes the `[render]` supersampling.
-        let options = if request.scale < 1.0 {
+        // The frames of a drag take one ray per pixel and colour one sample per ray; the
+        // picture the camera rests on takes the `[render]` settings.
+        let options = if request.fast {
             RenderOptions {
                 supersample: 1,
+                colour_points: FAST_COLOUR_POINTS,
                 ..self.session.options
             }
         } else {

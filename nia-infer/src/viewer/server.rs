@@ -3,8 +3,9 @@
 //!
 //! - `GET /`: the page;
 //! - `GET /state`: JSON (subject, frames, reference frame, source views, image size, modes);
-//! - `GET /render?az=&el=&zoom=&frame=&mode=&scale=&client=&seq=`: a PNG, its cost in the
-//!   `X-Nia-Stats` header (JSON); `409` when a newer request of the same client superseded it;
+//! - `GET /render?az=&el=&zoom=&frame=&mode=&scale=&fast=&client=&seq=`: a PNG, its cost in
+//!   the `X-Nia-Stats` header (JSON); `409` when a newer request of the same client superseded
+//!   it; `fast=1` renders a drag's frame (one coloured sample per ray, one ray per pixel);
 //! - `GET /source/K.png`: source view K (an index into the state's `views`).
 //!
 //! Anything else is a 4xx with a plain-text message: unknown routes (404), methods other than
@@ -183,6 +184,11 @@ pub fn view_request(
     let elevation = number(q, "el", 0.0, (-max_el, max_el))?;
     let zoom = number(q, "zoom", 1.0, ZOOM_RANGE)?;
     let scale = number(q, "scale", 1.0, SCALE_RANGE)?;
+    let fast = match q.get("fast").map(String::as_str) {
+        None | Some("0") => false,
+        Some("1") => true,
+        Some(other) => return Err(format!("`fast={other}`: expected 0 or 1")),
+    };
     let frame = match q.get("frame") {
         None => reference,
         Some(text) => {
@@ -212,6 +218,7 @@ pub fn view_request(
         frame,
         mode,
         scale,
+        fast,
     })
 }
 
