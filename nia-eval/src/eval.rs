@@ -147,7 +147,7 @@ pub struct ImageResult {
     pub times: StageTimes,
 }
 
-/// A scene's SMPL alignment ([`nia_data::dataset::smpl_alignment`]) as `metrics.json` lists
+/// A scene's SMPL alignment ([`nia_data::fitting::align`]) as `metrics.json` lists
 /// it: the fit moved by `x -> R (x - centre) + centre + translation`.
 #[derive(Debug, Clone, Serialize)]
 pub struct AlignmentReport {
@@ -166,7 +166,7 @@ pub struct AlignmentReport {
     pub pose: Option<PoseReport>,
 }
 
-/// A scene's SMPL pose refinement ([`nia_data::dataset::smpl_pose_refinement`]).
+/// A scene's SMPL pose refinement ([`nia_data::fitting::align::refine_pose`]).
 #[derive(Debug, Clone, Serialize)]
 pub struct PoseReport {
     /// Mean and largest rotation of the body joints away from the fit, degrees.

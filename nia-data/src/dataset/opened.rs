@@ -65,7 +65,7 @@ pub struct DataConfig {
     #[serde(default, skip_serializing_if = "is_zero")]
     pub smpl_jitter_m: f32,
     /// Every scene's fitted SMPL moved rigidly onto its source masks, training and evaluation
-    /// (`None`: the stored fit; [`crate::dataset::smpl_alignment`]).
+    /// (`None`: the stored fit; [`crate::fitting::align`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub smpl_alignment: Option<SmplAlignment>,
     /// `protocol = "subjects"`: the training and test subjects (`[data.split]`).
