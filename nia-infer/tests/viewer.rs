@@ -200,7 +200,11 @@ fn routes_give_pngs_state_and_4xx_for_bad_input() {
     );
     // A drag's frame: full size, the fast mode.
     let (status, _, body) = get(a, "/render?fast=1");
-    assert_eq!((status, png_size(&body)), (200, (64, 64)), "fast: full size");
+    assert_eq!(
+        (status, png_size(&body)),
+        (200, (64, 64)),
+        "fast: full size"
+    );
     let (status, _, body) = get(a, "/source/1.png");
     assert_eq!((status, png_size(&body)), (200, (64, 64)));
 

@@ -74,6 +74,14 @@ pub struct SynthArgs {
     /// Fraction of the reported keypoints moved 30 to 80 pixels (a detector's confusions).
     #[arg(long, default_value_t = KeypointSpec::default().outliers, requires = "keypoints")]
     pub keypoint_outliers: f32,
+    /// The detector's hips, neck and shoulders a few centimetres off SMPL's joints, as
+    /// OpenPose's are (docs/data.md "Own-capture inputs").
+    #[arg(long, requires = "keypoints")]
+    pub keypoint_offsets: bool,
+    /// Probability per frame that a camera starts losing a keypoint for 3 to 8 frames in a
+    /// row (a detector's misses come in runs).
+    #[arg(long, default_value_t = KeypointSpec::default().lost_runs, requires = "keypoints")]
+    pub keypoint_lost_runs: f32,
 }
 
 pub fn run(args: SynthArgs) -> anyhow::Result<()> {
@@ -100,6 +108,8 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
             noise_px: args.keypoint_noise_px,
             drop: args.keypoint_drop,
             outliers: args.keypoint_outliers,
+            detector_offsets: args.keypoint_offsets,
+            lost_runs: args.keypoint_lost_runs,
         }),
         ..SynthSpec::default()
     };

@@ -119,7 +119,10 @@ impl SynthSection {
             "capture.colour" => "synth.colour_level",
             "capture.masks" => "synth.mask_level",
             "capture.geometry" => "synth.geometry_level",
-            "keypoints.noise_px" | "keypoints.drop" | "keypoints.outliers" => "synth.keypoints",
+            "keypoints.noise_px"
+            | "keypoints.drop"
+            | "keypoints.outliers"
+            | "keypoints.lost_runs" => "synth.keypoints",
             _ => "synth",
         }
     }

@@ -230,7 +230,14 @@ pub(super) fn generate_subject(
                 if let (Some(rig), Some((points, vertices))) = (&rig, &p.keypoint_body) {
                     let mut r = keypoint_rng.fork((frame * spec.cameras + camera) as u64);
                     let kp = rig
-                        .observe(&cameras[camera], points, vertices, &body.faces, &mut r)
+                        .observe(
+                            &cameras[camera],
+                            points,
+                            vertices,
+                            &body.faces,
+                            &mut r,
+                            (frame, camera, &keypoint_rng.fork(u64::MAX)),
+                        )
                         .map_err(|source| SynthError::Render {
                             id,
                             frame,

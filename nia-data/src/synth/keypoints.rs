@@ -24,6 +24,16 @@
 //!    random direction (a detector confusing a limb), with a plausible confidence in
 //!    `[0.3, 0.7)`.
 //!
+//! Two more of a real detector's habits, off unless asked for:
+//! - *detector offsets* (`detector_offsets`): a detector's hips, neck and shoulders are not
+//!   SMPL's joints. Its hips sit higher and wider than SMPL's hip joints, its shoulders above
+//!   and outside, its neck lower and in front ([`detector_offset`]: a few centimetres in the
+//!   torso's frame, magnitudes assumed from what SMPLify and SPIN report, not measured here),
+//!   so every frame and view sees the same bias a fitter cannot average away;
+//! - *lost runs* (`lost_runs`): a keypoint a camera misses for several frames in a row (a limb
+//!   behind a prop, motion blur), not frame by frame: at each frame a (camera, keypoint) pair
+//!   starts a run of 3 to 8 frames with probability `lost_runs`.
+//!
 //! Keypoints outside the image (after noise) are not reported. Not reported means
 //! `(0, 0, 0)`, OpenPose's convention. Each (frame, camera) draws from its own fork of the
 //! subject's seed (a fork no other file uses), always the same number of draws per keypoint,
@@ -72,7 +82,15 @@ pub struct KeypointSpec {
     pub drop: f32,
     /// Fraction of the reported keypoints moved 30 to 80 pixels.
     pub outliers: f32,
+    /// The detector's hips, neck and shoulders off SMPL's joints ([`detector_offset`]).
+    pub detector_offsets: bool,
+    /// Probability per frame that a (camera, keypoint) pair starts a run of
+    /// [`LOST_RUN_FRAMES`] frames without the keypoint.
+    pub lost_runs: f32,
 }
+
+/// Shortest and longest run of frames a lost keypoint stays lost.
+pub const LOST_RUN_FRAMES: (usize, usize) = (3, 8);
 
 impl Default for KeypointSpec {
     /// BODY_25, 2 px noise, 10% dropped, 2% outliers.
@@ -82,6 +100,8 @@ impl Default for KeypointSpec {
             noise_px: 2.0,
             drop: 0.10,
             outliers: 0.02,
+            detector_offsets: false,
+            lost_runs: 0.0,
         }
     }
 }
@@ -97,6 +117,13 @@ impl KeypointSpec {
         }
         if !(0.0..=1.0).contains(&self.outliers) {
             return Some(("keypoints.outliers", "a fraction in [0, 1]", self.outliers));
+        }
+        if !(0.0..=1.0).contains(&self.lost_runs) {
+            return Some((
+                "keypoints.lost_runs",
+                "a probability in [0, 1]",
+                self.lost_runs,
+            ));
         }
         None
     }
@@ -147,6 +174,41 @@ fn dominant(weights: &[f32]) -> usize {
         .0
 }
 
+/// Where a detector puts keypoint `source` against SMPL's joint, in the torso's frame (x the
+/// body's left, y up, z forward), metres: OpenPose's hips higher and wider than SMPL's hip
+/// joints (which sit inside the pelvis), its shoulders above and outside (on the shoulder's
+/// surface, not the joint's centre), its neck lower and in front (at the base of the throat).
+/// Magnitudes assumed from SMPLify's and SPIN's remarks (they down-weight or re-regress these
+/// joints), not measured.
+pub fn detector_offset(source: KeypointSource) -> Vec3 {
+    match source {
+        KeypointSource::Joint(1) => Vec3::new(0.03, 0.05, 0.0),
+        KeypointSource::Joint(2) => Vec3::new(-0.03, 0.05, 0.0),
+        KeypointSource::Midpoint(1, 2) | KeypointSource::Midpoint(2, 1) => {
+            Vec3::new(0.0, 0.05, 0.0)
+        }
+        KeypointSource::Joint(12) => Vec3::new(0.0, -0.03, 0.02),
+        KeypointSource::Joint(16) => Vec3::new(0.03, 0.02, 0.0),
+        KeypointSource::Joint(17) => Vec3::new(-0.03, 0.02, 0.0),
+        _ => Vec3::ZERO,
+    }
+}
+
+/// The torso's frame of posed SMPL `joints` (columns: the body's left, up, forward), from the
+/// hips (joints 1, 2), the pelvis (0) and the neck (12); `None` for a degenerate torso.
+fn torso_frame(joints: &[Vec3]) -> Option<glam::Mat3> {
+    let (pelvis, left_hip, right_hip, neck) = (
+        joints.first()?,
+        joints.get(1)?,
+        joints.get(2)?,
+        joints.get(12)?,
+    );
+    let left = (*left_hip - *right_hip).try_normalize()?;
+    let up_raw = *neck - *pelvis;
+    let up = (up_raw - left * up_raw.dot(left)).try_normalize()?;
+    Some(glam::Mat3::from_cols(left, up, left.cross(up)))
+}
+
 /// The keypoint map of one body, ready to observe posed frames.
 pub(super) struct KeypointRig {
     spec: KeypointSpec,
@@ -182,13 +244,44 @@ impl KeypointRig {
         }
     }
 
-    /// `[K]` the true 3D keypoints of a posed body (world metres).
+    /// `[K]` the 3D keypoints a detector sees on a posed body (world metres): SMPL's, moved by
+    /// the [`detector_offset`]s when the spec asks for them.
     pub(super) fn points_3d(&self, vertices: &[Vec3], joints: &[Vec3]) -> Vec<Option<Vec3>> {
-        keypoints_3d(&self.sources, vertices, joints)
+        let points = keypoints_3d(&self.sources, vertices, joints);
+        if !self.spec.detector_offsets {
+            return points;
+        }
+        let Some(frame) = torso_frame(joints) else {
+            return points;
+        };
+        points
+            .iter()
+            .zip(&self.sources)
+            .map(|(p, &s)| p.map(|p| p + frame * detector_offset(s)))
+            .collect()
     }
 
-    /// The detector's report in `camera` of the body `(vertices, faces)` whose keypoints are
-    /// `points` (from [`KeypointRig::points_3d`]).
+    /// Whether keypoint `k` is lost to `camera` at `frame` in a run (module docs): a run that
+    /// started at one of the frames before it and lasts past it. Draws from `runs` only (one
+    /// fork per (start frame, camera, keypoint)), so the other draws do not move.
+    fn lost(&self, runs: &Rng, k: usize, frame: usize, camera: usize) -> bool {
+        if self.spec.lost_runs <= 0.0 {
+            return false;
+        }
+        let (shortest, longest) = LOST_RUN_FRAMES;
+        let keypoints = self.sources.len();
+        (frame.saturating_sub(longest - 1)..=frame).any(|start| {
+            let label = ((start * 1024 + camera) * keypoints + k) as u64;
+            let mut r = runs.fork(label);
+            let (starts, length) = (r.uniform(), r.uniform());
+            let length = shortest + (length * (longest - shortest + 1) as f32) as usize;
+            starts < self.spec.lost_runs && frame < start + length.min(longest)
+        })
+    }
+
+    /// The detector's report in `camera` (index `camera_index`) at `frame` of the body
+    /// `(vertices, faces)` whose keypoints are `points` (from [`KeypointRig::points_3d`]);
+    /// `runs`: the subject's fork the lost runs draw from.
     pub(super) fn observe(
         &self,
         camera: &Camera,
@@ -196,6 +289,7 @@ impl KeypointRig {
         vertices: &[Vec3],
         faces: &[[u32; 3]],
         rng: &mut Rng,
+        (frame, camera_index, runs): (usize, usize, &Rng),
     ) -> Result<Keypoints2d, MeshError> {
         let frags = rasterize(camera, vertices, faces)?;
         let s = &self.spec;
@@ -214,7 +308,7 @@ impl KeypointRig {
             {
                 continue;
             }
-            if u_drop < s.drop {
+            if u_drop < s.drop || self.lost(runs, k, frame, camera_index) {
                 continue;
             }
             let offset = Vec2::new(n1, n2) * s.noise_px;

@@ -166,3 +166,108 @@ fn coco18_and_bad_keypoint_specs() {
         assert!(err.contains(field), "{err}");
     }
 }
+
+/// A real detector's habits (`detector_offsets`, `lost_runs`), each against the same set
+/// without it: the offsets move the hips, neck and shoulders by a few pixels and leave the face
+/// and feet where they were; lost runs take keypoints away in stretches of frames, not one frame
+/// at a time, and leave every reported keypoint where it was.
+#[test]
+fn detector_offsets_and_lost_runs_are_what_they_say() {
+    let exact = KeypointSpec {
+        noise_px: 0.0,
+        drop: 0.0,
+        outliers: 0.0,
+        ..KeypointSpec::default()
+    };
+    let with = |kp: KeypointSpec, frames: usize| SynthSpec {
+        frames,
+        ..spec(Some(kp))
+    };
+    let read = |root: &Path, camera: usize, frame: usize| {
+        read_openpose(&keypoints_path(&root.join("CoreView_1"), camera, frame))
+            .unwrap()
+            .unwrap()
+            .points
+    };
+    // BODY_25: Neck 1, RShoulder 2, LShoulder 5, MidHip 8, RHip 9, LHip 12; Nose 0, eyes 15-16,
+    // toes and heels 19-24 are vertices.
+    let moved = [1, 2, 5, 8, 9, 12];
+    let plain = generate("kp-plain-offsets", &with(exact, 2));
+    let offset = generate(
+        "kp-offsets",
+        &with(
+            KeypointSpec {
+                detector_offsets: true,
+                ..exact
+            },
+            2,
+        ),
+    );
+    let mut shifts = Vec::new();
+    for camera in 0..4 {
+        for frame in 0..2 {
+            let (a, b) = (read(&plain, camera, frame), read(&offset, camera, frame));
+            for (k, (p, q)) in a.iter().zip(&b).enumerate() {
+                if p[2] == 0.0 || q[2] == 0.0 {
+                    continue;
+                }
+                let d = Vec2::new(p[0] - q[0], p[1] - q[1]).length();
+                if moved.contains(&k) {
+                    shifts.push(d);
+                } else {
+                    assert_eq!(p, q, "keypoint {k} moved");
+                }
+            }
+        }
+    }
+    // A few centimetres at 96 px across a ~1.8 m body: about 1-4 px.
+    let mean = shifts.iter().sum::<f32>() / shifts.len() as f32;
+    assert!(
+        shifts.len() > 10 && (0.5..6.0).contains(&mean),
+        "{mean} px over {}",
+        shifts.len()
+    );
+
+    let frames = 16;
+    let base = generate("kp-runs-base", &with(exact, frames));
+    let runs = generate(
+        "kp-runs",
+        &with(
+            KeypointSpec {
+                lost_runs: 0.2,
+                ..exact
+            },
+            frames,
+        ),
+    );
+    let (mut lost, mut stretches) = (0usize, Vec::new());
+    for camera in 0..4 {
+        for k in 0..25 {
+            let mut stretch = 0;
+            for frame in 0..frames {
+                let (p, q) = (read(&base, camera, frame)[k], read(&runs, camera, frame)[k]);
+                if q[2] > 0.0 {
+                    assert_eq!(p, q, "a reported keypoint moved");
+                }
+                if p[2] > 0.0 && q[2] == 0.0 {
+                    lost += 1;
+                    stretch += 1;
+                } else if p[2] > 0.0 {
+                    if stretch > 0 {
+                        stretches.push(stretch);
+                    }
+                    stretch = 0;
+                }
+            }
+        }
+    }
+    let mean_stretch = stretches.iter().sum::<usize>() as f32 / stretches.len().max(1) as f32;
+    assert!(lost > 20, "{lost} keypoints lost");
+    assert!(
+        mean_stretch >= 2.5,
+        "lost in stretches of {mean_stretch} frames on average"
+    );
+    for dir in [plain, offset, base, runs] {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

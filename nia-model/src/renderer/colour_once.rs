@@ -22,7 +22,6 @@
 //! compositing is the paper's quadrature unchanged.
 
 use burn::prelude::*;
-use glam::Vec3;
 
 use crate::error::ModelError;
 use crate::field::PointOutput;
