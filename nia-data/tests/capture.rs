@@ -93,7 +93,9 @@ fn without_flaws_the_generator_writes_the_clean_bytes() {
 #[test]
 fn each_flaw_changes_only_its_own_files() {
     let (clean_root, clean) = generate("base", &tiny(CaptureFlaws::default()));
-    let cases: [(&str, CaptureFlaws, fn(&str) -> bool); 5] = [
+    /// A flaw's name, the flaws at level 1, and which of the written files it may change.
+    type FlawCase = (&'static str, CaptureFlaws, fn(&str) -> bool);
+    let cases: [FlawCase; 5] = [
         (
             "smpl_fit",
             CaptureFlaws {

@@ -31,16 +31,23 @@ use crate::data::TrainData;
 use crate::events::TrainEvent;
 use crate::train_loop::{train, RunOptions, TrainError};
 
-/// Errors of an ablation run, naming the variant or file.
+/// Errors of an ablation run, naming the variant or file. The training and evaluation errors
+/// are boxed: they are the largest, and every `Result` of the run would carry their size.
 #[derive(Debug, thiserror::Error)]
 pub enum AblationError {
     /// Opening the data, the device or the held-out items.
     #[error("{0}")]
-    Setup(TrainError),
+    Setup(Box<TrainError>),
     #[error("variant `{variant}`: {source}")]
-    Train { variant: String, source: TrainError },
+    Train {
+        variant: String,
+        source: Box<TrainError>,
+    },
     #[error("variant `{variant}`: evaluation: {source}")]
-    Eval { variant: String, source: EvalError },
+    Eval {
+        variant: String,
+        source: Box<EvalError>,
+    },
     #[error("variant `{variant}`: {source}")]
     Checkpoint {
         variant: String,
@@ -145,16 +152,16 @@ pub fn run(
     let data = TrainData::open(config, &mut |done, total| {
         on_event(AblationEvent::Generating { done, total })
     })
-    .map_err(|e| AblationError::Setup(e.into()))?;
+    .map_err(|e| AblationError::Setup(Box::new(e.into())))?;
     let device = config
         .train
         .backend
         .device()
-        .map_err(|e| AblationError::Setup(e.into()))?
+        .map_err(|e| AblationError::Setup(Box::new(e.into())))?
         .autodiff();
     let split = EvalSplit::UnseenSubjects;
     let items = eval_items(&data.dataset, split, EvalTask::NovelView, None)
-        .map_err(|e| AblationError::Setup(e.into()))?;
+        .map_err(|e| AblationError::Setup(Box::new(e.into())))?;
     if items.is_empty() {
         return Err(AblationError::NothingToEvaluate);
     }
@@ -216,7 +223,7 @@ pub fn run(
             )
             .map_err(|source| AblationError::Eval {
                 variant: name.clone(),
-                source,
+                source: Box::new(source),
             })?;
             let seconds = started.elapsed().as_secs_f64() / results.len().max(1) as f64;
             Ok((results, seconds))
@@ -389,7 +396,7 @@ fn train_variant(
     )
     .map_err(|source| AblationError::Train {
         variant: variant.name().to_string(),
-        source,
+        source: Box::new(source),
     })?;
     let total = before + this_run;
     write_file(&seconds_path, format!("{total:.1}\n").as_bytes())?;

@@ -19,9 +19,6 @@
 //! the ideal pinhole [`Camera::project`] describes them. [`UndistortMap`] reproduces
 //! `cv2.undistort` (bilinear, constant black border) in the same convention.
 
-// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use glam::{Mat3, Vec2, Vec3};
 use image::RgbImage;
 use rayon::prelude::*;

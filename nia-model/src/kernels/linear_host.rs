@@ -142,7 +142,7 @@ impl<'a> Strided<'a> {
 }
 
 /// `lhs [m, k] x rhs [k, n]` into a new row-major `[m, n]` buffer.
-fn product(m: usize, n: usize, k: usize, lhs: Strided, rhs: Strided) -> Vec<f32> {
+fn product(m: usize, n: usize, k: usize, lhs: Strided<'_>, rhs: Strided<'_>) -> Vec<f32> {
     product_with(m, n, k, lhs, rhs, parallelism(m, n, k))
 }
 
@@ -151,8 +151,8 @@ fn product_with(
     m: usize,
     n: usize,
     k: usize,
-    lhs: Strided,
-    rhs: Strided,
+    lhs: Strided<'_>,
+    rhs: Strided<'_>,
     threads: gemm::Parallelism,
 ) -> Vec<f32> {
     // The extents the product reads; a mismatch is a bug here, never a read past a slice.
@@ -205,11 +205,7 @@ const WEIGHT_GRADIENT_ROWS: usize = 2048;
 /// [`WEIGHT_GRADIENT_ROWS`] rows give partial products on rayon's threads, added in order: the
 /// result does not depend on the number of threads.
 fn weight_gradient(x: &[f32], g: &[f32], k: usize, n: usize) -> Vec<f32> {
-    let m = if k == 0 {
-        g.len() / n.max(1)
-    } else {
-        x.len() / k
-    };
+    let m = x.len().checked_div(k).unwrap_or(g.len() / n.max(1));
     let block = |first: usize| {
         let rows = WEIGHT_GRADIENT_ROWS.min(m - first);
         product_with(
@@ -267,22 +263,22 @@ fn relu_gradient(grad: &[f32], output: &[f32]) -> Vec<f32> {
         output.len(),
         "host linear: gradient and output sizes"
     );
-    let mask = |(o, (g, y)): (&mut [MaybeUninit<f32>], (&[f32], &[f32]))| {
+    fn mask(o: &mut [MaybeUninit<f32>], g: &[f32], y: &[f32]) {
         for ((o, &g), &y) in o.iter_mut().zip(g).zip(y) {
             o.write(if y > 0.0 { g } else { 0.0 });
         }
-    };
+    }
     let mut out: Vec<f32> = Vec::with_capacity(grad.len());
     let dst = &mut out.spare_capacity_mut()[..grad.len()];
     if grad.len() < PARALLEL_VALUES {
-        mask((dst, (grad, output)));
+        mask(dst, grad, output);
     } else {
         dst.par_chunks_mut(PARALLEL_VALUES)
             .zip(
                 grad.par_chunks(PARALLEL_VALUES)
                     .zip(output.par_chunks(PARALLEL_VALUES)),
             )
-            .for_each(mask);
+            .for_each(|(o, (g, y))| mask(o, g, y));
     }
     // SAFETY: `mask` wrote every one of the first `grad.len()` values.
     unsafe { out.set_len(grad.len()) };

@@ -143,7 +143,7 @@ pub fn wgpu_device() -> Option<burn::tensor::Device> {
         (device, x)
     });
     match probe {
-        Ok((device, x)) if x == 3.0 => Some(device),
+        Ok((device, 3.0)) => Some(device),
         _ if required => {
             panic!("NIA_REQUIRE_WGPU=1 but no working wgpu adapter (install mesa-vulkan-drivers)")
         }

@@ -59,12 +59,14 @@ pub enum TrainError {
     Backend(#[from] nia_model::device::BackendUnavailable),
     #[error("train.devices: {0}")]
     Device(#[from] nia_model::device::DeviceError),
+    /// The model failed on a training scene (boxed: the largest error, it would make every
+    /// `Result` of the loop carry its size).
     #[error("step {step} ({subject}, frame {frame}): {source}")]
     Model {
         step: u64,
         subject: String,
         frame: usize,
-        source: ModelError,
+        source: Box<ModelError>,
     },
     #[error(transparent)]
     Eval(#[from] EvalError),
@@ -348,7 +350,7 @@ pub fn train(
             },
             &device,
             &mut |evaluated| {
-                let keep = index % every == 0;
+                let keep = index.is_multiple_of(every);
                 index += 1;
                 if keep {
                     save_evaluated(&pictures, &evaluated)
