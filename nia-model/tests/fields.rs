@@ -473,16 +473,7 @@ fn blend_inputs(rng: &mut Rng, m: usize, n: usize, dev: &Device) -> BlendInputs 
 }
 
 fn logits_of(blender: &Blender, x: &BlendInputs) -> Tensor<2> {
-    blender
-        .forward(
-            x.pixel_feature.clone(),
-            x.view_dir_features.clone(),
-            x.visibility.clone(),
-            x.h.clone(),
-            x.confidence.clone(),
-            Some((x.c0.clone(), x.source_colours.clone())),
-        )
-        .unwrap()
+    blender.forward(x).unwrap()
 }
 
 /// F_B's logits `[M, N + 1]` as the paper writes them: every token `[p_n, d_hat_n, o_n, 0 (,

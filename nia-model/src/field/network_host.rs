@@ -172,14 +172,7 @@ impl HostNetwork {
         inputs: BlendInputs,
         c0_weight_scale: Option<f32>,
     ) -> Result<(PointColour, Tensor<2>), ShapeError> {
-        blender.check_inputs(
-            &inputs.pixel_feature,
-            &inputs.view_dir_features,
-            &inputs.visibility,
-            &inputs.h,
-            &inputs.confidence,
-            Some((&inputs.c0, &inputs.source_colours)),
-        )?;
+        blender.check_inputs(&inputs)?;
         let [n, m, _] = inputs.source_colours.dims();
         let device = inputs.c0.device();
         let c0 = host_view_of("host F_B c0", inputs.c0.clone())?;

@@ -15,6 +15,7 @@ use crate::ibr::fetch_source_colours_from;
 use crate::kernels::linear_rows::linear_rows;
 use crate::kernels::readback::host_view_of;
 use crate::model::NiaModel;
+use crate::renderer::shape_buckets::CallRows;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::{Stage, StageTimes, Stopwatch};
 
@@ -31,33 +32,43 @@ impl NiaModel {
     ) -> Result<PointOutput, ModelError> {
         let device = scene.images.device();
         let mut watch = Stopwatch::new(times, &device);
-        self.field_with(scene, points, dirs, &mut watch)
+        self.field_with(scene, points, dirs, CallRows::Exact, &mut watch)
     }
 
+    /// [`Self::field`] in one call laid out as `rows` says: with [`CallRows::Bucket`],
+    /// `bucket_len(M)` rows of outputs, the M points' first ([`PointOutput::first`] drops the
+    /// padding; a scatter may instead send it to a spare row and keep its index a bucket long).
     pub(crate) fn field_with(
         &self,
         scene: &SceneEncoding,
         points: &[Vec3],
         dirs: &[Vec3],
+        rows: CallRows,
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointOutput, ModelError> {
-        let inputs = self.point_tensors(scene, points, dirs, watch)?;
+        let inputs = self.point_tensors(scene, points, dirs, rows, watch)?;
         self.query_with(scene, &inputs, watch)
     }
 
     /// The point inputs of world points (in the rendered pose) on the scene's device, reposed
-    /// into the scene's pose first when the scene was encoded for another pose. `watch`
+    /// into the scene's pose first when the scene was encoded for another pose, in
+    /// `rows.of(M)` rows, the M points first ([`PointTensors::real_points`] = M). `watch`
     /// charges the host part to [`Stage::PointInputs`].
     pub(crate) fn point_tensors(
         &self,
         scene: &SceneEncoding,
         points: &[Vec3],
         dirs: &[Vec3],
+        rows: CallRows,
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointTensors, ModelError> {
-        let inputs = self.point_inputs(scene, points, dirs)?;
+        let inputs = self
+            .point_inputs(scene, points, dirs)?
+            .padded(rows.of(points.len()));
         watch.mark(Stage::PointInputs);
-        upload_point_inputs(scene, inputs)
+        let mut tensors = upload_point_inputs(scene, inputs)?;
+        tensors.real_points = points.len();
+        Ok(tensors)
     }
 
     /// [`Self::point_tensors`]' host half: the point inputs of world points (in the rendered
@@ -108,9 +119,10 @@ impl NiaModel {
         scene: &SceneEncoding,
         points: &[Vec3],
         dirs: &[Vec3],
+        rows: CallRows,
         watch: &mut Stopwatch<'_>,
     ) -> Result<DensityPass, ModelError> {
-        let inputs = self.point_tensors(scene, points, dirs, watch)?;
+        let inputs = self.point_tensors(scene, points, dirs, rows, watch)?;
         self.query_density(scene, &inputs, watch)
     }
 

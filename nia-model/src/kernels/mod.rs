@@ -4,7 +4,7 @@
 //!
 //! Host (flex; inference and CPU training):
 //! - [`host_op`]: what the host operations share (burn's backend extension, with and without
-//!   autodiff); [`host_buffer`]: their output buffers;
+//!   autodiff); [`host_buffer`]: their output buffers; [`host_gemm`]: their matrix products;
 //! - [`linear_host`]: a linear layer (with its ReLU) as one operation;
 //! - [`host_mlp`]: stacks of linear layers fused and in parallel (inference);
 //! - [`weighted_rows`]: the bilinear and trilinear reads as weighted row gathers.
@@ -20,6 +20,7 @@
 
 pub mod blocked_rows;
 pub mod host_buffer;
+pub mod host_gemm;
 pub mod host_mlp;
 pub mod host_op;
 pub mod linear_host;
