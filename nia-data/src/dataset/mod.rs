@@ -23,6 +23,7 @@ pub mod opened;
 pub mod protocol;
 pub mod requests;
 pub mod sampling;
+pub mod scene_load;
 pub(crate) mod silhouette_energy;
 pub mod smpl_alignment;
 pub mod smpl_jitter;

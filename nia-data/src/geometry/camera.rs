@@ -143,7 +143,6 @@ impl Camera {
     /// (image v grows opposite to `up`), principal point at `(width / 2, height / 2)` (with
     /// [`PIXEL_CENTRE_OFFSET`] = 0 that is half a pixel right of and below the exact image
     /// centre `((width - 1) / 2, (height - 1) / 2)`).
-    #[allow(clippy::too_many_arguments)]
     pub fn look_at(
         eye: Vec3,
         target: Vec3,

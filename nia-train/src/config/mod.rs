@@ -364,14 +364,44 @@ impl TrainConfig {
         })
     }
 
-    /// Range checks, and the data root must exist unless `[synth]` generates it.
+    /// Range checks, and the data root must exist unless `[synth]` generates it. The checks
+    /// run in this order and the first failure is the error.
     pub fn validate(&self, path: &Path) -> Result<(), ConfigError> {
-        let bad = |key: &str, expected: &str, got: String| ConfigError::Invalid {
-            path: path.to_path_buf(),
-            key: key.to_string(),
-            expected: expected.to_string(),
-            got,
-        };
+        self.check_train(path)?;
+        self.check_synth(path)?;
+        if let Err(message) = self.model.check() {
+            return Err(invalid(path, "model", "a buildable network", message));
+        }
+        self.check_data_ranges(path)?;
+        if let Err(e) = self.render.check() {
+            return Err(invalid(
+                path,
+                &format!("render.{}", e.key),
+                &e.expected,
+                e.got,
+            ));
+        }
+        self.check_optim(path)?;
+        if let Some(r) = self.data.ratio {
+            if !(r > 0.0 && r <= 1.0) {
+                return Err(invalid(
+                    path,
+                    "data.ratio",
+                    "a number in (0, 1]",
+                    r.to_string(),
+                ));
+            }
+        }
+        if self.data.loader_threads == 0 {
+            return Err(invalid(path, "data.loader_threads", ">= 1", "0".into()));
+        }
+        self.check_data(path)?;
+        self.check_files(path)
+    }
+
+    /// The `[train]` section's ranges.
+    fn check_train(&self, path: &Path) -> Result<(), ConfigError> {
+        let bad = |key: &str, expected: &str, got: String| invalid(path, key, expected, got);
         let t = &self.train;
         if t.rays_per_step == 0 {
             return Err(bad("train.rays_per_step", ">= 1", "0".into()));
@@ -417,6 +447,11 @@ impl TrainConfig {
         if t.keep_last == 0 {
             return Err(bad("train.keep_last", ">= 1", "0".into()));
         }
+        Ok(())
+    }
+
+    /// The `[synth]` section, as the generator checks it.
+    fn check_synth(&self, path: &Path) -> Result<(), ConfigError> {
         if let Some(synth) = &self.synth {
             if let Err(nia_data::synth::SynthError::Spec {
                 field,
@@ -432,9 +467,12 @@ impl TrainConfig {
                 });
             }
         }
-        if let Err(message) = self.model.check() {
-            return Err(bad("model", "a buildable network", message));
-        }
+        Ok(())
+    }
+
+    /// The `[data]` section's ranges: the body fraction, the SMPL jitter and alignment.
+    fn check_data_ranges(&self, path: &Path) -> Result<(), ConfigError> {
+        let bad = |key: &str, expected: &str, got: String| invalid(path, key, expected, got);
         let d = &self.data;
         if !(d.body_fraction.is_finite() && (0.0..=1.0).contains(&d.body_fraction)) {
             return Err(bad(
@@ -458,9 +496,12 @@ impl TrainConfig {
         {
             return Err(bad(&format!("data.smpl_alignment.{field}"), &expected, got));
         }
-        if let Err(e) = self.render.check() {
-            return Err(bad(&format!("render.{}", e.key), &e.expected, e.got));
-        }
+        Ok(())
+    }
+
+    /// The `[optim]` section's ranges.
+    fn check_optim(&self, path: &Path) -> Result<(), ConfigError> {
+        let bad = |key: &str, expected: &str, got: String| invalid(path, key, expected, got);
         let o = &self.optim;
         for (key, beta) in [("optim.beta1", o.beta1), ("optim.beta2", o.beta2)] {
             if !(beta.is_finite() && (0.0..1.0).contains(&beta)) {
@@ -484,15 +525,14 @@ impl TrainConfig {
                 o.grad_clip_norm.to_string(),
             ));
         }
-        if let Some(r) = self.data.ratio {
-            if !(r > 0.0 && r <= 1.0) {
-                return Err(bad("data.ratio", "a number in (0, 1]", r.to_string()));
-            }
-        }
-        if self.data.loader_threads == 0 {
-            return Err(bad("data.loader_threads", ">= 1", "0".into()));
-        }
-        self.check_data(path)?;
+        Ok(())
+    }
+
+    /// The files and devices the run will open: `train.init_from`, `data.smpl_model`,
+    /// `train.devices`, `train.lpips` and `train.encoder_weights`.
+    fn check_files(&self, path: &Path) -> Result<(), ConfigError> {
+        let bad = |key: &str, expected: &str, got: String| invalid(path, key, expected, got);
+        let t = &self.train;
         if let Some(dir) = &t.init_from {
             if !dir.join(checkpoint::MODEL_FILE).is_file() {
                 return Err(bad(
@@ -539,5 +579,15 @@ impl TrainConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// A [`ConfigError::Invalid`] of the file `path`: `key` holds `got`, not `expected`.
+fn invalid(path: &Path, key: &str, expected: &str, got: String) -> ConfigError {
+    ConfigError::Invalid {
+        path: path.to_path_buf(),
+        key: key.to_string(),
+        expected: expected.to_string(),
+        got,
     }
 }
