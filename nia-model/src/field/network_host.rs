@@ -9,7 +9,7 @@
 //! run in one host pass too ([`crate::ibr::blend_host`]). The activations of F_sigma and F_c0
 //! (softplus, sigmoid) stay tensor operations. [`crate::SceneEncoding::with_host_reads`] reads
 //! the weights once per scene; the tensor path stays the reference, the path with gradients and
-//! the one on the GPU (`nia-model/tests/fields.rs` and `tests/model.rs` compare them).
+//! the one on the GPU (`nia-model/tests/host_network.rs` and `tests/model.rs` compare them).
 
 use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, softplus};

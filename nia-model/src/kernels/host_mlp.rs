@@ -9,8 +9,8 @@
 //! [`ROWS_PER_TASK`] rows: each task carries its rows through every layer in two scratch
 //! buffers that stay in cache, starting each layer's output from its bias and letting the
 //! product accumulate into it, with the ReLU in the same task. The result is the same formula
-//! to rounding (`nia-model/tests/fields.rs` checks it against the tensor path, which stays the
-//! reference, the path with gradients and the one on the GPU).
+//! to rounding (`nia-model/tests/host_network.rs` checks it against the tensor path, which
+//! stays the reference, the path with gradients and the one on the GPU).
 
 use burn::nn::Linear;
 use rayon::prelude::*;
