@@ -2,8 +2,12 @@
 //! each flaw alone changes only the files it is about; a flawed set is described as such and
 //! a config that asks for other flaws than a set has is refused naming the key.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+use common::files_under;
 
 use nia_data::dataset::{DataConfig, OpenError};
 use nia_data::synth::capture::{CaptureFlaws, CapturePreset};
@@ -18,24 +22,10 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 
 /// Every file under `root` (relative path with `/`) and its digest.
 fn digests(root: &Path) -> BTreeMap<String, u64> {
-    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, u64>) {
-        for entry in std::fs::read_dir(dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                walk(root, &path, out);
-            } else {
-                let rel = path
-                    .strip_prefix(root)
-                    .unwrap()
-                    .to_string_lossy()
-                    .replace('\\', "/");
-                out.insert(rel, fnv1a(&std::fs::read(&path).unwrap()));
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(root, root, &mut out);
-    out
+    files_under(root)
+        .into_iter()
+        .map(|(rel, bytes)| (rel, fnv1a(&bytes)))
+        .collect()
 }
 
 fn tiny(capture: CaptureFlaws) -> SynthSpec {

@@ -381,18 +381,13 @@ fn console_event(bar: &ProgressBar, event: &TrainEvent, config: &TrainConfig) ->
             ),
         ),
         TrainEvent::Started { first_step, .. } => bar.set_position(*first_step),
-        TrainEvent::Step {
-            step,
-            loss,
-            psnr,
-            rays_per_s,
-            lr,
-            ..
-        } => {
-            bar.set_position(step + 1);
-            let message =
-                format!("loss {loss:.4} psnr {psnr:.2} dB {rays_per_s:.0} rays/s lr {lr:.2e}");
-            log_lines::progress(bar, step + 1, config.train.steps, &message);
+        TrainEvent::Step(s) => {
+            bar.set_position(s.step + 1);
+            let message = format!(
+                "loss {:.4} psnr {:.2} dB {:.0} rays/s lr {:.2e}",
+                s.loss, s.psnr, s.rays_per_s, s.lr
+            );
+            log_lines::progress(bar, s.step + 1, config.train.steps, &message);
             bar.set_message(message);
         }
         TrainEvent::Skipped { step, reason } => {
@@ -467,19 +462,12 @@ fn evaluation_lines(event: &TrainEvent, config: &TrainConfig) -> Option<String> 
 /// validation grids as images; checkpoints flush the file.
 fn tensorboard_record(tb: &mut EventWriter, event: &TrainEvent) -> anyhow::Result<()> {
     match event {
-        TrainEvent::Step {
-            step,
-            loss,
-            psnr,
-            rays_per_s,
-            lr,
-            ..
-        } => {
-            let step = step + 1;
-            tb.scalar("train/loss", step, *loss as f32)?;
-            tb.scalar("train/psnr", step, *psnr as f32)?;
-            tb.scalar("train/lr", step, *lr as f32)?;
-            tb.scalar("train/rays_per_s", step, *rays_per_s as f32)?;
+        TrainEvent::Step(s) => {
+            let step = s.step + 1;
+            tb.scalar("train/loss", step, s.loss as f32)?;
+            tb.scalar("train/psnr", step, s.psnr as f32)?;
+            tb.scalar("train/lr", step, s.lr as f32)?;
+            tb.scalar("train/rays_per_s", step, s.rays_per_s as f32)?;
         }
         TrainEvent::Validation {
             step,

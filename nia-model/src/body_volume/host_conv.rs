@@ -16,7 +16,7 @@
 //!   number of threads.
 //!
 //! Equal to the tensor path up to float summation order, and the same whatever the number of
-//! threads (`nia-model/tests/body_volume.rs`).
+//! threads (`nia-model/tests/body_volume_network.rs`).
 
 use std::sync::Arc;
 
@@ -333,22 +333,17 @@ fn blocked_gather_product(
     weight: &[f32],
     c_out: usize,
 ) -> Vec<f32> {
-    let Gather {
-        table,
-        rows_in,
-        c,
-        map,
-        rows_out,
-    } = *gather;
+    let (c, rows_out) = (gather.c, gather.rows_out);
     let k_len = KERNEL_VOLUME * c;
     assert!(
-        table.len() == views * rows_in * c
-            && map.len() == rows_out * KERNEL_VOLUME
+        gather.table.len() == views * gather.rows_in * c
+            && gather.map.len() == rows_out * KERNEL_VOLUME
             && weight.len() == k_len * c_out,
-        "host sparse convolution: {} table values for [{views}, {rows_in}, {c}], {} map \
-         entries for {rows_out} rows, {} weights for [{k_len}, {c_out}]",
-        table.len(),
-        map.len(),
+        "host sparse convolution: {} table values for [{views}, {}, {c}], {} map entries for \
+         {rows_out} rows, {} weights for [{k_len}, {c_out}]",
+        gather.table.len(),
+        gather.rows_in,
+        gather.map.len(),
         weight.len()
     );
     let mut out = vec![0.0f32; views * rows_out * c_out];

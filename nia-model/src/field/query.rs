@@ -32,28 +32,16 @@ impl NiaModel {
     ) -> Result<PointOutput, ModelError> {
         let device = scene.images.device();
         let mut watch = Stopwatch::new(times, &device);
-        self.field_with(scene, points, dirs, CallRows::Exact, &mut watch)
-    }
-
-    /// [`Self::field`] in one call laid out as `rows` says: with [`CallRows::Bucket`],
-    /// `bucket_len(M)` rows of outputs, the M points' first ([`PointOutput::first`] drops the
-    /// padding; a scatter may instead send it to a spare row and keep its index a bucket long).
-    pub(crate) fn field_with(
-        &self,
-        scene: &SceneEncoding,
-        points: &[Vec3],
-        dirs: &[Vec3],
-        rows: CallRows,
-        watch: &mut Stopwatch<'_>,
-    ) -> Result<PointOutput, ModelError> {
-        let inputs = self.point_tensors(scene, points, dirs, rows, watch)?;
-        self.query_with(scene, &inputs, watch)
+        let inputs = self.point_tensors(scene, points, dirs, CallRows::Exact, &mut watch)?;
+        self.query_with(scene, &inputs, &mut watch)
     }
 
     /// The point inputs of world points (in the rendered pose) on the scene's device, reposed
     /// into the scene's pose first when the scene was encoded for another pose, in
-    /// `rows.of(M)` rows, the M points first ([`PointTensors::real_points`] = M). `watch`
-    /// charges the host part to [`Stage::PointInputs`].
+    /// `rows.of(M)` rows, the M points first ([`PointTensors::real_points`] = M; with
+    /// [`CallRows::Bucket`] the network's outputs have `bucket_len(M)` rows, which
+    /// [`PointOutput::first`] cuts, or a scatter sends to a spare row). `watch` charges the
+    /// host part to [`Stage::PointInputs`].
     pub(crate) fn point_tensors(
         &self,
         scene: &SceneEncoding,
@@ -111,19 +99,6 @@ impl NiaModel {
             }
         };
         Ok(inputs)
-    }
-
-    /// [`Self::field_with`]'s density half: the point inputs and [`Self::query_density`].
-    pub(crate) fn field_density(
-        &self,
-        scene: &SceneEncoding,
-        points: &[Vec3],
-        dirs: &[Vec3],
-        rows: CallRows,
-        watch: &mut Stopwatch<'_>,
-    ) -> Result<DensityPass, ModelError> {
-        let inputs = self.point_tensors(scene, points, dirs, rows, watch)?;
-        self.query_density(scene, &inputs, watch)
     }
 
     /// The network at M points whose inputs are already on the device: pixel features and

@@ -213,16 +213,7 @@ impl Blender {
     /// The checks of [`Self::tokens`]: every input's shape, at least one view, and with view
     /// statistics the colours c0 `[M, 3]` and c_n `[N, M, 3]`.
     pub fn check_inputs(&self, inputs: &BlendInputs) -> Result<(), ShapeError> {
-        let BlendInputs {
-            c0,
-            confidence,
-            h,
-            source_colours,
-            pixel_feature,
-            view_dir_features,
-            visibility,
-        } = inputs;
-        let [n, m, d] = pixel_feature.dims();
+        let [n, m, d] = inputs.pixel_feature.dims();
         let colour_dim = if self.view_statistics { 3 } else { 0 };
         let d_token = self.token_input.weight.dims()[0];
         let d_point =
@@ -237,25 +228,29 @@ impl Blender {
         }
         ShapeError::check(
             "F_B `view_dir_features` [N, M, 4]",
-            &view_dir_features.dims(),
+            &inputs.view_dir_features.dims(),
             &[Some(n), Some(m), Some(VIEW_DIR_FEATURE_DIM)],
         )?;
         ShapeError::check(
             "F_B `visibility` [N, M]",
-            &visibility.dims(),
+            &inputs.visibility.dims(),
             &[Some(n), Some(m)],
         )?;
-        ShapeError::check("F_B `h` [M, d_h]", &h.dims(), &[Some(m), Some(d_point - 1)])?;
+        ShapeError::check(
+            "F_B `h` [M, d_h]",
+            &inputs.h.dims(),
+            &[Some(m), Some(d_point - 1)],
+        )?;
         ShapeError::check(
             "F_B `confidence` [M, 1]",
-            &confidence.dims(),
+            &inputs.confidence.dims(),
             &[Some(m), Some(1)],
         )?;
         if self.view_statistics {
-            ShapeError::check("F_B `c0` [M, 3]", &c0.dims(), &[Some(m), Some(3)])?;
+            ShapeError::check("F_B `c0` [M, 3]", &inputs.c0.dims(), &[Some(m), Some(3)])?;
             ShapeError::check(
                 "F_B `source_colours` [N, M, 3]",
-                &source_colours.dims(),
+                &inputs.source_colours.dims(),
                 &[Some(n), Some(m), Some(3)],
             )?;
         }

@@ -10,7 +10,8 @@
 //! - [`weighted_rows`]: the bilinear and trilinear reads as weighted row gathers.
 //!
 //! GPU backends (training):
-//! - [`tap_gather`]: the weighted row gathers as one operation; [`tap_scatter`]: their rows'
+//! - [`tap_gather`]: the weighted row gathers as one operation ([`tracked_op`]: the autodiff side
+//!   it shares with the body volume's `Im2col` product); [`tap_scatter`]: their rows'
 //!   gradient as one cubecl kernel; [`row_scatter`], [`blocked_rows`]: scatter-adds of
 //!   gradient rows on a backend's primitives, in blocks.
 //!
@@ -29,4 +30,5 @@ pub mod readback;
 pub mod row_scatter;
 pub mod tap_gather;
 pub mod tap_scatter;
+pub mod tracked_op;
 pub mod weighted_rows;

@@ -118,7 +118,9 @@ impl NiaModel {
             let out = if jitter.is_none() && points.len() > scene.points_per_call {
                 self.field_in_calls(scene, points, dirs, watch)?
             } else {
-                self.field_with(scene, points, dirs, CallRows::on(&device), watch)?
+                let inputs =
+                    self.point_tensors(scene, points, dirs, CallRows::on(&device), watch)?;
+                self.query_with(scene, &inputs, watch)?
             };
             let evaluated = ray_samples.evaluated();
             (out, ray_samples.kept.clone(), evaluated, evaluated)
@@ -134,7 +136,7 @@ impl NiaModel {
 
     /// The field at `points` / `dirs` ([M] each) in calls of at most the scene's
     /// `points_per_call` points, the outputs in order. On a GPU backend each call is padded to
-    /// its bucket and the last call's padding kept (as [`Self::field_with`]'s: more than
+    /// its bucket and the last call's padding kept (as [`Self::point_tensors`] says: more than
     /// M rows, which the scatter sends to its spare row, so its shapes stay bucketed).
     fn field_in_calls(
         &self,
@@ -148,7 +150,8 @@ impl NiaModel {
         let calls = points.len().div_ceil(call);
         let mut parts = Vec::new();
         for (k, (points, dirs)) in points.chunks(call).zip(dirs.chunks(call)).enumerate() {
-            let out = self.field_with(scene, points, dirs, rows, watch)?;
+            let inputs = self.point_tensors(scene, points, dirs, rows, watch)?;
+            let out = self.query_with(scene, &inputs, watch)?;
             // Every padded call but the last drops its padding.
             parts.push(if rows == CallRows::Bucket && k + 1 < calls {
                 out.first(points.len())

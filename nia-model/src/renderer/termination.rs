@@ -115,7 +115,8 @@ impl NiaModel {
         let points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
         let dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
         // With padding, the density pass has bucket_len(chosen) points, the chosen first.
-        let density = self.field_density(scene, &points, &dirs, rows, watch)?;
+        let inputs = self.point_tensors(scene, &points, &dirs, rows, watch)?;
+        let density = self.query_density(scene, &inputs, watch)?;
         let mut sigma = host_values(density.sigma.clone())
             .map_err(|e| ModelError::Input(format!("reading densities: {e}")))?;
         sigma.truncate(chosen.len());

@@ -39,7 +39,7 @@ use nia_model::{ModelError, NiaModel};
 
 use crate::config::TrainConfig;
 use crate::data::{DataError, TrainData};
-use crate::events::{Phase, TrainEvent};
+use crate::events::{Phase, StepReport, TrainEvent};
 
 mod gradients;
 mod step;
@@ -207,7 +207,7 @@ pub fn train(
                 model = optimizer.step(lr, model, grads);
                 let seconds = started.elapsed().as_secs_f64().max(1e-9);
                 summary.last_loss = Some(loss);
-                on_event(TrainEvent::Step {
+                on_event(TrainEvent::Step(StepReport {
                     step,
                     loss,
                     mse,
@@ -215,7 +215,7 @@ pub fn train(
                     psnr: psnr_from_mse(mse),
                     rays_per_s: rays as f64 / seconds,
                     lr,
-                });
+                }));
             }
         }
         let done = step + 1;
@@ -320,6 +320,15 @@ fn loader_config(data: &TrainData, model: &NiaModel, devices: &[Device]) -> Load
     loader_config
 }
 
+/// The event that `phase` starts, with `total` images to do.
+fn phase_start(phase: Phase, total: usize) -> TrainEvent {
+    TrainEvent::Progress {
+        phase,
+        done: 0,
+        total,
+    }
+}
+
 /// The run's held-out evaluations: validation every `train.validate_every` steps and the
 /// final evaluation, novel views of the unseen subjects.
 struct Evaluation<'a> {
@@ -359,11 +368,7 @@ impl Evaluation<'_> {
             Some(self.config.train.validation_images),
         )?;
         let total = items.len();
-        on_event(TrainEvent::Progress {
-            phase: Phase::Validation,
-            done: 0,
-            total,
-        });
+        on_event(phase_start(Phase::Validation, total));
         let summary = evaluate_items(
             model,
             &self.data.dataset,
@@ -418,11 +423,7 @@ impl Evaluation<'_> {
         let every = items.len().div_ceil(FINAL_PICTURES).max(1);
         let mut index = 0usize;
         let total = items.len();
-        on_event(TrainEvent::Progress {
-            phase: Phase::Evaluation,
-            done: 0,
-            total,
-        });
+        on_event(phase_start(Phase::Evaluation, total));
         let results = evaluate_images(
             model,
             &self.data.dataset,
