@@ -189,7 +189,7 @@ fn check_mask(mask: &[bool], width: usize, height: usize) -> Result<(), MetricsE
     Ok(())
 }
 
-fn check_pair(pred: &ImageView, gt: &ImageView) -> Result<(), MetricsError> {
+fn check_pair(pred: &ImageView<'_>, gt: &ImageView<'_>) -> Result<(), MetricsError> {
     if (pred.width, pred.height, pred.channels) != (gt.width, gt.height, gt.channels) {
         return Err(MetricsError::Size {
             what: "prediction (must match the ground truth)",
@@ -207,7 +207,11 @@ fn check_pair(pred: &ImageView, gt: &ImageView) -> Result<(), MetricsError> {
 /// pixels and all channels (colours in [0, 1]). `+inf` for identical pixels.
 ///
 /// `mask`: [H * W] row-major (NHP's `mask_at_box`).
-pub fn psnr_masked(pred: &ImageView, gt: &ImageView, mask: &[bool]) -> Result<f64, MetricsError> {
+pub fn psnr_masked(
+    pred: &ImageView<'_>,
+    gt: &ImageView<'_>,
+    mask: &[bool],
+) -> Result<f64, MetricsError> {
     check_pair(pred, gt)?;
     check_mask(mask, gt.width, gt.height)?;
     let c = gt.channels;
@@ -227,7 +231,7 @@ pub fn psnr_masked(pred: &ImageView, gt: &ImageView, mask: &[bool]) -> Result<f6
 }
 
 /// PSNR over the whole image.
-pub fn psnr(pred: &ImageView, gt: &ImageView) -> Result<f64, MetricsError> {
+pub fn psnr(pred: &ImageView<'_>, gt: &ImageView<'_>) -> Result<f64, MetricsError> {
     psnr_masked(pred, gt, &vec![true; gt.width * gt.height])
 }
 
@@ -254,7 +258,11 @@ pub fn bounding_rect(
 
 /// scikit-image's `structural_similarity(a, b, channel_axis=-1, data_range=L)` with its other
 /// defaults (see the module docs), computed in f64.
-pub fn ssim(a: &ImageView, b: &ImageView, options: SsimOptions) -> Result<f64, MetricsError> {
+pub fn ssim(
+    a: &ImageView<'_>,
+    b: &ImageView<'_>,
+    options: SsimOptions,
+) -> Result<f64, MetricsError> {
     check_pair(a, b)?;
     if !(options.data_range.is_finite() && options.data_range > 0.0) {
         return Err(MetricsError::DataRange(options.data_range));
@@ -327,7 +335,7 @@ fn ssim_plane(x: &[f64], y: &[f64], width: usize, height: usize, data_range: f64
 /// `img` set to 0 outside `mask` ([H * W]) and cropped to the mask's bounding rectangle, as
 /// NHP scores SSIM (and nia-rs LPIPS): ([h * w * C] values, w, h).
 pub fn masked_crop(
-    img: &ImageView,
+    img: &ImageView<'_>,
     mask: &[bool],
 ) -> Result<(Vec<f32>, usize, usize), MetricsError> {
     check_mask(mask, img.width, img.height)?;
@@ -350,8 +358,8 @@ pub fn masked_crop(
 /// NHP's SSIM: both images set to 0 outside `mask` (`mask_at_box`, [H * W]), cropped to the
 /// mask's bounding rectangle ([`masked_crop`]), then [`ssim`].
 pub fn ssim_masked_crop(
-    pred: &ImageView,
-    gt: &ImageView,
+    pred: &ImageView<'_>,
+    gt: &ImageView<'_>,
     mask: &[bool],
     options: SsimOptions,
 ) -> Result<f64, MetricsError> {
@@ -366,8 +374,8 @@ pub fn ssim_masked_crop(
 
 /// PSNR over `mask_at_box` and SSIM on its bounding-rectangle crop, as NHP/NIA report them.
 pub fn evaluate(
-    pred: &ImageView,
-    gt: &ImageView,
+    pred: &ImageView<'_>,
+    gt: &ImageView<'_>,
     mask_at_box: &[bool],
     options: SsimOptions,
 ) -> Result<ImageMetrics, MetricsError> {

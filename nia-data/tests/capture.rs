@@ -2,8 +2,12 @@
 //! each flaw alone changes only the files it is about; a flawed set is described as such and
 //! a config that asks for other flaws than a set has is refused naming the key.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+use common::files_under;
 
 use nia_data::dataset::{DataConfig, OpenError};
 use nia_data::synth::capture::{CaptureFlaws, CapturePreset};
@@ -18,24 +22,10 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 
 /// Every file under `root` (relative path with `/`) and its digest.
 fn digests(root: &Path) -> BTreeMap<String, u64> {
-    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, u64>) {
-        for entry in std::fs::read_dir(dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                walk(root, &path, out);
-            } else {
-                let rel = path
-                    .strip_prefix(root)
-                    .unwrap()
-                    .to_string_lossy()
-                    .replace('\\', "/");
-                out.insert(rel, fnv1a(&std::fs::read(&path).unwrap()));
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(root, root, &mut out);
-    out
+    files_under(root)
+        .into_iter()
+        .map(|(rel, bytes)| (rel, fnv1a(&bytes)))
+        .collect()
 }
 
 fn tiny(capture: CaptureFlaws) -> SynthSpec {
@@ -93,7 +83,9 @@ fn without_flaws_the_generator_writes_the_clean_bytes() {
 #[test]
 fn each_flaw_changes_only_its_own_files() {
     let (clean_root, clean) = generate("base", &tiny(CaptureFlaws::default()));
-    let cases: [(&str, CaptureFlaws, fn(&str) -> bool); 5] = [
+    /// A flaw's name, the flaws at level 1, and which of the written files it may change.
+    type FlawCase = (&'static str, CaptureFlaws, fn(&str) -> bool);
+    let cases: [FlawCase; 5] = [
         (
             "smpl_fit",
             CaptureFlaws {

@@ -196,7 +196,7 @@ fn visibility_cache_hits_and_invalidates() {
         visible > 5 && visible < 30,
         "a closed body is partly hidden: {visible}"
     );
-    let get = |query: VisibilityQuery| cache.get_or_compute(&query).unwrap();
+    let get = |query: VisibilityQuery<'_>| cache.get_or_compute(&query).unwrap();
     assert_eq!(get(base), direct);
     assert_eq!(cache.stats(), (0, 1));
     assert_eq!(get(base), direct);

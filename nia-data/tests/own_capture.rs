@@ -3,6 +3,8 @@
 //! scripts/fixtures/make_own_capture_fixtures.py and by hand), written and read back, and every
 //! bad input refused with an error naming the file.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use glam::{Mat3, Vec2, Vec3};

@@ -305,10 +305,11 @@ mod tests {
         let (mask, w, h) = square();
         let band = silhouette_band(&mask, w, h);
         // The square and its 8-neighbourhood ring (x 1..5, y 0..4) is the band; nothing else.
-        for p in 0..w * h {
+        assert_eq!(band.len(), w * h);
+        for (p, &inside) in band.iter().enumerate() {
             let (x, y) = (p % w, p / w);
             let expected = (1..5).contains(&x) && (0..4).contains(&y);
-            assert_eq!(band[p], expected, "pixel ({x}, {y})");
+            assert_eq!(inside, expected, "pixel ({x}, {y})");
         }
         assert!(silhouette_band(&[true; 12], 4, 3).iter().all(|&b| !b));
     }

@@ -22,7 +22,7 @@ use nia_data::dataset::loader::{
     eval_requests, load_scene, LoaderConfig, LoaderError, Scene, SceneRequest, SceneTarget,
 };
 use nia_data::dataset::protocol::{EvalItem, EvalSplit, ProtocolError};
-use nia_data::dataset::OpenedDataset;
+use nia_data::dataset::{OpenedDataset, ViewImage};
 use nia_data::metrics::{evaluate, ImageMetrics, ImageView, MetricsError, SsimOptions};
 use nia_data::scene::SceneInput;
 use nia_model::lpips::Lpips;
@@ -284,149 +284,21 @@ pub fn evaluate_images(
     let requests = eval_requests(items, &data.source.subjects)?;
     let mut results = Vec::with_capacity(requests.len());
     for (i, request) in requests.iter().enumerate() {
-        let task = options.task;
-        let reference = match task {
-            EvalTask::NovelView => request.frame,
-            EvalTask::NovelPose { .. } => {
-                let subject = &data.source.subjects[request.subject].name;
-                let r = reference_frame(data, split, subject, task);
-                if r == request.frame {
-                    continue;
-                }
-                r
-            }
-        };
-        // The target (ground truth, body box, pose) is always the evaluated frame; for a novel
-        // pose the sources come from the reference frame.
-        let target_scene = load_scene(
-            &data.source,
-            &SceneRequest {
-                input_views: if reference == request.frame {
-                    request.input_views.clone()
-                } else {
-                    Vec::new()
-                },
-                ..request.clone()
-            },
-            i,
-            &data.loader,
-        )?;
-        // A novel pose's reference keeps its stored fit: the evaluated frame's fit has no
-        // images to be aligned to, and aligning the reference alone lost on every set
-        // measured (docs/robustness.md).
-        let source_scene = if reference == request.frame {
-            None
-        } else {
-            Some(load_scene(
-                &data.source,
-                &SceneRequest {
-                    frame: reference,
-                    ..request.clone()
-                },
-                i,
-                &LoaderConfig {
-                    smpl_alignment: None,
-                    ..data.loader
-                },
-            )?)
-        };
-        let sources = source_scene.as_ref().unwrap_or(&target_scene);
-        let SceneTarget::Image { image, mask_at_box } = &target_scene.target else {
+        let Some(scenes) = EvalScenes::load(data, split, options.task, request, i)? else {
             continue;
         };
-        let eval_err = |message: String| EvalError::Image {
-            subject: target_scene.subject.clone(),
-            frame: target_scene.frame,
-            view: target_scene.target_view,
-            message,
+        let SceneTarget::Image { image, mask_at_box } = &scenes.target.target else {
+            continue;
         };
-        let model_err = |e: ModelError| eval_err(e.to_string());
-        let started = Instant::now();
-        let mut times = StageTimes::default();
-        let input = SceneInput::from_loaded(sources, &data.source.faces);
-        let reposer = match &source_scene {
-            None => None,
-            Some(reference_scene) => Some(Arc::new(
-                Reposer::new(
-                    &data.body_model,
-                    &reference_scene.params,
-                    &target_scene.params,
-                )
-                .map_err(|e| eval_err(format!("reposing from frame {reference}: {e}")))?,
-            )),
-        };
-        let encoding = prepare_scene(
-            &model,
-            &input,
-            reposer,
-            &options.render,
-            &plain,
-            options.timed.then_some(&mut times),
-        )
-        .map_err(model_err)?;
-        let view = TargetView {
-            camera: &image.camera,
-            body_box: &target_scene.body_box,
-            pixels: Some(mask_at_box),
-            image: ImageRenderOptions {
-                samples: options.samples,
-                chunk: options.chunk,
-                timed: options.timed,
-            },
-            cancelled: None,
-        };
-        let mut rendered = render_view(&model, &encoding, &view, &options.render, &mut |_, _| {})
-            .map_err(model_err)?;
-        times.merge(&rendered.times);
-        rendered.times = times.clone();
-        let seconds = started.elapsed().as_secs_f64();
-        let (w, h) = (rendered.width, rendered.height);
-        let metrics_err = |e: MetricsError| eval_err(e.to_string());
-        let pv = ImageView::new("prediction", &rendered.rgb, w, h, 3).map_err(metrics_err)?;
-        let gv = ImageView::new("ground truth", &image.image, w, h, 3).map_err(metrics_err)?;
-        let ImageMetrics { psnr, ssim } =
-            evaluate(&pv, &gv, mask_at_box, SsimOptions::nhp()).map_err(metrics_err)?;
-        let lpips = match &options.lpips {
-            Some(net) => Some(
-                lpips_masked_crop(net, &pv, &gv, mask_at_box, &plain)
-                    .map_err(|e| eval_err(e.to_string()))?,
-            ),
-            None => None,
-        };
-        let diagnostics = BlendDiagnostics::measure(&DiagnosticsInput {
-            rendered: &rendered,
-            camera: &image.camera,
-            ground_truth: &image.image,
-            person_mask: &image.mask,
+        let target = ScoredTarget {
+            request,
+            image,
             mask_at_box,
-            posed_vertices: encoding
-                .reposer
-                .as_ref()
-                .map_or(&target_scene.vertices[..], |r| r.target_vertices()),
-            faces: &data.source.faces,
-            sources,
-        })
-        .map_err(metrics_err)?;
-        let result = ImageResult {
-            subject: target_scene.subject.clone(),
-            frame: target_scene.frame,
-            reference_frame: reference,
-            input_views: request.input_views.clone(),
-            target_view: request.target_view,
-            psnr,
-            ssim,
-            lpips,
-            rays: rendered.rays,
-            point_evaluations: rendered.point_evaluations,
-            colour_evaluations: rendered.colour_evaluations,
-            smpl_alignment: AlignmentReport::of(sources),
-            seconds,
-            diagnostics,
-            times,
         };
+        let (result, rendered) = evaluate_image(&model, data, &scenes, &target, &options, &plain)?;
         on_image(EvaluatedImage {
             result: &result,
-            sources,
+            sources: scenes.sources(),
             ground_truth: image,
             mask_at_box,
             rendered: &rendered,
@@ -436,18 +308,197 @@ pub fn evaluate_images(
     Ok(results)
 }
 
-/// Novel-view evaluation of `items` of the unseen-subject split with `samples` samples per ray
-/// in chunks of `chunk` rays (what training reports); `on_done(k, image)` after the k-th image;
-/// `None` when there is nothing to evaluate.
-#[allow(clippy::too_many_arguments)]
+/// The scenes of one evaluated image: the target (ground truth, body box, pose: always the
+/// evaluated frame), and for a novel pose the reference frame the sources come from.
+struct EvalScenes {
+    /// The frame of the source images (the evaluated frame for novel views).
+    reference: usize,
+    target: Scene,
+    /// The reference frame's scene, for a novel pose (`None`: the target's sources).
+    source: Option<Scene>,
+}
+
+impl EvalScenes {
+    /// The scenes of `request` (the `index`-th) for `task`; `None` for a novel pose of the
+    /// reference frame itself.
+    fn load(
+        data: &OpenedDataset,
+        split: EvalSplit,
+        task: EvalTask,
+        request: &SceneRequest,
+        index: usize,
+    ) -> Result<Option<Self>, EvalError> {
+        let reference = match task {
+            EvalTask::NovelView => request.frame,
+            EvalTask::NovelPose { .. } => {
+                let subject = &data.source.subjects[request.subject].name;
+                let r = reference_frame(data, split, subject, task);
+                if r == request.frame {
+                    return Ok(None);
+                }
+                r
+            }
+        };
+        let target = load_scene(
+            &data.source,
+            &SceneRequest {
+                input_views: if reference == request.frame {
+                    request.input_views.clone()
+                } else {
+                    Vec::new()
+                },
+                ..request.clone()
+            },
+            index,
+            &data.loader,
+        )?;
+        // A novel pose's reference keeps its stored fit: the evaluated frame's fit has no
+        // images to be aligned to, and aligning the reference alone lost on every set
+        // measured (docs/robustness.md).
+        let source = if reference == request.frame {
+            None
+        } else {
+            Some(load_scene(
+                &data.source,
+                &SceneRequest {
+                    frame: reference,
+                    ..request.clone()
+                },
+                index,
+                &LoaderConfig {
+                    smpl_alignment: None,
+                    ..data.loader
+                },
+            )?)
+        };
+        Ok(Some(EvalScenes {
+            reference,
+            target,
+            source,
+        }))
+    }
+
+    /// The scene the source views come from.
+    fn sources(&self) -> &Scene {
+        self.source.as_ref().unwrap_or(&self.target)
+    }
+}
+
+/// The ground truth one image is scored against.
+struct ScoredTarget<'a> {
+    request: &'a SceneRequest,
+    /// The target view's image.
+    image: &'a ViewImage,
+    /// `[H * W]` the scored region.
+    mask_at_box: &'a [bool],
+}
+
+/// One image rendered from `scenes` and scored against `target`: its result and the render.
+fn evaluate_image(
+    model: &NiaModel,
+    data: &OpenedDataset,
+    scenes: &EvalScenes,
+    target: &ScoredTarget<'_>,
+    options: &EvalOptions,
+    plain: &Device,
+) -> Result<(ImageResult, RenderedImage), EvalError> {
+    let (scene, sources, image) = (&scenes.target, scenes.sources(), target.image);
+    let eval_err = |message: String| EvalError::Image {
+        subject: scene.subject.clone(),
+        frame: scene.frame,
+        view: scene.target_view,
+        message,
+    };
+    let model_err = |e: ModelError| eval_err(e.to_string());
+    let started = Instant::now();
+    let mut times = StageTimes::default();
+    let input = SceneInput::from_loaded(sources, &data.source.faces);
+    let reposer = match &scenes.source {
+        None => None,
+        Some(reference_scene) => Some(Arc::new(
+            Reposer::new(&data.body_model, &reference_scene.params, &scene.params)
+                .map_err(|e| eval_err(format!("reposing from frame {}: {e}", scenes.reference)))?,
+        )),
+    };
+    let encoding = prepare_scene(
+        model,
+        &input,
+        reposer,
+        &options.render,
+        plain,
+        options.timed.then_some(&mut times),
+    )
+    .map_err(model_err)?;
+    let view = TargetView {
+        camera: &image.camera,
+        body_box: &scene.body_box,
+        pixels: Some(target.mask_at_box),
+        image: ImageRenderOptions {
+            samples: options.samples,
+            chunk: options.chunk,
+            timed: options.timed,
+        },
+        cancelled: None,
+    };
+    let mut rendered =
+        render_view(model, &encoding, &view, &options.render, &mut |_, _| {}).map_err(model_err)?;
+    times.merge(&rendered.times);
+    rendered.times = times.clone();
+    let seconds = started.elapsed().as_secs_f64();
+    let (w, h) = (rendered.width, rendered.height);
+    let metrics_err = |e: MetricsError| eval_err(e.to_string());
+    let pv = ImageView::new("prediction", &rendered.rgb, w, h, 3).map_err(metrics_err)?;
+    let gv = ImageView::new("ground truth", &image.image, w, h, 3).map_err(metrics_err)?;
+    let ImageMetrics { psnr, ssim } =
+        evaluate(&pv, &gv, target.mask_at_box, SsimOptions::nhp()).map_err(metrics_err)?;
+    let lpips = match &options.lpips {
+        Some(net) => Some(
+            lpips_masked_crop(net, &pv, &gv, target.mask_at_box, plain)
+                .map_err(|e| eval_err(e.to_string()))?,
+        ),
+        None => None,
+    };
+    let diagnostics = BlendDiagnostics::measure(&DiagnosticsInput {
+        rendered: &rendered,
+        camera: &image.camera,
+        ground_truth: &image.image,
+        person_mask: &image.mask,
+        mask_at_box: target.mask_at_box,
+        posed_vertices: encoding
+            .reposer
+            .as_ref()
+            .map_or(&scene.vertices[..], |r| r.target_vertices()),
+        faces: &data.source.faces,
+        sources,
+    })
+    .map_err(metrics_err)?;
+    let result = ImageResult {
+        subject: scene.subject.clone(),
+        frame: scene.frame,
+        reference_frame: scenes.reference,
+        input_views: target.request.input_views.clone(),
+        target_view: target.request.target_view,
+        psnr,
+        ssim,
+        lpips,
+        rays: rendered.rays,
+        point_evaluations: rendered.point_evaluations,
+        colour_evaluations: rendered.colour_evaluations,
+        smpl_alignment: AlignmentReport::of(sources),
+        seconds,
+        diagnostics,
+        times,
+    };
+    Ok((result, rendered))
+}
+
+/// Evaluation of `items` of the unseen-subject split with `options` (what training reports);
+/// `on_done(k, image)` after the k-th image; `None` when there is nothing to evaluate.
 pub fn evaluate_items(
     model: &NiaModel,
     data: &OpenedDataset,
     items: &[EvalItem],
-    samples: usize,
-    chunk: usize,
-    render: RenderOptions,
-    lpips: Option<Arc<Lpips>>,
+    options: EvalOptions,
     device: &Device,
     on_done: &mut dyn FnMut(usize, &EvaluatedImage<'_>),
 ) -> Result<Option<EvalSummary>, EvalError> {
@@ -457,14 +508,7 @@ pub fn evaluate_items(
         data,
         EvalSplit::UnseenSubjects,
         items,
-        EvalOptions {
-            task: EvalTask::NovelView,
-            samples,
-            chunk,
-            timed: false,
-            render,
-            lpips,
-        },
+        options,
         device,
         &mut |image| {
             done += 1;

@@ -88,8 +88,8 @@ fn pad_to(values: Vec<f32>, w: usize, h: usize, min: usize) -> (Vec<f32>, usize,
 /// have one) is zero-padded on the right and bottom to that size, the value outside the mask.
 pub fn lpips_masked_crop(
     lpips: &Lpips,
-    pred: &ImageView,
-    gt: &ImageView,
+    pred: &ImageView<'_>,
+    gt: &ImageView<'_>,
     mask: &[bool],
     device: &Device,
 ) -> Result<f64, PerceptualError> {

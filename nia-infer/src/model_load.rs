@@ -275,14 +275,7 @@ impl LoadedModel {
                 );
             }
         }
-        let device = DeviceSpec {
-            backend,
-            index: args.device,
-        }
-        .device()?;
-        if let Some(note) = backend.start_up_note() {
-            eprintln!("{note}");
-        }
+        let device = open_device(backend, args.device)?;
         let mut model = file.load(path, &device)?;
         model.ray_sampler = args.ray_sampler(model.ray_sampler)?;
         Ok(LoadedModel {
@@ -446,4 +439,14 @@ impl LpipsArgs {
             .with_context(|| format!("loading LPIPS ({})", files.net.name()))?;
         Ok(Some((files, Arc::new(lpips))))
     }
+}
+
+/// The device `index` (which GPU; `None`: the default) of `backend`, with the backend's
+/// start-up note on stderr.
+pub fn open_device(backend: Backend, index: Option<usize>) -> anyhow::Result<Device> {
+    let device = DeviceSpec { backend, index }.device()?;
+    if let Some(note) = backend.start_up_note() {
+        eprintln!("{note}");
+    }
+    Ok(device)
 }

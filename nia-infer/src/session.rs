@@ -159,20 +159,16 @@ impl RenderSession {
         )?)
     }
 
-    /// `camera`'s image of `encoding` (whose body lies in `body_box`), with `options` (the
-    /// session's, or a variant of them); `None` when `cancelled` said so before it was done.
-    #[allow(clippy::too_many_arguments)]
-    pub fn render_with(
+    /// The whole image of `camera` of a scene whose body lies in `body_box`, at the session's
+    /// samples and chunk (`timed`: with stage timings), asking `cancelled` before every chunk.
+    pub fn target_view<'a>(
         &self,
-        encoding: &SceneEncoding,
-        camera: &Camera,
-        body_box: &Aabb,
-        options: &RenderOptions,
+        camera: &'a Camera,
+        body_box: &'a Aabb,
         timed: bool,
-        progress: &mut dyn FnMut(usize, usize),
-        cancelled: &dyn Fn() -> bool,
-    ) -> anyhow::Result<Option<RenderedImage>> {
-        let view = TargetView {
+        cancelled: Option<&'a dyn Fn() -> bool>,
+    ) -> TargetView<'a> {
+        TargetView {
             camera,
             body_box,
             pixels: None,
@@ -181,9 +177,20 @@ impl RenderSession {
                 chunk: self.chunk,
                 timed,
             },
-            cancelled: Some(cancelled),
-        };
-        match render_view(&self.loaded.model, encoding, &view, options, progress) {
+            cancelled,
+        }
+    }
+
+    /// `view`'s image of `encoding` with `options` (the session's, or a variant of them);
+    /// `None` when the view's `cancelled` said so before it was done.
+    pub fn render_with(
+        &self,
+        encoding: &SceneEncoding,
+        view: &TargetView<'_>,
+        options: &RenderOptions,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> anyhow::Result<Option<RenderedImage>> {
+        match render_view(&self.loaded.model, encoding, view, options, progress) {
             Ok(image) => Ok(Some(image)),
             Err(ModelError::Cancelled) => Ok(None),
             Err(e) => Err(e.into()),
@@ -199,16 +206,8 @@ impl RenderSession {
         timed: bool,
         progress: &mut dyn FnMut(usize, usize),
     ) -> anyhow::Result<RenderedImage> {
-        let options = self.options;
-        self.render_with(
-            encoding,
-            camera,
-            body_box,
-            &options,
-            timed,
-            progress,
-            &|| false,
-        )?
-        .ok_or_else(|| anyhow::anyhow!("rendering was cancelled"))
+        let view = self.target_view(camera, body_box, timed, None);
+        self.render_with(encoding, &view, &self.options, progress)?
+            .ok_or_else(|| anyhow::anyhow!("rendering was cancelled"))
     }
 }

@@ -220,7 +220,7 @@ fn skipped_samples_would_have_contributed_under_the_tolerance() {
         .iter()
         .map(|&p| grid.occupied(p) as u8 as f32)
         .collect();
-    assert!(keep.iter().any(|&k| k == 0.0) && keep.iter().any(|&k| k == 1.0));
+    assert!(keep.contains(&0.0) && keep.contains(&1.0));
     let keep = Tensor::<1>::from_data(TensorData::new(keep, [r * 32]), device);
     let n1 = fields.blend_weights.dims()[1];
     let masked = render_rays(

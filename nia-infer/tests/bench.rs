@@ -21,7 +21,8 @@ fn last_json(stdout: &str) -> serde_json::Value {
     serde_json::from_str(line).unwrap_or_else(|e| panic!("not JSON ({e}): {line}"))
 }
 
-const TOY: [&str; 10] = [
+/// The tiny network at toy sizes: 8 rays of 4 samples, 32 x 32 sources, one timed repetition.
+const TOY: [&str; 9] = [
     "--tiny",
     "--rays",
     "8",
@@ -31,34 +32,25 @@ const TOY: [&str; 10] = [
     "32",
     "--reps",
     "1",
-    "--no-train",
 ];
 
-/// The training step alone on flex at toy sizes, without chunks.
-const TRAIN_TOY: [&str; 15] = [
-    "bench",
-    "--backend",
-    "flex",
-    "--tiny",
-    "--rays",
-    "8",
-    "--samples",
-    "4",
-    "--size",
-    "32",
-    "--reps",
-    "1",
-    "--train-only",
-    "--ray-chunk",
-    "0",
-];
+/// `nia-infer bench` on `backend` at toy sizes, then `extra`.
+fn toy<'a>(backend: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec!["bench", "--backend", backend];
+    args.extend(TOY);
+    args.extend(extra);
+    args
+}
+
+/// The training step alone on flex at toy sizes, in chunks of `ray_chunk` rays (0: without
+/// chunks).
+fn train_toy(ray_chunk: &str) -> Vec<&str> {
+    toy("flex", &["--train-only", "--ray-chunk", ray_chunk])
+}
 
 #[test]
 fn check_against_reports_a_small_difference_between_backends() {
-    let mut args = vec!["bench", "--backend", "ndarray"];
-    args.extend(TOY);
-    args.extend(["--check-against", "flex"]);
-    let v = report(&args);
+    let v = report(&toy("ndarray", &["--no-train", "--check-against", "flex"]));
     let check = &v["check"];
     assert_eq!(check["against"], "flex");
     let max = check["max_abs_diff"].as_f64().unwrap();
@@ -84,10 +76,7 @@ fn check_against_reports_a_small_difference_between_backends() {
 /// backend's.
 #[test]
 fn check_against_with_training_compares_the_gradients() {
-    let mut args = vec!["bench", "--backend", "ndarray"];
-    args.extend(&TOY[..TOY.len() - 1]); // without --no-train
-    args.extend(["--check-against", "flex"]);
-    let v = report(&args);
+    let v = report(&toy("ndarray", &["--check-against", "flex"]));
     let gradients = v["check"]["gradients"].as_array().unwrap();
     let names: Vec<&str> = gradients.iter().map(|g| g[0].as_str().unwrap()).collect();
     assert_eq!(
@@ -108,7 +97,7 @@ fn check_against_with_training_compares_the_gradients() {
 
 #[test]
 fn train_only_times_the_training_step_alone() {
-    let v = report(&TRAIN_TOY);
+    let v = report(&train_toy("0"));
     assert!(
         v["forward_s"].is_null() && v["first_forward_s"].is_null(),
         "{v}"
@@ -124,7 +113,7 @@ fn train_only_times_the_training_step_alone() {
     assert!(v["first_train_step_s"].as_f64().unwrap() > 0.0);
     assert!(v["check"].is_null());
     // The forward's stage table is not printed with NaN seconds when the forward is skipped.
-    let out = nia_infer(&TRAIN_TOY);
+    let out = nia_infer(&train_toy("0"));
     ok(&out);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
@@ -138,9 +127,7 @@ fn train_only_times_the_training_step_alone() {
 /// and backward split, null rather than NaN in the JSON) and says so.
 #[test]
 fn ray_chunks_time_the_whole_step() {
-    let mut args = TRAIN_TOY;
-    args[14] = "3";
-    let out = nia_infer(&args);
+    let out = nia_infer(&train_toy("3"));
     ok(&out);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("in chunks of 3 rays"), "{stdout}");
@@ -157,8 +144,7 @@ fn ray_chunks_time_the_whole_step() {
 /// median where the others are, as the PyTorch references report theirs.
 #[test]
 fn steady_figures_are_medians_of_the_listed_repetitions() {
-    let mut args = vec!["bench", "--backend", "flex"];
-    args.extend(&TOY[..TOY.len() - 1]); // with the training step
+    let mut args = toy("flex", &[]); // with the training step
     let reps = args.iter().position(|a| *a == "--reps").unwrap() + 1;
     args[reps] = "3";
     let v = report(&args);
@@ -221,8 +207,7 @@ fn on_wgpu_the_stages_are_timed_in_forwards_of_their_own() {
         eprintln!("skipped: {message}");
         return;
     }
-    let mut args = vec!["bench", "--backend", "wgpu"];
-    args.extend(TOY);
+    let mut args = toy("wgpu", &["--no-train"]);
     let reps = args.iter().position(|a| *a == "--reps").unwrap() + 1;
     args[reps] = "2";
     let out = nia_infer(&args);

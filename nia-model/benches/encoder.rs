@@ -21,7 +21,7 @@ use burn::tensor::activation::relu;
 use nia_model::encoder::bilinear::ViewRows;
 use nia_model::encoder::host::HostTrunk;
 use nia_model::encoder::pyramid_host::{reduce_to_rows, HostPyramid};
-use nia_model::encoder::{ImageEncoder, ImageEncoderConfig, ENCODER_CHANNELS};
+use nia_model::encoder::{reduce_level, ImageEncoder, ImageEncoderConfig, ENCODER_CHANNELS};
 
 const VIEWS: usize = 3;
 const SIZE: usize = 512;
@@ -212,17 +212,10 @@ fn levels() {
         let mut line = format!("levels rep {rep}:");
         let mut offset = 0;
         for f in &levels {
-            let [n, c, h, w] = f.dims();
-            let w_l = weight
-                .clone()
-                .narrow(0, offset, c)
-                .transpose()
-                .unsqueeze::<3>();
-            offset += c;
+            let [_, c, h, _] = f.dims();
             let t = Instant::now();
-            let reduced = w_l
-                .matmul(f.clone().reshape([n, c, h * w]))
-                .reshape([n, D, h, w]);
+            let reduced = reduce_level(&weight, offset, f);
+            offset += c;
             sync(reduced.clone());
             let product = ms(t);
             drop(reduced.clone().sum().backward());

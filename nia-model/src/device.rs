@@ -180,7 +180,7 @@ fn probe_gpu(device: Device, spec: DeviceSpec) -> Result<Device, DeviceError> {
             .into_scalar::<f32>()
     }));
     match sum {
-        Ok(x) if x == 3.0 => Ok(device),
+        Ok(3.0) => Ok(device),
         _ => Err(DeviceError::NoAdapter(spec.to_string())),
     }
 }
@@ -225,45 +225,6 @@ impl<'de> serde::Deserialize<'de> for DeviceSpec {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         let text = String::deserialize(d)?;
         text.parse().map_err(serde::de::Error::custom)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn device_specs_parse_print_and_refuse_nonsense() {
-        for (text, backend, index) in [
-            ("flex", Backend::Flex, None),
-            ("ndarray", Backend::Ndarray, None),
-            ("wgpu", Backend::Wgpu, None),
-            ("wgpu:1", Backend::Wgpu, Some(1)),
-        ] {
-            let spec: DeviceSpec = text.parse().unwrap();
-            assert_eq!((spec.backend, spec.index), (backend, index));
-            assert_eq!(spec.to_string(), text);
-        }
-        for bad in ["cuda", "wgpu:x", "wgpu:-1", ""] {
-            assert!(bad.parse::<DeviceSpec>().is_err(), "{bad}");
-        }
-        let err = "flex:1"
-            .parse::<DeviceSpec>()
-            .unwrap()
-            .device()
-            .unwrap_err();
-        assert!(err.to_string().contains("single device"), "{err}");
-    }
-
-    #[test]
-    fn only_the_gpu_backend_warns_of_its_start_up() {
-        assert_eq!(Backend::Flex.start_up_note(), None);
-        assert_eq!(Backend::Ndarray.start_up_note(), None);
-        let note = Backend::Wgpu.start_up_note().unwrap();
-        assert!(
-            note.starts_with("wgpu:") && note.contains("~/.cache/cubecl"),
-            "{note}"
-        );
     }
 }
 
@@ -322,5 +283,44 @@ pub fn computes_on_cpu(device: &Device) -> bool {
     match device.as_dispatch() {
         DispatchDevice::Autodiff(d) => cpu(&d.clone().inner()),
         d => cpu(d),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_specs_parse_print_and_refuse_nonsense() {
+        for (text, backend, index) in [
+            ("flex", Backend::Flex, None),
+            ("ndarray", Backend::Ndarray, None),
+            ("wgpu", Backend::Wgpu, None),
+            ("wgpu:1", Backend::Wgpu, Some(1)),
+        ] {
+            let spec: DeviceSpec = text.parse().unwrap();
+            assert_eq!((spec.backend, spec.index), (backend, index));
+            assert_eq!(spec.to_string(), text);
+        }
+        for bad in ["cuda", "wgpu:x", "wgpu:-1", ""] {
+            assert!(bad.parse::<DeviceSpec>().is_err(), "{bad}");
+        }
+        let err = "flex:1"
+            .parse::<DeviceSpec>()
+            .unwrap()
+            .device()
+            .unwrap_err();
+        assert!(err.to_string().contains("single device"), "{err}");
+    }
+
+    #[test]
+    fn only_the_gpu_backend_warns_of_its_start_up() {
+        assert_eq!(Backend::Flex.start_up_note(), None);
+        assert_eq!(Backend::Ndarray.start_up_note(), None);
+        let note = Backend::Wgpu.start_up_note().unwrap();
+        assert!(
+            note.starts_with("wgpu:") && note.contains("~/.cache/cubecl"),
+            "{note}"
+        );
     }
 }

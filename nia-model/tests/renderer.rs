@@ -561,7 +561,7 @@ fn patch_ssim_loss_hand_values() {
     let grads = l.backward();
     let g = values(rgb.grad(&grads).unwrap());
     for i in [0, 5, 13, 22] {
-        let fd = central_difference(&start, i, FD_STEP, &loss);
+        let fd = central_difference(&start, i, FD_STEP, loss);
         assert!(
             (g[i] - fd).abs() <= FD_ABS_TOL + FD_REL_TOL * fd.abs(),
             "d/d rgb[{i}]: {} against {fd}",

@@ -79,10 +79,10 @@ pub fn run(args: AblationArgs) -> anyhow::Result<()> {
                 bar.set_position(*first_step);
                 bar.set_message("training");
             }
-            TrainEvent::Step { step, psnr, .. } => {
-                bar.set_position(step + 1);
-                let message = format!("{}: training, psnr {psnr:.2} dB", variant.name());
-                log_lines::progress(&bar, step + 1, steps, &message);
+            TrainEvent::Step(s) => {
+                bar.set_position(s.step + 1);
+                let message = format!("{}: training, psnr {:.2} dB", variant.name(), s.psnr);
+                log_lines::progress(&bar, s.step + 1, steps, &message);
                 bar.set_message(message);
             }
             TrainEvent::Skipped { step, reason } => log_lines::line(

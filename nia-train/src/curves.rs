@@ -51,11 +51,9 @@ impl RunCurves {
         let mut c = RunCurves::default();
         for e in events {
             match e {
-                TrainEvent::Step {
-                    step, loss, psnr, ..
-                } => {
-                    c.steps.retain(|s| s.0 < *step);
-                    c.steps.push((*step, *loss, *psnr));
+                TrainEvent::Step(s) => {
+                    c.steps.retain(|kept| kept.0 < s.step);
+                    c.steps.push((s.step, s.loss, s.psnr));
                 }
                 TrainEvent::Validation { step, psnr, .. } => {
                     c.validation.retain(|s| s.0 < *step);
@@ -173,14 +171,16 @@ mod tests {
 
     #[test]
     fn later_records_of_a_resumed_run_replace_earlier_ones() {
-        let step = |step, loss| TrainEvent::Step {
-            step,
-            loss,
-            mse: loss,
-            mse0: 0.0,
-            psnr: 20.0,
-            rays_per_s: 1.0,
-            lr: 1e-3,
+        let step = |step, loss| {
+            TrainEvent::Step(crate::events::StepReport {
+                step,
+                loss,
+                mse: loss,
+                mse0: 0.0,
+                psnr: 20.0,
+                rays_per_s: 1.0,
+                lr: 1e-3,
+            })
         };
         let c = RunCurves::of(&[step(0, 1.0), step(1, 0.9), step(1, 0.8), step(2, 0.7)]);
         let losses: Vec<f64> = c.steps.iter().map(|s| s.1).collect();

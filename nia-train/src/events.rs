@@ -18,16 +18,8 @@ pub enum TrainEvent {
     },
     /// Training starts at `first_step` (0, or the step after a resumed checkpoint).
     Started { first_step: u64, steps: u64 },
-    /// A step was taken. `loss = mse + mse0`; `psnr` of the blended colour (dB).
-    Step {
-        step: u64,
-        loss: f64,
-        mse: f64,
-        mse0: f64,
-        psnr: f64,
-        rays_per_s: f64,
-        lr: f64,
-    },
+    /// A step was taken.
+    Step(StepReport),
     /// A step whose loss or gradients were not finite: no parameter was changed.
     Skipped { step: u64, reason: String },
     /// A checkpoint was written (atomically) after `step` steps.
@@ -86,6 +78,19 @@ pub enum TrainEvent {
         done: usize,
         total: usize,
     },
+}
+
+/// What a taken step reports ([`TrainEvent::Step`]; in the metrics log its fields stand beside
+/// `"event": "step"`). `loss = mse + mse0`; `psnr` of the blended colour (dB).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StepReport {
+    pub step: u64,
+    pub loss: f64,
+    pub mse: f64,
+    pub mse0: f64,
+    pub psnr: f64,
+    pub rays_per_s: f64,
+    pub lr: f64,
 }
 
 /// A long phase of a run besides the training steps.

@@ -19,7 +19,7 @@ pub fn line(bar: &ProgressBar, line: impl AsRef<str>) {
 /// A progress line for step `done` of `total` when the bar is hidden (every
 /// [`PLAIN_PROGRESS_EVERY`] steps and at the last), with the bar's elapsed time.
 pub fn progress(bar: &ProgressBar, done: u64, total: u64, message: &str) {
-    if bar.is_hidden() && (done % PLAIN_PROGRESS_EVERY == 0 || done == total) {
+    if bar.is_hidden() && (done.is_multiple_of(PLAIN_PROGRESS_EVERY) || done == total) {
         println!(
             "[{:>6.0} s] step {done}/{total} {message}",
             bar.elapsed().as_secs_f64()
@@ -31,7 +31,7 @@ pub fn progress(bar: &ProgressBar, done: u64, total: u64, message: &str) {
 /// start, about every tenth and at the end.
 pub fn phase(bar: &ProgressBar, name: &str, done: usize, total: usize) {
     let every = total.div_ceil(10).max(1);
-    if bar.is_hidden() && (done == 0 || done == total || done % every == 0) {
+    if bar.is_hidden() && (done == 0 || done == total || done.is_multiple_of(every)) {
         println!(
             "[{:>6.0} s] {name}: {done}/{total} images",
             bar.elapsed().as_secs_f64()

@@ -185,36 +185,10 @@ fn run_prepare(args: &nia_train::prepare::PrepareArgs) -> anyhow::Result<()> {
 }
 
 fn run_train(args: TrainArgs) -> anyhow::Result<()> {
-    let Some(config_path) = args.config else {
+    let Some(config_path) = args.config.clone() else {
         anyhow::bail!("missing `--config <FILE>` (e.g. configs/quickstart.toml); see --help");
     };
-    let mut config = TrainConfig::load_with(&config_path, &args.set)?;
-    if let Some(backend) = args.backend {
-        config.train.backend = backend;
-    }
-    if let Some(steps) = args.steps {
-        config.train.steps = steps;
-    }
-    if !args.devices.is_empty() {
-        config.train.devices = args.devices.clone();
-    }
-    if let Some(index) = args.device {
-        if !config.train.devices.is_empty() {
-            anyhow::bail!(
-                "--device {index}: the config lists train.devices; pass --devices instead"
-            );
-        }
-        if !config.train.backend.is_gpu() {
-            anyhow::bail!(
-                "--device {index}: {} is a CPU backend with a single device",
-                config.train.backend.name()
-            );
-        }
-        config.train.devices = vec![DeviceSpec {
-            backend: config.train.backend,
-            index: Some(index),
-        }];
-    }
+    let config = train_config(&args, &config_path)?;
     pin_default_device(config.train.backend);
     if let Some(note) = config
         .train
@@ -226,35 +200,9 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
     }
     let out = args
         .out
+        .clone()
         .unwrap_or_else(|| PathBuf::from("runs").join(config_stem(&config_path)));
-    let existing = checkpoint::latest(&out)
-        .with_context(|| format!("reading the checkpoints of {}", out.display()))?;
-    if let Some((step, _)) = existing {
-        if args.overwrite {
-            for name in ["checkpoints", "evaluation", TENSORBOARD_DIR] {
-                let dir = out.join(name);
-                if dir.exists() {
-                    std::fs::remove_dir_all(&dir)
-                        .with_context(|| format!("deleting {}", dir.display()))?;
-                }
-            }
-            for name in [METRICS_FILE, CURVES_FILE] {
-                let file = out.join(name);
-                if file.exists() {
-                    std::fs::remove_file(&file)
-                        .with_context(|| format!("deleting {}", file.display()))?;
-                }
-            }
-        } else if !args.resume {
-            anyhow::bail!(
-                "{} already holds a run (its newest checkpoint is step {step}): pass --resume to \
-                 continue it, --overwrite to start afresh there, or --out for another folder",
-                out.display()
-            );
-        }
-    }
-    std::fs::create_dir_all(&out)
-        .with_context(|| format!("creating the output folder {}", out.display()))?;
+    prepare_out(&args, &out)?;
     let metrics_path = out.join(METRICS_FILE);
     let mut metrics = std::fs::OpenOptions::new()
         .create(true)
@@ -300,86 +248,8 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
                     write_error = Some(e);
                 }
             }
-            match &event {
-                TrainEvent::DataReady {
-                    root,
-                    train_subjects,
-                    unseen_subjects,
-                    generated,
-                } => log_lines::line(&bar, format!(
-                    "data {}{}: train {:?}, held out {:?}",
-                    root.display(),
-                    if *generated { " (generated)" } else { "" },
-                    train_subjects,
-                    unseen_subjects
-                )),
-                TrainEvent::Started { first_step, .. } => bar.set_position(*first_step),
-                TrainEvent::Step {
-                    step,
-                    loss,
-                    psnr,
-                    rays_per_s,
-                    lr,
-                    ..
-                } => {
-                    bar.set_position(step + 1);
-                    let message = format!(
-                        "loss {loss:.4} psnr {psnr:.2} dB {rays_per_s:.0} rays/s lr {lr:.2e}"
-                    );
-                    log_lines::progress(&bar, step + 1, config.train.steps, &message);
-                    bar.set_message(message);
-                }
-                TrainEvent::Skipped { step, reason } => {
-                    bar.set_position(step + 1);
-                    log_lines::line(&bar, format!("step {step} skipped: {reason}"));
-                }
-                TrainEvent::Checkpoint { path, .. } => {
-                    log_lines::line(&bar, format!("checkpoint {}", path.display()))
-                }
-                TrainEvent::Validation {
-                    step,
-                    images,
-                    psnr,
-                    ssim,
-                    lpips,
-                } => log_lines::line(&bar, format!(
-                    "validation after {step} steps: PSNR {psnr:.2} dB, SSIM {ssim:.4}{} on {images} held-out images",
-                    lpips_text(*lpips, config.train.lpips.as_ref())
-                )),
-                TrainEvent::Evaluation {
-                    split,
-                    images,
-                    psnr,
-                    ssim,
-                    lpips,
-                    c0_share_seen,
-                    psnr_ibr,
-                    psnr_nerf,
-                    psnr_silhouette,
-                    psnr_interior,
-                    pictures,
-                    ..
-                } => {
-                    let share = c0_share_seen
-                        .map(|s| format!("{s:.2}"))
-                        .unwrap_or_else(|| "-".into());
-                    let db = |v: &Option<f64>| v.map_or("-".into(), |v| format!("{v:.2} dB"));
-                    let line = format!(
-                        "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}{}\n  \
-                         IBR-only {psnr_ibr:.2} dB, NeRF-only {psnr_nerf:.2} dB, NeRF-colour share where a source sees {share}\n  \
-                         PSNR next to the outline {}, elsewhere {}\n  \
-                         grids and blend maps: {}",
-                        lpips_text(*lpips, config.train.lpips.as_ref()),
-                        db(psnr_silhouette),
-                        db(psnr_interior),
-                        pictures.display()
-                    );
-                    log_lines::line(&bar, &line);
-                    final_evaluation = Some(line);
-                }
-                TrainEvent::Finished { .. }
-                | TrainEvent::Progress { .. }
-                | TrainEvent::ValidationImage { .. } => {}
+            if let Some(line) = console_event(&bar, &event, &config) {
+                final_evaluation = Some(line);
             }
         },
     )
@@ -424,23 +294,180 @@ fn run_train(args: TrainArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The run config of `config_path` with the command line's overrides (`--set`, `--backend`,
+/// `--steps`, `--devices`, `--device`).
+fn train_config(args: &TrainArgs, config_path: &std::path::Path) -> anyhow::Result<TrainConfig> {
+    let mut config = TrainConfig::load_with(config_path, &args.set)?;
+    if let Some(backend) = args.backend {
+        config.train.backend = backend;
+    }
+    if let Some(steps) = args.steps {
+        config.train.steps = steps;
+    }
+    if !args.devices.is_empty() {
+        config.train.devices = args.devices.clone();
+    }
+    if let Some(index) = args.device {
+        if !config.train.devices.is_empty() {
+            anyhow::bail!(
+                "--device {index}: the config lists train.devices; pass --devices instead"
+            );
+        }
+        if !config.train.backend.is_gpu() {
+            anyhow::bail!(
+                "--device {index}: {} is a CPU backend with a single device",
+                config.train.backend.name()
+            );
+        }
+        config.train.devices = vec![DeviceSpec {
+            backend: config.train.backend,
+            index: Some(index),
+        }];
+    }
+    Ok(config)
+}
+
+/// The output folder made ready: one that already holds a run is cleared with `--overwrite`
+/// (its checkpoints, evaluation, TensorBoard files, metrics and curves), continued with
+/// `--resume`, else refused.
+fn prepare_out(args: &TrainArgs, out: &std::path::Path) -> anyhow::Result<()> {
+    let existing = checkpoint::latest(out)
+        .with_context(|| format!("reading the checkpoints of {}", out.display()))?;
+    if let Some((step, _)) = existing {
+        if args.overwrite {
+            for name in ["checkpoints", "evaluation", TENSORBOARD_DIR] {
+                let dir = out.join(name);
+                if dir.exists() {
+                    std::fs::remove_dir_all(&dir)
+                        .with_context(|| format!("deleting {}", dir.display()))?;
+                }
+            }
+            for name in [METRICS_FILE, CURVES_FILE] {
+                let file = out.join(name);
+                if file.exists() {
+                    std::fs::remove_file(&file)
+                        .with_context(|| format!("deleting {}", file.display()))?;
+                }
+            }
+        } else if !args.resume {
+            anyhow::bail!(
+                "{} already holds a run (its newest checkpoint is step {step}): pass --resume to \
+                 continue it, --overwrite to start afresh there, or --out for another folder",
+                out.display()
+            );
+        }
+    }
+    std::fs::create_dir_all(out)
+        .with_context(|| format!("creating the output folder {}", out.display()))
+}
+
+/// `event` on the console (above `bar`, or as plain lines without a terminal); the final
+/// evaluation's lines are also returned, to repeat at the end.
+fn console_event(bar: &ProgressBar, event: &TrainEvent, config: &TrainConfig) -> Option<String> {
+    match event {
+        TrainEvent::DataReady {
+            root,
+            train_subjects,
+            unseen_subjects,
+            generated,
+        } => log_lines::line(
+            bar,
+            format!(
+                "data {}{}: train {:?}, held out {:?}",
+                root.display(),
+                if *generated { " (generated)" } else { "" },
+                train_subjects,
+                unseen_subjects
+            ),
+        ),
+        TrainEvent::Started { first_step, .. } => bar.set_position(*first_step),
+        TrainEvent::Step(s) => {
+            bar.set_position(s.step + 1);
+            let message = format!(
+                "loss {:.4} psnr {:.2} dB {:.0} rays/s lr {:.2e}",
+                s.loss, s.psnr, s.rays_per_s, s.lr
+            );
+            log_lines::progress(bar, s.step + 1, config.train.steps, &message);
+            bar.set_message(message);
+        }
+        TrainEvent::Skipped { step, reason } => {
+            bar.set_position(step + 1);
+            log_lines::line(bar, format!("step {step} skipped: {reason}"));
+        }
+        TrainEvent::Checkpoint { path, .. } => {
+            log_lines::line(bar, format!("checkpoint {}", path.display()))
+        }
+        TrainEvent::Validation {
+            step,
+            images,
+            psnr,
+            ssim,
+            lpips,
+        } => log_lines::line(
+            bar,
+            format!(
+                "validation after {step} steps: PSNR {psnr:.2} dB, SSIM {ssim:.4}{} on {images} held-out images",
+                lpips_text(*lpips, config.train.lpips.as_ref())
+            ),
+        ),
+        TrainEvent::Evaluation { .. } => {
+            let line = evaluation_lines(event, config)?;
+            log_lines::line(bar, &line);
+            return Some(line);
+        }
+        TrainEvent::Finished { .. }
+        | TrainEvent::Progress { .. }
+        | TrainEvent::ValidationImage { .. } => {}
+    }
+    None
+}
+
+/// The final evaluation's report: scores, the hybrid's instruments and where the pictures
+/// are (`None` for any other event).
+fn evaluation_lines(event: &TrainEvent, config: &TrainConfig) -> Option<String> {
+    let TrainEvent::Evaluation {
+        split,
+        images,
+        psnr,
+        ssim,
+        lpips,
+        c0_share_seen,
+        psnr_ibr,
+        psnr_nerf,
+        psnr_silhouette,
+        psnr_interior,
+        pictures,
+        ..
+    } = event
+    else {
+        return None;
+    };
+    let share = c0_share_seen
+        .map(|s| format!("{s:.2}"))
+        .unwrap_or_else(|| "-".into());
+    let db = |v: &Option<f64>| v.map_or("-".into(), |v| format!("{v:.2} dB"));
+    Some(format!(
+        "evaluation ({split}, {images} images): PSNR {psnr:.2} dB, SSIM {ssim:.4}{}\n  \
+         IBR-only {psnr_ibr:.2} dB, NeRF-only {psnr_nerf:.2} dB, NeRF-colour share where a source sees {share}\n  \
+         PSNR next to the outline {}, elsewhere {}\n  \
+         grids and blend maps: {}",
+        lpips_text(*lpips, config.train.lpips.as_ref()),
+        db(psnr_silhouette),
+        db(psnr_interior),
+        pictures.display()
+    ))
+}
+
 /// The TensorBoard record of `event`: scalars of steps, validations and the final evaluation,
 /// validation grids as images; checkpoints flush the file.
 fn tensorboard_record(tb: &mut EventWriter, event: &TrainEvent) -> anyhow::Result<()> {
     match event {
-        TrainEvent::Step {
-            step,
-            loss,
-            psnr,
-            rays_per_s,
-            lr,
-            ..
-        } => {
-            let step = step + 1;
-            tb.scalar("train/loss", step, *loss as f32)?;
-            tb.scalar("train/psnr", step, *psnr as f32)?;
-            tb.scalar("train/lr", step, *lr as f32)?;
-            tb.scalar("train/rays_per_s", step, *rays_per_s as f32)?;
+        TrainEvent::Step(s) => {
+            let step = s.step + 1;
+            tb.scalar("train/loss", step, s.loss as f32)?;
+            tb.scalar("train/psnr", step, s.psnr as f32)?;
+            tb.scalar("train/lr", step, s.lr as f32)?;
+            tb.scalar("train/rays_per_s", step, s.rays_per_s as f32)?;
         }
         TrainEvent::Validation {
             step,

@@ -53,7 +53,7 @@ pub fn crc32c(data: &[u8]) -> u32 {
 /// TFRecord's masked CRC.
 pub fn masked_crc32c(data: &[u8]) -> u32 {
     let crc = crc32c(data);
-    ((crc >> 15) | (crc << 17)).wrapping_add(0xa282_ead8)
+    crc.rotate_right(15).wrapping_add(0xa282_ead8)
 }
 
 /// Protocol-buffer encoding of the few field kinds events use.

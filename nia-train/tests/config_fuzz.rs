@@ -574,8 +574,7 @@ fn exercise(bytes: &[u8], path: &Path) -> Outcome {
             match std::str::from_utf8(bytes) {
                 Ok(text) => {
                     let direct = TrainConfig::from_toml(text, path)
-                        .err()
-                        .expect("from_toml rejects what load rejects");
+                        .expect_err("from_toml rejects what load rejects");
                     assert_eq!(direct.to_string(), message, "load and from_toml agree");
                 }
                 Err(_) => assert!(

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use super::image_io::ImageIoError;
 use crate::body::BodyError;
-use crate::formats::FormatError;
+use crate::formats::{FieldError, FormatError};
 use crate::geometry::camera::CameraError;
 use crate::geometry::raster::MeshError;
 
@@ -25,13 +25,8 @@ pub enum DatasetError {
     #[error(transparent)]
     Image(#[from] ImageIoError),
     /// A field of a file has the wrong type, shape or value.
-    #[error("{}: `{field}`: expected {expected}, found {found}", path.display())]
-    Field {
-        path: PathBuf,
-        field: String,
-        expected: String,
-        found: String,
-    },
+    #[error(transparent)]
+    Field(#[from] FieldError),
     /// A field holds NaN or infinity.
     #[error("{}: `{field}` holds a non-finite value ({value}) at flat index {index}", path.display())]
     NonFinite {
@@ -132,18 +127,14 @@ pub enum DatasetError {
 }
 
 impl DatasetError {
+    /// A [`DatasetError::Field`] error.
     pub(crate) fn field(
         path: impl Into<PathBuf>,
         field: impl Into<String>,
         expected: impl Into<String>,
         found: impl Into<String>,
     ) -> Self {
-        DatasetError::Field {
-            path: path.into(),
-            field: field.into(),
-            expected: expected.into(),
-            found: found.into(),
-        }
+        FieldError::new(path, field, expected, found).into()
     }
 }
 

@@ -22,24 +22,15 @@ use serde::{Deserialize, Serialize};
 
 use crate::body::{BodyModel, SmplParams};
 pub use crate::dataset::requests::{eval_requests, train_requests};
-use crate::dataset::sampling::{
-    sample_rays, BoxPadding, RaySamplingConfig, SamplingError, TrainRays,
-};
-use crate::dataset::smpl_jitter::jitter_smpl;
-use crate::dataset::vis_cache::{self, VisibilityCache, VisibilityQuery};
+use crate::dataset::sampling::{BoxPadding, RaySamplingConfig, SamplingError, TrainRays};
+pub use crate::dataset::scene_load::load_scene;
+use crate::dataset::vis_cache::VisibilityCache;
 use crate::dataset::{DatasetError, Subject, ViewImage};
-use crate::fitting::align::{align_fit, AlignmentView, PoseRefinement, RigidCorrection};
+use crate::fitting::align::{PoseRefinement, RigidCorrection};
 use crate::fitting::{FitError, SmplAlignment};
-use crate::geometry::occupancy_memo::shared_grid;
-use crate::geometry::rays::{mask_at_box, Aabb};
-use crate::geometry::sparse::{shared_pyramid, VoxelGridSpec};
-use crate::geometry::surface_memo::shared_surface;
+use crate::geometry::rays::Aabb;
+use crate::geometry::sparse::VoxelGridSpec;
 use crate::geometry::visibility::DEFAULT_DEPTH_TOL_M;
-use crate::rng::Rng;
-use crate::scene::vertices_in_smpl_frame;
-
-/// Fork of a request's seed that draws its SMPL jitter (the ray sampling uses the seed itself).
-const JITTER_FORK: u64 = 0x5a17;
 
 /// A loader error.
 #[derive(Debug, thiserror::Error)]
@@ -242,185 +233,6 @@ pub struct Scene {
     pub alignment: Option<RigidCorrection>,
     /// The pose refinement that followed it (`None` when not asked for).
     pub pose_refinement: Option<PoseRefinement>,
-}
-
-/// Loads one scene on the calling thread.
-pub fn load_scene(
-    source: &SceneSource,
-    request: &SceneRequest,
-    index: usize,
-    config: &LoaderConfig,
-) -> Result<Scene, LoaderError> {
-    let subject = source
-        .subjects
-        .get(request.subject)
-        .ok_or_else(|| LoaderError::Request {
-            index,
-            msg: format!(
-                "subject {} out of range ({} subjects)",
-                request.subject,
-                source.subjects.len()
-            ),
-        })?;
-    let frame = request.frame;
-    let vertices = subject.load_vertices(frame)?;
-    let expected = source
-        .faces
-        .iter()
-        .flatten()
-        .max()
-        .map_or(0, |&m| m as usize + 1);
-    if vertices.len() != expected {
-        return Err(LoaderError::VertexCount {
-            vertices: subject.vertices_path(frame)?,
-            stored: vertices.len(),
-            expected,
-        });
-    }
-    let mut params = subject.load_params(frame)?;
-    let vertices_path = subject.vertices_path(frame)?;
-    let images = request
-        .input_views
-        .iter()
-        .map(|&view| subject.load_view(frame, view).map(|image| (view, image)))
-        .collect::<Result<Vec<_>, _>>()?;
-    let body_box_of = |body: &[Vec3]| {
-        config.box_padding.body_box(body).ok_or_else(|| {
-            DatasetError::field(
-                &vertices_path,
-                "<array>",
-                "a non-empty finite vertex set",
-                "none",
-            )
-        })
-    };
-    // The metrics' region (`mask_at_box`) stays the stored fit's box, as the protocol has it.
-    let fit_box = body_box_of(&vertices)?;
-    // The stored fit moved onto the source masks (`None`: not asked for).
-    let aligned = match &config.smpl_alignment {
-        Some(alignment) => {
-            let alignment = match request.target {
-                TargetKind::Rays => alignment.for_training(),
-                TargetKind::Image => *alignment,
-            };
-            let views: Vec<AlignmentView<'_>> = images
-                .iter()
-                .map(|(_, image)| AlignmentView {
-                    camera: &image.camera,
-                    mask: &image.mask,
-                })
-                .collect();
-            let aligned = align_fit(
-                &vertices,
-                &params,
-                source.body_model.as_deref(),
-                &views,
-                &alignment,
-            )
-            .map_err(|source| LoaderError::Alignment {
-                subject: subject.name.clone(),
-                frame,
-                source,
-            })?;
-            params = aligned.params.clone();
-            Some(aligned)
-        }
-        None => None,
-    };
-    let alignment = aligned.as_ref().map(|a| a.rigid);
-    let pose_refinement = aligned.as_ref().and_then(|a| a.pose);
-    let aligned = aligned.map(|a| a.vertices.clone());
-    let fit = aligned.as_ref().unwrap_or(&vertices);
-    // The body the network reads: for training scenes, the fit moved by the SMPL jitter
-    // (`None`: the fit). Visibility stays the fit's.
-    let moved = (request.target == TargetKind::Rays && config.smpl_jitter_m > 0.0).then(|| {
-        let mut moved = fit.clone();
-        let mut rng = Rng::new(request.seed).fork(JITTER_FORK);
-        jitter_smpl(&mut moved, &mut params, config.smpl_jitter_m, &mut rng);
-        moved
-    });
-    let body = moved.as_ref().unwrap_or(fit);
-    let body_box = body_box_of(body)?;
-    let mut sources = Vec::with_capacity(images.len());
-    for (view, image) in images {
-        let query = VisibilityQuery {
-            subject: &subject.name,
-            frame,
-            view,
-            camera: &image.camera,
-            vertices: fit,
-            faces: &source.faces,
-            depth_tol_m: config.visibility_depth_tol_m,
-        };
-        // The cache holds the stored fit's visibility; an aligned fit's is computed afresh.
-        let visibility = match (&source.cache, &aligned) {
-            (Some(cache), None) => cache.get_or_compute(&query)?,
-            _ => vis_cache::compute(&query)?,
-        };
-        sources.push(LoadedView {
-            view,
-            image,
-            visibility,
-        });
-    }
-    let target_image = subject.load_view(frame, request.target_view)?;
-    let target = match request.target {
-        TargetKind::Rays => {
-            let mut rng = Rng::new(request.seed);
-            let rays = sample_rays(
-                &target_image.camera,
-                &target_image.image,
-                &target_image.mask,
-                &body_box,
-                &config.sampling,
-                &mut rng,
-            )
-            .map_err(|source| LoaderError::Sampling {
-                subject: subject.name.clone(),
-                frame,
-                view: request.target_view,
-                source,
-            })?;
-            SceneTarget::Rays(rays)
-        }
-        TargetKind::Image => SceneTarget::Image {
-            mask_at_box: mask_at_box(&target_image.camera, &fit_box),
-            image: target_image,
-        },
-    };
-    let vertices = moved.or(aligned).unwrap_or(vertices);
-    if let (TargetKind::Rays, Some(band)) = (request.target, config.band_grid) {
-        // Only a warm-up: a mesh the grid cannot be built for fails again, with its error, where
-        // the training step asks for the grid.
-        let _ = shared_grid(&vertices, &source.faces, band.threshold_m, band.cell_m);
-    }
-    if request.target == TargetKind::Rays {
-        // Warm-ups as well: what cannot be built fails again, with its error, in the step.
-        let _ = shared_surface(&vertices, &source.faces);
-        if let Some(volume) = config.body_volume {
-            let smpl = vertices_in_smpl_frame(&vertices, params.rh, params.th);
-            if let Ok(voxel_box) = volume.grid.enclosing(&smpl) {
-                if let Ok(pyramid) = shared_pyramid(&smpl, &voxel_box, volume.levels) {
-                    if volume.neighbour_maps {
-                        pyramid.warm_neighbour_maps();
-                    }
-                }
-            }
-        }
-    }
-    Ok(Scene {
-        index,
-        subject: subject.name.clone(),
-        frame,
-        vertices,
-        params,
-        body_box,
-        sources,
-        target_view: request.target_view,
-        target,
-        alignment,
-        pose_refinement,
-    })
 }
 
 struct Shared {

@@ -22,6 +22,7 @@ pub mod opened;
 pub mod protocol;
 pub mod requests;
 pub mod sampling;
+pub mod scene_load;
 pub mod smpl_jitter;
 pub mod subject;
 pub mod vis_cache;

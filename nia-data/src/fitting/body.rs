@@ -134,13 +134,16 @@ pub(crate) struct BodyPoints<'m> {
     /// `[24]` each joint's strict ancestors.
     ancestors: Vec<Vec<usize>>,
     /// `[K]` keypoints as `(joint, weight)` and `(position in indices, weight)` pairs.
-    keypoints: Vec<(Vec<(usize, f32)>, Vec<(usize, f32)>)>,
+    keypoints: Vec<KeypointParts>,
     /// The start's posed points, which [`Freedom::Rigid`] moves.
     start: Option<PosedPoints>,
     /// The model posed at the start, with its betas: its shape (`v_shaped`, rest joints)
     /// serves every pose of the same betas ([`BodyModel::lbs_at`]).
     shaped: Option<(Vec<f32>, PosedModel)>,
 }
+
+/// A keypoint's `(joint, weight)` and `(position in indices, weight)` pairs.
+type KeypointParts = (Vec<(usize, f32)>, Vec<(usize, f32)>);
 
 /// Parent of joint `k` in `model` (`None` for the root).
 fn parent(model: &BodyModel, k: usize) -> Option<usize> {

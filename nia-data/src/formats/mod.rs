@@ -2,12 +2,14 @@
 //! reader, docs/method.md "Data"), `.npy` (plain and object arrays), `.npz`, and the writers the
 //! synthetic generator needs to produce files real numpy loads.
 
+pub mod field;
 pub mod npy;
 pub mod npz;
 pub mod pickle;
 pub mod pickle_write;
 pub mod value;
 
+pub use field::FieldError;
 pub use value::{ArrayData, NdArray, PyDict, PyValue};
 
 use std::io::Write;

@@ -396,300 +396,349 @@ impl<'a> Machine<'a> {
             };
             self.pos += 1;
             self.op = opcode_name(code);
-            match code {
-                0x80 => {
-                    let v = self.u8("PROTO version")?;
-                    if v > HIGHEST_PROTOCOL {
-                        return Err(self.unsupported(format!("protocol {v}")));
-                    }
-                }
-                0x95 => {
-                    // FRAME: the whole input is in memory; only the length is skipped.
-                    self.len_u64("FRAME length")?;
-                }
-                b'.' => {
-                    let id = self.pop()?;
-                    return Ok(id);
-                }
-                b'(' => self.marks.push(self.stack.len()),
-                b'0' => {
-                    if self.marks.last() == Some(&self.stack.len()) {
-                        self.marks.pop();
-                    } else {
-                        self.pop()?;
-                    }
-                }
-                b'1' => {
-                    self.pop_mark()?;
-                }
-                b'2' => {
-                    let t = self.top()?;
-                    self.stack.push(t);
-                }
-                // Constants and numbers.
-                b'N' => {
-                    self.push_node(Node::None);
-                }
-                0x88 => {
-                    self.push_node(Node::Bool(true));
-                }
-                0x89 => {
-                    self.push_node(Node::Bool(false));
-                }
-                b'J' => {
-                    let v = i32::from_le_bytes(self.arr("BININT")?);
-                    self.push_node(Node::Int(v as i64));
-                }
-                b'K' => {
-                    let v = self.u8("BININT1")?;
-                    self.push_node(Node::Int(v as i64));
-                }
-                b'M' => {
-                    let v = u16::from_le_bytes(self.arr("BININT2")?);
-                    self.push_node(Node::Int(v as i64));
-                }
-                0x8a => {
-                    let n = self.u8("LONG1 length")? as usize;
-                    let b = self.take(n, "LONG1 bytes")?;
-                    let v = self.long_from_le(b)?;
-                    self.push_node(Node::Int(v));
-                }
-                0x8b => {
-                    let n = i32::from_le_bytes(self.arr("LONG4 length")?);
-                    let n = usize::try_from(n).map_err(|_| self.invalid("negative length"))?;
-                    let b = self.take(n, "LONG4 bytes")?;
-                    let v = self.long_from_le(b)?;
-                    self.push_node(Node::Int(v));
-                }
-                b'G' => {
-                    let v = f64::from_be_bytes(self.arr("BINFLOAT")?);
-                    self.push_node(Node::Float(v));
-                }
-                b'I' => {
-                    let text = self.line_str("INT text")?;
-                    let node = match text {
-                        "00" => Node::Bool(false),
-                        "01" => Node::Bool(true),
-                        t => Node::Int(self.parse_text_int(t)?),
-                    };
-                    self.push_node(node);
-                }
-                b'L' => {
-                    let text = self.line_str("LONG text")?;
-                    let t = text.strip_suffix('L').unwrap_or(text);
-                    let v = self.parse_text_int(t)?;
-                    self.push_node(Node::Int(v));
-                }
-                b'F' => {
-                    let text = self.line_str("FLOAT text")?;
-                    let v: f64 = text
-                        .trim()
-                        .parse()
-                        .map_err(|_| self.invalid(format!("bad float {text:?}")))?;
-                    self.push_node(Node::Float(v));
-                }
-                // Strings and bytes.
-                b'X' => {
-                    let n = self.len_u32("BINUNICODE length")?;
-                    let b = self.take(n, "BINUNICODE data")?;
-                    let s = self.utf8(b)?;
-                    self.push_node(Node::Str(s));
-                }
-                0x8c => {
-                    let n = self.u8("SHORT_BINUNICODE length")? as usize;
-                    let b = self.take(n, "SHORT_BINUNICODE data")?;
-                    let s = self.utf8(b)?;
-                    self.push_node(Node::Str(s));
-                }
-                0x8d => {
-                    let n = self.len_u64("BINUNICODE8 length")?;
-                    let b = self.take(n, "BINUNICODE8 data")?;
-                    let s = self.utf8(b)?;
-                    self.push_node(Node::Str(s));
-                }
-                b'C' | b'U' => {
-                    let n = self.u8("short bytes length")? as usize;
-                    let b = self.take(n, "short bytes data")?.to_vec();
-                    self.push_node(Node::Bytes(b));
-                }
-                b'B' | b'T' => {
-                    // BINSTRING's length is signed in Python 2; negative is an error there too.
-                    let n = i32::from_le_bytes(self.arr("bytes length")?);
-                    let n = if code == b'T' {
-                        usize::try_from(n).map_err(|_| self.invalid("negative length"))?
-                    } else {
-                        n as u32 as usize
-                    };
-                    let b = self.take(n, "bytes data")?.to_vec();
-                    self.push_node(Node::Bytes(b));
-                }
-                0x8e | 0x96 => {
-                    let n = self.len_u64("bytes length")?;
-                    let b = self.take(n, "bytes data")?.to_vec();
-                    self.push_node(Node::Bytes(b));
-                }
-                // Containers.
-                b'}' => {
-                    self.push_node(Node::Dict(Vec::new()));
-                }
-                b']' => {
-                    self.push_node(Node::List(Vec::new()));
-                }
-                b')' => {
-                    self.push_node(Node::Tuple(Vec::new()));
-                }
-                0x8f => {
-                    self.push_node(Node::Set {
-                        frozen: false,
-                        items: Vec::new(),
-                    });
-                }
-                b'd' => {
-                    let items = self.pop_mark()?;
-                    let pairs =
-                        pairs_of(&items).ok_or_else(|| self.invalid("odd number of items"))?;
-                    self.push_node(Node::Dict(pairs));
-                }
-                b'l' => {
-                    let items = self.pop_mark()?;
-                    self.push_node(Node::List(items));
-                }
-                b't' => {
-                    let items = self.pop_mark()?;
-                    self.push_node(Node::Tuple(items));
-                }
-                0x91 => {
-                    let items = self.pop_mark()?;
-                    self.push_node(Node::Set {
-                        frozen: true,
-                        items,
-                    });
-                }
-                0x85..=0x87 => {
-                    let n = (code - 0x84) as usize;
-                    let floor = self.marks.last().copied().unwrap_or(0);
-                    if self.stack.len() < floor + n {
-                        return Err(self.invalid("stack underflow"));
-                    }
-                    let items = self.stack.split_off(self.stack.len() - n);
-                    self.push_node(Node::Tuple(items));
-                }
-                b'a' => {
-                    let item = self.pop()?;
-                    let list = self.top()?;
-                    self.extend_list(list, vec![item])?;
-                }
-                b'e' => {
-                    let items = self.pop_mark()?;
-                    let list = self.top()?;
-                    self.extend_list(list, items)?;
-                }
-                b's' => {
-                    let v = self.pop()?;
-                    let k = self.pop()?;
-                    let d = self.top()?;
-                    self.extend_dict(d, vec![(k, v)])?;
-                }
-                b'u' => {
-                    let items = self.pop_mark()?;
-                    let pairs =
-                        pairs_of(&items).ok_or_else(|| self.invalid("odd number of items"))?;
-                    let d = self.top()?;
-                    self.extend_dict(d, pairs)?;
-                }
-                0x90 => {
-                    let items = self.pop_mark()?;
-                    let s = self.top()?;
-                    match self.node_mut(s)? {
-                        Node::Set { items: set, .. } => set.extend(items),
-                        other => {
-                            let t = other.type_name();
-                            return Err(self.invalid(format!("ADDITEMS to a {t}")));
-                        }
-                    }
-                }
-                // Memo.
-                b'q' => {
-                    let i = self.u8("BINPUT index")?;
-                    self.put(i as u64)?;
-                }
-                b'r' => {
-                    let i = u32::from_le_bytes(self.arr("LONG_BINPUT index")?);
-                    self.put(i as u64)?;
-                }
-                0x94 => {
-                    let i = self.memo.len() as u64;
-                    self.put(i)?;
-                }
-                b'p' => {
-                    let i = self.memo_index_line("PUT index")?;
-                    self.put(i)?;
-                }
-                b'h' => {
-                    let i = self.u8("BINGET index")?;
-                    self.get(i as u64)?;
-                }
-                b'j' => {
-                    let i = u32::from_le_bytes(self.arr("LONG_BINGET index")?);
-                    self.get(i as u64)?;
-                }
-                b'g' => {
-                    let i = self.memo_index_line("GET index")?;
-                    self.get(i)?;
-                }
-                // Globals and objects.
-                b'c' => {
-                    let module = self.line_str("GLOBAL module")?.to_string();
-                    let name = self.line_str("GLOBAL name")?.to_string();
-                    self.push_node(Node::Global { module, name });
-                }
-                0x93 => {
-                    let name = self.pop()?;
-                    let module = self.pop()?;
-                    let name = self.str_of(name, "STACK_GLOBAL name")?;
-                    let module = self.str_of(module, "STACK_GLOBAL module")?;
-                    self.push_node(Node::Global { module, name });
-                }
-                b'R' => {
-                    let (func, args) = self.pop_call("REDUCE arguments")?;
-                    let node = self.reduce(func, args)?;
-                    self.push_node(node);
-                }
-                0x81 => {
-                    let (cls, args) = self.pop_call("NEWOBJ arguments")?;
-                    let node = self.instantiate(cls, args)?;
-                    self.push_node(node);
-                }
-                0x92 => {
-                    let _kwargs = self.pop()?;
-                    let (cls, args) = self.pop_call("NEWOBJ_EX arguments")?;
-                    let node = self.instantiate(cls, args)?;
-                    self.push_node(node);
-                }
-                b'b' => {
-                    let state = self.pop()?;
-                    let target = self.top()?;
-                    self.build(target, state)?;
-                }
-                b'P' | b'Q' => {
-                    return Err(self.unsupported("persistent ids need an external object store"))
-                }
-                0x82..=0x84 => {
-                    return Err(self.unsupported("the extension registry is not available"))
-                }
-                0x97 | 0x98 => {
-                    return Err(self.unsupported("out-of-band buffers are not available"))
-                }
-                b'S' | b'V' | b'i' | b'o' => {
-                    return Err(self.unsupported("protocol-0 text strings and instances"))
-                }
-                _ => {
-                    return Err(PickleError::UnknownOpcode {
-                        offset: self.op_start,
-                        opcode: code,
-                    })
+            if code == b'.' {
+                // STOP: the value on top of the stack.
+                return self.pop();
+            }
+            self.execute(code)?;
+        }
+    }
+
+    /// One opcode other than STOP, by family (the families' opcodes do not overlap).
+    fn execute(&mut self, code: u8) -> Result<()> {
+        if let Some(node) = self.number(code)? {
+            self.push_node(node);
+            return Ok(());
+        }
+        if let Some(node) = self.text(code)? {
+            self.push_node(node);
+            return Ok(());
+        }
+        if self.framing(code)?
+            || self.container(code)?
+            || self.memo_op(code)?
+            || self.object(code)?
+        {
+            return Ok(());
+        }
+        Err(self.refused(code))
+    }
+
+    /// The protocol, framing and mark opcodes (PROTO, FRAME, MARK, POP, POP_MARK, DUP);
+    /// false for any other opcode.
+    fn framing(&mut self, code: u8) -> Result<bool> {
+        match code {
+            0x80 => {
+                let v = self.u8("PROTO version")?;
+                if v > HIGHEST_PROTOCOL {
+                    return Err(self.unsupported(format!("protocol {v}")));
                 }
             }
+            0x95 => {
+                // FRAME: the whole input is in memory; only the length is skipped.
+                self.len_u64("FRAME length")?;
+            }
+            b'(' => self.marks.push(self.stack.len()),
+            b'0' => {
+                if self.marks.last() == Some(&self.stack.len()) {
+                    self.marks.pop();
+                } else {
+                    self.pop()?;
+                }
+            }
+            b'1' => {
+                self.pop_mark()?;
+            }
+            b'2' => {
+                let t = self.top()?;
+                self.stack.push(t);
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// The node of a constant or number opcode (None, booleans, the integer and float
+    /// encodings); `None` for any other opcode.
+    fn number(&mut self, code: u8) -> Result<Option<Node>> {
+        Ok(Some(match code {
+            b'N' => Node::None,
+            0x88 => Node::Bool(true),
+            0x89 => Node::Bool(false),
+            b'J' => {
+                let v = i32::from_le_bytes(self.arr("BININT")?);
+                Node::Int(v as i64)
+            }
+            b'K' => {
+                let v = self.u8("BININT1")?;
+                Node::Int(v as i64)
+            }
+            b'M' => {
+                let v = u16::from_le_bytes(self.arr("BININT2")?);
+                Node::Int(v as i64)
+            }
+            0x8a => {
+                let n = self.u8("LONG1 length")? as usize;
+                let b = self.take(n, "LONG1 bytes")?;
+                let v = self.long_from_le(b)?;
+                Node::Int(v)
+            }
+            0x8b => {
+                let n = i32::from_le_bytes(self.arr("LONG4 length")?);
+                let n = usize::try_from(n).map_err(|_| self.invalid("negative length"))?;
+                let b = self.take(n, "LONG4 bytes")?;
+                let v = self.long_from_le(b)?;
+                Node::Int(v)
+            }
+            b'G' => {
+                let v = f64::from_be_bytes(self.arr("BINFLOAT")?);
+                Node::Float(v)
+            }
+            b'I' => match self.line_str("INT text")? {
+                "00" => Node::Bool(false),
+                "01" => Node::Bool(true),
+                t => Node::Int(self.parse_text_int(t)?),
+            },
+            b'L' => {
+                let text = self.line_str("LONG text")?;
+                let t = text.strip_suffix('L').unwrap_or(text);
+                let v = self.parse_text_int(t)?;
+                Node::Int(v)
+            }
+            b'F' => {
+                let text = self.line_str("FLOAT text")?;
+                let v: f64 = text
+                    .trim()
+                    .parse()
+                    .map_err(|_| self.invalid(format!("bad float {text:?}")))?;
+                Node::Float(v)
+            }
+            _ => return Ok(None),
+        }))
+    }
+
+    /// The node of a string or bytes opcode; `None` for any other opcode.
+    fn text(&mut self, code: u8) -> Result<Option<Node>> {
+        Ok(Some(match code {
+            b'X' => {
+                let n = self.len_u32("BINUNICODE length")?;
+                let b = self.take(n, "BINUNICODE data")?;
+                let s = self.utf8(b)?;
+                Node::Str(s)
+            }
+            0x8c => {
+                let n = self.u8("SHORT_BINUNICODE length")? as usize;
+                let b = self.take(n, "SHORT_BINUNICODE data")?;
+                let s = self.utf8(b)?;
+                Node::Str(s)
+            }
+            0x8d => {
+                let n = self.len_u64("BINUNICODE8 length")?;
+                let b = self.take(n, "BINUNICODE8 data")?;
+                let s = self.utf8(b)?;
+                Node::Str(s)
+            }
+            b'C' | b'U' => {
+                let n = self.u8("short bytes length")? as usize;
+                let b = self.take(n, "short bytes data")?.to_vec();
+                Node::Bytes(b)
+            }
+            b'B' | b'T' => {
+                // BINSTRING's length is signed in Python 2; negative is an error there too.
+                let n = i32::from_le_bytes(self.arr("bytes length")?);
+                let n = if code == b'T' {
+                    usize::try_from(n).map_err(|_| self.invalid("negative length"))?
+                } else {
+                    n as u32 as usize
+                };
+                let b = self.take(n, "bytes data")?.to_vec();
+                Node::Bytes(b)
+            }
+            0x8e | 0x96 => {
+                let n = self.len_u64("bytes length")?;
+                let b = self.take(n, "bytes data")?.to_vec();
+                Node::Bytes(b)
+            }
+            _ => return Ok(None),
+        }))
+    }
+
+    /// The container opcodes: empty containers, containers of the items since MARK, and
+    /// additions to the container on top of the stack; false for any other opcode.
+    fn container(&mut self, code: u8) -> Result<bool> {
+        match code {
+            b'}' => {
+                self.push_node(Node::Dict(Vec::new()));
+            }
+            b']' => {
+                self.push_node(Node::List(Vec::new()));
+            }
+            b')' => {
+                self.push_node(Node::Tuple(Vec::new()));
+            }
+            0x8f => {
+                self.push_node(Node::Set {
+                    frozen: false,
+                    items: Vec::new(),
+                });
+            }
+            b'd' => {
+                let items = self.pop_mark()?;
+                let pairs = pairs_of(&items).ok_or_else(|| self.invalid("odd number of items"))?;
+                self.push_node(Node::Dict(pairs));
+            }
+            b'l' => {
+                let items = self.pop_mark()?;
+                self.push_node(Node::List(items));
+            }
+            b't' => {
+                let items = self.pop_mark()?;
+                self.push_node(Node::Tuple(items));
+            }
+            0x91 => {
+                let items = self.pop_mark()?;
+                self.push_node(Node::Set {
+                    frozen: true,
+                    items,
+                });
+            }
+            0x85..=0x87 => {
+                let n = (code - 0x84) as usize;
+                let floor = self.marks.last().copied().unwrap_or(0);
+                if self.stack.len() < floor + n {
+                    return Err(self.invalid("stack underflow"));
+                }
+                let items = self.stack.split_off(self.stack.len() - n);
+                self.push_node(Node::Tuple(items));
+            }
+            b'a' => {
+                let item = self.pop()?;
+                let list = self.top()?;
+                self.extend_list(list, vec![item])?;
+            }
+            b'e' => {
+                let items = self.pop_mark()?;
+                let list = self.top()?;
+                self.extend_list(list, items)?;
+            }
+            b's' => {
+                let v = self.pop()?;
+                let k = self.pop()?;
+                let d = self.top()?;
+                self.extend_dict(d, vec![(k, v)])?;
+            }
+            b'u' => {
+                let items = self.pop_mark()?;
+                let pairs = pairs_of(&items).ok_or_else(|| self.invalid("odd number of items"))?;
+                let d = self.top()?;
+                self.extend_dict(d, pairs)?;
+            }
+            0x90 => {
+                let items = self.pop_mark()?;
+                let s = self.top()?;
+                match self.node_mut(s)? {
+                    Node::Set { items: set, .. } => set.extend(items),
+                    other => {
+                        let t = other.type_name();
+                        return Err(self.invalid(format!("ADDITEMS to a {t}")));
+                    }
+                }
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// The memo opcodes (PUT and GET in their encodings); false for any other opcode.
+    fn memo_op(&mut self, code: u8) -> Result<bool> {
+        match code {
+            b'q' => {
+                let i = self.u8("BINPUT index")?;
+                self.put(i as u64)?;
+            }
+            b'r' => {
+                let i = u32::from_le_bytes(self.arr("LONG_BINPUT index")?);
+                self.put(i as u64)?;
+            }
+            0x94 => {
+                let i = self.memo.len() as u64;
+                self.put(i)?;
+            }
+            b'p' => {
+                let i = self.memo_index_line("PUT index")?;
+                self.put(i)?;
+            }
+            b'h' => {
+                let i = self.u8("BINGET index")?;
+                self.get(i as u64)?;
+            }
+            b'j' => {
+                let i = u32::from_le_bytes(self.arr("LONG_BINGET index")?);
+                self.get(i as u64)?;
+            }
+            b'g' => {
+                let i = self.memo_index_line("GET index")?;
+                self.get(i)?;
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// The globals and object opcodes (GLOBAL, STACK_GLOBAL, REDUCE, NEWOBJ, NEWOBJ_EX, BUILD);
+    /// false for any other opcode.
+    fn object(&mut self, code: u8) -> Result<bool> {
+        match code {
+            b'c' => {
+                let module = self.line_str("GLOBAL module")?.to_string();
+                let name = self.line_str("GLOBAL name")?.to_string();
+                self.push_node(Node::Global { module, name });
+            }
+            0x93 => {
+                let name = self.pop()?;
+                let module = self.pop()?;
+                let name = self.str_of(name, "STACK_GLOBAL name")?;
+                let module = self.str_of(module, "STACK_GLOBAL module")?;
+                self.push_node(Node::Global { module, name });
+            }
+            b'R' => {
+                let (func, args) = self.pop_call("REDUCE arguments")?;
+                let node = self.reduce(func, args)?;
+                self.push_node(node);
+            }
+            0x81 => {
+                let (cls, args) = self.pop_call("NEWOBJ arguments")?;
+                let node = self.instantiate(cls, args)?;
+                self.push_node(node);
+            }
+            0x92 => {
+                let _kwargs = self.pop()?;
+                let (cls, args) = self.pop_call("NEWOBJ_EX arguments")?;
+                let node = self.instantiate(cls, args)?;
+                self.push_node(node);
+            }
+            b'b' => {
+                let state = self.pop()?;
+                let target = self.top()?;
+                self.build(target, state)?;
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// Why an opcode no family runs is refused: a feature this reader does not have, or an
+    /// unknown opcode.
+    fn refused(&self, code: u8) -> PickleError {
+        match code {
+            b'P' | b'Q' => self.unsupported("persistent ids need an external object store"),
+            0x82..=0x84 => self.unsupported("the extension registry is not available"),
+            0x97 | 0x98 => self.unsupported("out-of-band buffers are not available"),
+            b'S' | b'V' | b'i' | b'o' => self.unsupported("protocol-0 text strings and instances"),
+            _ => PickleError::UnknownOpcode {
+                offset: self.op_start,
+                opcode: code,
+            },
         }
     }
 

@@ -19,9 +19,6 @@
 //! the ideal pinhole [`Camera::project`] describes them. [`UndistortMap`] reproduces
 //! `cv2.undistort` (bilinear, constant black border) in the same convention.
 
-// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use glam::{Mat3, Vec2, Vec3};
 use image::RgbImage;
 use rayon::prelude::*;
@@ -146,7 +143,6 @@ impl Camera {
     /// (image v grows opposite to `up`), principal point at `(width / 2, height / 2)` (with
     /// [`PIXEL_CENTRE_OFFSET`] = 0 that is half a pixel right of and below the exact image
     /// centre `((width - 1) / 2, (height - 1) / 2)`).
-    #[allow(clippy::too_many_arguments)]
     pub fn look_at(
         eye: Vec3,
         target: Vec3,

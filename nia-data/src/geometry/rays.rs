@@ -8,9 +8,6 @@
 //! coverage at. Directions are unit vectors, so ray parameters `t` are distances in metres
 //! along the ray (not camera depths).
 
-// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use crate::geometry::camera::{Camera, PIXEL_CENTRE_OFFSET};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;

@@ -17,9 +17,6 @@
 //! vertex on a steep surface. The price is a band about one pixel wide around occlusion
 //! boundaries where a just-hidden vertex counts as visible.
 
-// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use crate::geometry::camera::{Camera, PIXEL_CENTRE_OFFSET};
 use crate::geometry::raster::{rasterize, validate_faces, Fragments, MeshError, EMPTY_FACE};
 use glam::{Vec2, Vec3};

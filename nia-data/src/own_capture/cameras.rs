@@ -324,7 +324,7 @@ impl<'de> Deserialize<'de> for OrderedViews {
         struct V;
         impl<'de> Visitor<'de> for V {
             type Value = OrderedViews;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
                 f.write_str("an object {\"<view>\": {camera}, ...}")
             }
             fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<OrderedViews, A::Error> {

@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use crate::formats::FieldError;
 use crate::geometry::camera::CameraError;
 
 /// An own-capture input error (keypoints, cameras).
@@ -23,13 +24,8 @@ pub enum OwnCaptureError {
         source: serde_json::Error,
     },
     /// A JSON field is missing or holds the wrong type, shape or value.
-    #[error("{}: `{field}`: expected {expected}, found {found}", path.display())]
-    Field {
-        path: PathBuf,
-        field: String,
-        expected: String,
-        found: String,
-    },
+    #[error(transparent)]
+    Field(#[from] FieldError),
     /// A keypoint array holds a number of values no supported layout has.
     #[error(
         "{}: `{field}` holds {values} values: expected 75 (BODY_25: 25 keypoints x (x, y, \
@@ -95,12 +91,7 @@ impl OwnCaptureError {
         expected: impl Into<String>,
         found: impl Into<String>,
     ) -> Self {
-        OwnCaptureError::Field {
-            path: path.to_path_buf(),
-            field: field.into(),
-            expected: expected.into(),
-            found: found.into(),
-        }
+        FieldError::new(path, field, expected, found).into()
     }
 
     /// A [`OwnCaptureError::Line`] error.

@@ -34,36 +34,6 @@ pub enum KeypointLayout {
     Coco18,
 }
 
-/// OpenPose BODY_25 keypoint names, in file order (OpenPose `poseParameters.cpp`,
-/// `POSE_BODY_25_BODY_PARTS`).
-pub const BODY25_NAMES: [&str; 25] = [
-    "Nose",
-    "Neck",
-    "RShoulder",
-    "RElbow",
-    "RWrist",
-    "LShoulder",
-    "LElbow",
-    "LWrist",
-    "MidHip",
-    "RHip",
-    "RKnee",
-    "RAnkle",
-    "LHip",
-    "LKnee",
-    "LAnkle",
-    "REye",
-    "LEye",
-    "REar",
-    "LEar",
-    "LBigToe",
-    "LSmallToe",
-    "LHeel",
-    "RBigToe",
-    "RSmallToe",
-    "RHeel",
-];
-
 /// OpenPose COCO-18 keypoint names, in file order (`POSE_COCO_BODY_PARTS`).
 pub const COCO18_NAMES: [&str; 18] = [
     "Nose",
@@ -85,6 +55,37 @@ pub const COCO18_NAMES: [&str; 18] = [
     "REar",
     "LEar",
 ];
+
+/// OpenPose BODY_25 keypoint names, in file order (OpenPose `poseParameters.cpp`,
+/// `POSE_BODY_25_BODY_PARTS`): COCO-18's first eight (Nose to LWrist), MidHip, COCO-18's other
+/// ten (RHip to LEar), then the six foot points.
+pub const BODY25_NAMES: [&str; 25] = body25_names();
+
+/// BODY_25's points after COCO-18's, in file order.
+const BODY25_FEET: [&str; 6] = [
+    "LBigToe",
+    "LSmallToe",
+    "LHeel",
+    "RBigToe",
+    "RSmallToe",
+    "RHeel",
+];
+
+/// [`BODY25_NAMES`] from COCO-18's names, MidHip and the feet.
+const fn body25_names() -> [&'static str; 25] {
+    let mut names = [""; 25];
+    let mut i = 0;
+    while i < names.len() {
+        names[i] = match i {
+            0..8 => COCO18_NAMES[i],
+            8 => "MidHip",
+            9..19 => COCO18_NAMES[i - 1],
+            _ => BODY25_FEET[i - 19],
+        };
+        i += 1;
+    }
+    names
+}
 
 /// Values per keypoint in the file: x, y, confidence.
 pub const VALUES_PER_KEYPOINT: usize = 3;
@@ -356,4 +357,29 @@ pub fn write_openpose(path: &Path, kp: &Keypoints2d) -> Result<(), OwnCaptureErr
         ));
     }
     std::fs::write(path, openpose_json(Some(kp))).map_err(|e| OwnCaptureError::io(path, "write", e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// BODY_25 in OpenPose's order: COCO-18's points around MidHip, then the feet.
+    #[test]
+    fn body25_is_coco18_with_mid_hip_and_the_feet() {
+        let expected = [
+            (0, "Nose"),
+            (7, "LWrist"),
+            (8, "MidHip"),
+            (9, "RHip"),
+            (18, "LEar"),
+            (19, "LBigToe"),
+            (24, "RHeel"),
+        ];
+        for (i, name) in expected {
+            assert_eq!(BODY25_NAMES[i], name, "BODY_25 point {i}");
+        }
+        let unique: std::collections::BTreeSet<_> = BODY25_NAMES.iter().collect();
+        assert_eq!(unique.len(), 25, "{BODY25_NAMES:?}");
+        assert!(COCO18_NAMES.iter().all(|n| BODY25_NAMES.contains(n)));
+    }
 }

@@ -246,7 +246,7 @@ impl SceneGeometry {
             .ok_or_else(|| invalid("body.vertices", "a non-empty point set", v))?;
         let voxel_box = grid.enclosing(&vertices_smpl)?;
         Ok(SceneGeometry {
-            cameras: input.views.iter().map(|s| s.camera.clone()).collect(),
+            cameras: input.views.iter().map(|s| s.camera).collect(),
             image_hw: [h0, w0],
             smpl_rotation,
             smpl_translation: body.th,

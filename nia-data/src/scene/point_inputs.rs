@@ -20,6 +20,10 @@ pub const VIEW_DIR_FEATURE_DIM: usize = 4;
 /// `grid_sample` with zero padding returns zeros.
 const OUTSIDE_GRID: f32 = -4.0;
 
+/// Where the body volume is read: the geometry of its scales and the points
+/// where it is sampled (`[M]`, SMPL frame of the volume's body).
+pub type VolumeSamples<'a> = (&'a [Arc<ScaleGeometry>], &'a [[f32; 3]]);
+
 /// Per-point inputs for M points and N views, plain arrays.
 #[derive(Debug, Clone)]
 pub struct PointInputs {
@@ -77,7 +81,7 @@ impl PointInputs {
         geometry: &SceneGeometry,
         image_points: &[Vec3],
         dirs: &[Vec3],
-        volume: Option<(&[Arc<ScaleGeometry>], &[[f32; 3]])>,
+        volume: Option<VolumeSamples<'_>>,
     ) -> Self {
         let m = image_points.len();
         let n = geometry.num_views();

@@ -37,7 +37,7 @@ use crate::geometry::camera::CameraError;
 use crate::geometry::raster::MeshError;
 use crate::rng::Rng;
 use capture::CaptureFlaws;
-use frames::generate_subject;
+use frames::{generate_subject, ImageProgress};
 pub use keypoints::KeypointSpec;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -366,28 +366,23 @@ pub fn generate_with_body(
         path: body_model.clone(),
     });
 
-    let mut done = 0usize;
+    let mut images = ImageProgress {
+        done: 0,
+        total,
+        report: progress,
+    };
     let mut subjects = Vec::with_capacity(spec.subjects);
     for (index, id) in spec.subject_ids().into_iter().enumerate() {
         let dir = out_dir.join(writer::subject_dir_name(id));
-        progress(SynthEvent::SubjectStarted {
+        (images.report)(SynthEvent::SubjectStarted {
             index,
             count: spec.subjects,
             id,
             dir: dir.clone(),
         });
         let mut subject_rng = rng.fork(index as u64 + 1);
-        generate_subject(
-            spec,
-            body,
-            id,
-            &dir,
-            &mut subject_rng,
-            &mut done,
-            total,
-            progress,
-        )?;
-        progress(SynthEvent::SubjectFinished { index, id });
+        generate_subject(spec, body, id, &dir, &mut subject_rng, &mut images)?;
+        (images.report)(SynthEvent::SubjectFinished { index, id });
         subjects.push(SubjectSummary {
             id,
             dir,
@@ -406,7 +401,7 @@ pub fn generate_with_body(
         subjects,
         train_subjects,
         test_subjects,
-        images: done,
+        images: images.done,
         elapsed: start.elapsed(),
     })
 }

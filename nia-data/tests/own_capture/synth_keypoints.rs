@@ -2,6 +2,7 @@
 //! own_capture test crate).
 
 use super::*;
+use crate::common::files_under;
 use nia_data::dataset::zju::{read_annots, read_params};
 use nia_data::synth::keypoints::keypoints_path;
 use nia_data::synth::{self, KeypointSpec, SynthSpec};
@@ -27,28 +28,6 @@ fn generate(name: &str, spec: &SynthSpec) -> PathBuf {
     let root = temp_dir(name);
     synth::generate(spec, &root, &mut |_| {}).unwrap();
     root
-}
-
-/// Every file under `dir`, relative path -> bytes.
-fn files(dir: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
-    fn walk(root: &Path, dir: &Path, out: &mut std::collections::BTreeMap<String, Vec<u8>>) {
-        for entry in std::fs::read_dir(dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                walk(root, &path, out);
-            } else {
-                let rel = path
-                    .strip_prefix(root)
-                    .unwrap()
-                    .to_string_lossy()
-                    .into_owned();
-                out.insert(rel, std::fs::read(&path).unwrap());
-            }
-        }
-    }
-    let mut out = Default::default();
-    walk(dir, dir, &mut out);
-    out
 }
 
 /// Noise, drops and outliers off: every reported keypoint is the true body's keypoint
@@ -109,7 +88,7 @@ fn keypoints_are_deterministic_and_add_only_their_files() {
     let a = generate("kp-a", &with);
     let b = generate("kp-b", &with);
     let plain = generate("kp-plain", &spec(None));
-    let (fa, fb, fp) = (files(&a), files(&b), files(&plain));
+    let (fa, fb, fp) = (files_under(&a), files_under(&b), files_under(&plain));
     assert_eq!(fa, fb);
     let kp_files: Vec<&String> = fa.keys().filter(|k| k.contains("keypoints/")).collect();
     assert_eq!(kp_files.len(), 2 * 4);

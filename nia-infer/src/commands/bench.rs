@@ -2,27 +2,25 @@
 //! (default: the paper's, 1024 rays x 64 samples x 3 views on 512x512 sources), with the share
 //! of time per stage. Scene: the procedural body seen by a ring of cameras, patterned images.
 
-use std::time::Instant;
-
 use anyhow::Context;
-use burn::optim::AdamConfig;
-use burn::prelude::*;
 use clap::Args;
+use indicatif::ProgressBar;
 use nia_data::geometry::rays::RayBundle;
-use nia_data::rng::Rng;
 use nia_data::scene::SceneInput;
-use nia_model::device::{Backend, DeviceSpec};
-use nia_model::loss::render_loss;
-use nia_model::renderer::RenderOutput;
-use nia_model::scene_encoding::cut::chunked_gradients;
-use nia_model::timing::{Stage, StageTimes};
-use nia_model::{ModelConfig, NiaModel};
+use nia_model::device::Backend;
+use nia_model::timing::Stage;
+use nia_model::ModelConfig;
 use serde::Serialize;
 
+use crate::model_load::open_device;
 use crate::output::progress_bar;
+use check::BackendCheck;
 use scene::bench_scene;
+use timing::{median, ForwardTimes, TrainTimes};
 
+mod check;
 mod scene;
+mod timing;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -77,20 +75,6 @@ pub struct BenchArgs {
     pub check_against: Option<Backend>,
 }
 
-/// The forward's colours on two backends with the same weights and inputs.
-#[derive(Serialize)]
-struct BackendCheck {
-    against: String,
-    /// Largest |a - b| over the colours and opacities (both in [0, 1]).
-    max_abs_diff: f32,
-    /// ||a - b|| / ||b|| over the colours and opacities.
-    rel_l2: f32,
-    /// With the training step: per parameter, the largest |difference| of the gradients of
-    /// one training forward (the same weights, rays and jitter) over the largest |gradient| on
-    /// the other backend. Empty with `--no-train`.
-    gradients: Vec<(String, f32)>,
-}
-
 #[derive(Serialize)]
 struct Report {
     backend: String,
@@ -128,140 +112,9 @@ struct Report {
     check: Option<BackendCheck>,
 }
 
-/// The median of `values` as the PyTorch references take it (`sorted(xs)[len(xs) // 2]`: the
-/// upper of the middle two for an even count); NaN when empty.
-fn median(values: &[f64]) -> f64 {
-    let mut sorted = values.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN)
-}
-
-/// The forward's colours and opacities as one host vector, refused if any is not finite.
-fn forward_colours(out: RenderOutput) -> anyhow::Result<Vec<f32>> {
-    let read = |t: Tensor<2>, what: &str| -> anyhow::Result<Vec<f32>> {
-        t.try_into_data()
-            .map_err(|e| anyhow::anyhow!("reading the forward's {what} from the device: {e:?}"))?
-            .try_to_vec::<f32>()
-            .map_err(|e| anyhow::anyhow!("{e:?}"))
-    };
-    let mut values = read(out.rgb, "colours")?;
-    values.extend(read(out.acc.unsqueeze_dim(1), "opacities")?);
-    anyhow::ensure!(
-        values.iter().all(|x| x.is_finite()),
-        "non-finite colours in the benchmark forward"
-    );
-    Ok(values)
-}
-
-/// The gradients of one training forward and backward (render loss against grey, the same
-/// weights, rays and jitter) on `device` and on `other`: per parameter, the largest
-/// |difference| over the largest |gradient| on `other`.
-fn gradient_check(
-    config: &ModelConfig,
-    input: &SceneInput,
-    rays: &RayBundle,
-    samples: usize,
-    device: &Device,
-    other: &Device,
-) -> anyhow::Result<Vec<(String, f32)>> {
-    let ad = device.clone().autodiff();
-    ad.seed(0);
-    let model = config.init(&ad);
-    let mut rng = Rng::new(5);
-    let jitter: Vec<f32> = (0..rays.len() * samples).map(|_| rng.uniform()).collect();
-    let gradients = |model: &NiaModel, d: &Device| -> anyhow::Result<Vec<(String, Vec<f32>)>> {
-        let scene = model.encode(input, None, d, None)?;
-        let out = model.render(&scene, rays, samples, Some(&jitter), None)?;
-        let gt = Tensor::<2>::ones([rays.len(), 3], d).mul_scalar(0.5);
-        let grads = render_loss(out.rgb, out.rgb0, gt)?.total.backward();
-        let read = |name: &str, g: Option<Tensor<1>>| -> anyhow::Result<(String, Vec<f32>)> {
-            let g = g.with_context(|| format!("{name} has no gradient"))?;
-            let values = g
-                .try_into_data()
-                .map_err(|e| anyhow::anyhow!("reading the {name} gradient from the device: {e:?}"))?
-                .try_to_vec::<f32>()
-                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            Ok((name.to_string(), values))
-        };
-        Ok(vec![
-            read(
-                "encoder.conv1",
-                model
-                    .encoder
-                    .conv1
-                    .weight
-                    .val()
-                    .grad(&grads)
-                    .map(|g| g.flatten(0, 3)),
-            )?,
-            read(
-                "body_volume.full[0]",
-                model
-                    .body_volume
-                    .full
-                    .first()
-                    .and_then(|b| b.conv.weight.val().grad(&grads))
-                    .map(|g| g.flatten(0, 2)),
-            )?,
-            read(
-                "density",
-                model.density.layers[0]
-                    .weight
-                    .val()
-                    .grad(&grads)
-                    .map(|g| g.flatten(0, 1)),
-            )?,
-            read(
-                "blender.token_input",
-                model
-                    .blender
-                    .token_input
-                    .weight
-                    .val()
-                    .grad(&grads)
-                    .map(|g| g.flatten(0, 1)),
-            )?,
-        ])
-    };
-    let other_ad = other.clone().autodiff();
-    let ours = gradients(&model, &ad)?;
-    let theirs = gradients(&model.clone().fork(&other_ad), &other_ad)?;
-    Ok(ours
-        .into_iter()
-        .zip(theirs)
-        .map(|((name, a), (_, b))| {
-            let largest = b.iter().fold(0.0f32, |m, x| m.max(x.abs()));
-            let diff = a
-                .iter()
-                .zip(&b)
-                .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
-            (name, diff / largest.max(f32::MIN_POSITIVE))
-        })
-        .collect())
-}
-
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
-    let backend = args.backend;
-    let device = DeviceSpec {
-        backend,
-        index: args.device,
-    }
-    .device()?;
-    if let Some(note) = backend.start_up_note() {
-        eprintln!("{note}");
-    }
-    let config = if args.tiny {
-        ModelConfig::tiny()
-    } else {
-        ModelConfig::new()
-    };
-    let config = match args.voxel_size_m {
-        Some(v) => config.with_voxel_size_m(v),
-        None => config,
-    };
-    config
-        .check()
-        .map_err(|e| anyhow::anyhow!("--voxel-size-m: {e}"))?;
+    let device = open_device(args.backend, args.device)?;
+    let config = model_config(&args)?;
     let (input, rays) =
         bench_scene(args.size, args.views, args.rays).context("building the benchmark scene")?;
     device.seed(0);
@@ -281,224 +134,140 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let stages_apart = args.backend.is_gpu() && !args.train_only;
     let stage_only_reps = if stages_apart { args.reps } else { 0 };
     let bar = progress_bar(passes * (args.reps + 1) + stage_only_reps, "bench");
-    // Per-repetition times: above the bar, or on stderr without a terminal (stdout carries the
-    // table and the JSON line).
-    let note = |line: String| {
-        if bar.is_hidden() {
-            eprintln!("{line}");
-        } else {
-            bar.println(line);
-        }
+    let bench = Bench {
+        args: &args,
+        input: &input,
+        rays: &rays,
+        bar: &bar,
     };
-
-    // Forward (inference device), per stage.
-    // Each timed repetition's seconds and stage times; the report takes their medians, as the
-    // PyTorch references do, so one repetition that meets a new kernel does not set the figure.
-    let mut forward_reps_s = Vec::new();
-    let mut stage_reps = Vec::new();
-    let mut first_forward_s = 0.0;
-    let mut colours = Vec::new();
-    let forward_reps = if args.train_only { 0 } else { args.reps + 1 };
-    for rep in 0..forward_reps + stage_only_reps {
-        // Repetitions 1..=reps time the forward; with the stages apart, the ones after them
-        // time the stages.
-        let stage_rep = rep > args.reps;
-        let mut times = (!stages_apart || stage_rep).then(StageTimes::default);
-        let start = Instant::now();
-        let scene = model.encode(&input, None, &device, times.as_mut())?;
-        let out = model.render(&scene, &rays, args.samples, None, times.as_mut())?;
-        let rgb = forward_colours(out)?;
-        let seconds = start.elapsed().as_secs_f64();
-        if rep == 0 {
-            first_forward_s = seconds;
-            colours = rgb;
-        } else if !stage_rep {
-            forward_reps_s.push(seconds);
-        }
-        if rep > 0 {
-            stage_reps.extend(times);
-        }
-        let label = match rep {
-            0 => " (warm-up)",
-            _ if stage_rep => " (stage timings)",
-            _ => "",
-        };
-        note(format!("forward rep {rep}{label}: {seconds:.2} s"));
-        bar.inc(1);
-    }
-    let mut forward_s = median(&forward_reps_s);
-    if args.train_only {
-        // Serialised as null.
-        forward_s = f64::NAN;
-        first_forward_s = f64::NAN;
-    }
-
+    // Forward (inference device), per stage. The report takes the medians of the timed
+    // repetitions, as the PyTorch references do, so one repetition that meets a new kernel
+    // does not set the figure.
+    let forwards = bench.time_forwards(&model, &device, stages_apart)?;
     let check = match args.check_against {
         None => None,
         Some(against) => {
-            let other = DeviceSpec {
-                backend: against,
-                index: None,
-            }
-            .device()?;
-            let reference = model.clone().to_device(&other);
-            let scene = reference.encode(&input, None, &other, None)?;
-            let theirs =
-                forward_colours(reference.render(&scene, &rays, args.samples, None, None)?)?;
-            let (mut max_abs_diff, mut diff2, mut ref2) = (0.0f32, 0.0f64, 0.0f64);
-            for (a, b) in colours.iter().zip(&theirs) {
-                max_abs_diff = max_abs_diff.max((a - b).abs());
-                diff2 += f64::from(a - b).powi(2);
-                ref2 += f64::from(*b).powi(2);
-            }
-            note(format!(
-                "{} against {}: max |difference| {max_abs_diff:.2e}, relative L2 {:.2e}",
-                args.backend.name(),
-                against.name(),
-                (diff2 / ref2.max(1e-30)).sqrt()
-            ));
-            let gradients = if args.no_train {
-                Vec::new()
-            } else {
-                let gradients =
-                    gradient_check(&config, &input, &rays, args.samples, &device, &other)?;
-                for (name, rel) in &gradients {
-                    note(format!(
-                        "{name}: gradients {} against {} differ by {rel:.2e} of the largest",
-                        args.backend.name(),
-                        against.name()
-                    ));
-                }
-                gradients
-            };
-            Some(BackendCheck {
-                against: against.name().to_string(),
-                max_abs_diff,
-                rel_l2: (diff2 / ref2.max(1e-30)).sqrt() as f32,
-                gradients,
-            })
+            Some(bench.backend_check(&config, &model, &device, against, &forwards.colours)?)
         }
     };
-
     // Training step (autodiff device): forward, loss, backward, Adam.
-    // (step, its forward) seconds of each timed training repetition.
-    let mut train_reps_s: Vec<(f64, f64)> = Vec::new();
-    let (train_step_s, train_forward_s, train_rays_per_s, first_train_step_s) = if args.no_train {
-        (None, None, None, None)
+    let training = if args.no_train {
+        None
     } else {
-        let ad = device.clone().autodiff();
-        let ad = if args.checkpointing {
-            ad.gradient_checkpointing()
-        } else {
-            ad
-        };
-        ad.seed(0);
-        let mut model = config.init(&ad);
-        let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
-        let gt = Tensor::<2>::ones([rays.len(), 3], &ad).mul_scalar(0.5);
-        let mut first = 0.0;
-        let mut rng = Rng::new(3);
-        for rep in 0..=args.reps {
-            let jitter: Vec<f32> = (0..rays.len() * args.samples)
-                .map(|_| rng.uniform())
-                .collect();
-            let start = Instant::now();
-            let scene = model.encode(&input, None, &ad, None)?;
-            let chunked = args.ray_chunk > 0 && args.ray_chunk < rays.len();
-            let mut forward_dt = f64::NAN;
-            let n = rays.len() as f32;
-            let grads = chunked_gradients::<anyhow::Error, _>(
-                &model,
-                &scene,
-                &rays,
-                args.samples,
-                Some(&jitter),
-                args.ray_chunk,
-                |out, range| {
-                    let share = range.len() as f32 / n;
-                    let gt = gt.clone().slice([range.clone(), 0..3]);
-                    let loss = render_loss(out.rgb, out.rgb0, gt)?.total.mul_scalar(share);
-                    if !chunked {
-                        // The forward's own time on asynchronous backends too.
-                        ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
-                        forward_dt = start.elapsed().as_secs_f64();
-                    }
-                    Ok(loss)
-                },
-            )?;
-            model = optim.step(5e-4, model, grads);
-            ad.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            let dt = start.elapsed().as_secs_f64();
-            let split = if chunked {
-                format!(
-                    "{} chunks of {} rays",
-                    rays.len().div_ceil(args.ray_chunk),
-                    args.ray_chunk
-                )
-            } else {
-                format!(
-                    "forward {forward_dt:.2} s, backward + Adam {:.2} s",
-                    dt - forward_dt
-                )
-            };
-            note(format!(
-                "train rep {rep}{}: {dt:.2} s ({split})",
-                if rep == 0 { " (warm-up)" } else { "" },
-            ));
-            bar.inc(1);
-            if rep == 0 {
-                first = dt;
-            } else {
-                train_reps_s.push((dt, forward_dt));
-            }
-        }
-        let step = median(&train_reps_s.iter().map(|r| r.0).collect::<Vec<_>>());
-        (
-            Some(step),
-            Some(median(
-                &train_reps_s.iter().map(|r| r.1).collect::<Vec<_>>(),
-            )),
-            Some(rays.len() as f64 / step),
-            Some(first),
-        )
+        Some(bench.time_training(&config, &device)?)
     };
-
     bar.finish_and_clear();
-    let report = Report {
-        backend: args.backend.name().to_string(),
-        heap: nia_eval::heap::current()
-            .map_or("system (policy not set)", |p| p.name())
-            .to_string(),
-        rays: rays.len(),
-        samples: args.samples,
-        views: args.views,
-        size: args.size,
-        forward_s,
-        forward_rays_per_s: rays.len() as f64 / forward_s,
-        first_forward_s,
-        first_train_step_s,
-        train_step_s,
-        // Chunked steps interleave forward and backward: no split (null, not NaN).
-        train_forward_s: train_forward_s.filter(|f| f.is_finite()),
-        // The median step less the median forward, so that the two parts add up to the step.
-        train_backward_s: train_step_s
-            .zip(train_forward_s)
-            .map(|(s, f)| s - f)
-            .filter(|b| b.is_finite()),
-        train_rays_per_s,
-        stages_s: Stage::ALL
-            .iter()
-            .map(|s| {
-                let per_rep: Vec<f64> =
-                    stage_reps.iter().map(|t| t.get(*s).as_secs_f64()).collect();
-                (s.name().to_string(), median(&per_rep))
-            })
-            .collect(),
-        stages_timed_apart: stages_apart,
-        forward_reps_s,
-        train_reps_s: train_reps_s.iter().map(|r| r.0).collect(),
-        check,
+    let report = Report::new(&args, rays.len(), forwards, training, check, stages_apart);
+    print_report(&args, &report);
+    println!("{}", serde_json::to_string(&report)?);
+    Ok(())
+}
+
+/// The network benchmarked: the paper's or the tiny one, with `--voxel-size-m`, checked.
+fn model_config(args: &BenchArgs) -> anyhow::Result<ModelConfig> {
+    let config = if args.tiny {
+        ModelConfig::tiny()
+    } else {
+        ModelConfig::new()
     };
+    let config = match args.voxel_size_m {
+        Some(v) => config.with_voxel_size_m(v),
+        None => config,
+    };
+    config
+        .check()
+        .map_err(|e| anyhow::anyhow!("--voxel-size-m: {e}"))?;
+    Ok(config)
+}
+
+/// What the timings run on: the arguments, the scene and its rays, and the progress bar.
+struct Bench<'a> {
+    args: &'a BenchArgs,
+    input: &'a SceneInput,
+    rays: &'a RayBundle,
+    bar: &'a ProgressBar,
+}
+
+impl Bench<'_> {
+    /// A per-repetition line: above the bar, or on stderr without a terminal (stdout carries
+    /// the table and the JSON line).
+    fn note(&self, line: String) {
+        if self.bar.is_hidden() {
+            eprintln!("{line}");
+        } else {
+            self.bar.println(line);
+        }
+    }
+}
+
+impl Report {
+    /// The report of the repetitions of `rays` rays: medians of the timed ones, the warm-ups
+    /// apart.
+    fn new(
+        args: &BenchArgs,
+        rays: usize,
+        forwards: ForwardTimes,
+        training: Option<TrainTimes>,
+        check: Option<BackendCheck>,
+        stages_timed_apart: bool,
+    ) -> Self {
+        let (forward_s, first_forward_s) = if args.train_only {
+            // Serialised as null.
+            (f64::NAN, f64::NAN)
+        } else {
+            (median(&forwards.reps_s), forwards.first_s)
+        };
+        let train_reps_s = training.as_ref().map_or(Vec::new(), |t| t.reps_s.clone());
+        let train_step_s = training
+            .as_ref()
+            .map(|_| median(&train_reps_s.iter().map(|r| r.0).collect::<Vec<_>>()));
+        let train_forward_s = training
+            .as_ref()
+            .map(|_| median(&train_reps_s.iter().map(|r| r.1).collect::<Vec<_>>()));
+        Report {
+            backend: args.backend.name().to_string(),
+            heap: nia_eval::heap::current()
+                .map_or("system (policy not set)", |p| p.name())
+                .to_string(),
+            rays,
+            samples: args.samples,
+            views: args.views,
+            size: args.size,
+            forward_s,
+            forward_rays_per_s: rays as f64 / forward_s,
+            first_forward_s,
+            first_train_step_s: training.as_ref().map(|t| t.first_s),
+            train_step_s,
+            // Chunked steps interleave forward and backward: no split (null, not NaN).
+            train_forward_s: train_forward_s.filter(|f| f.is_finite()),
+            // The median step less the median forward, so that the two parts add up to the
+            // step.
+            train_backward_s: train_step_s
+                .zip(train_forward_s)
+                .map(|(s, f)| s - f)
+                .filter(|b| b.is_finite()),
+            train_rays_per_s: train_step_s.map(|step| rays as f64 / step),
+            stages_s: Stage::ALL
+                .iter()
+                .map(|s| {
+                    let per_rep: Vec<f64> = forwards
+                        .stage_reps
+                        .iter()
+                        .map(|t| t.get(*s).as_secs_f64())
+                        .collect();
+                    (s.name().to_string(), median(&per_rep))
+                })
+                .collect(),
+            stages_timed_apart,
+            forward_reps_s: forwards.reps_s,
+            train_reps_s: train_reps_s.iter().map(|r| r.0).collect(),
+            check,
+        }
+    }
+}
+
+/// The stage table and the summary line on stdout.
+fn print_report(args: &BenchArgs, report: &Report) {
     if args.train_only {
         // The stages are timed in the inference forward, which --train-only skips.
         println!("stages: not timed (--train-only)");
@@ -543,6 +312,4 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             _ => "skipped".into(),
         }
     );
-    println!("{}", serde_json::to_string(&report)?);
-    Ok(())
 }

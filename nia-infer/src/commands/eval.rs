@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nia_data::dataset::protocol::{EvalSplit, SubjectSplit};
-use nia_data::dataset::ProtocolName;
+use nia_data::dataset::{DataConfig, ProtocolName};
 use nia_data::fitting::SmplAlignment;
 use nia_eval::eval::{eval_items, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult};
 use nia_eval::perceptual::LpipsFiles;
@@ -173,40 +173,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             reference_frame: args.ref_frame,
         },
     };
-    let mut data_config = loaded.data_config(args.data.as_deref(), args.smpl.as_deref());
-    match args.smpl_alignment {
-        Some(true) => {
-            data_config
-                .smpl_alignment
-                .get_or_insert_with(SmplAlignment::default);
-        }
-        Some(false) => data_config.smpl_alignment = None,
-        None => {}
-    }
-    if let Some(iterations) = args.smpl_pose_iterations {
-        if args.smpl_alignment == Some(false) {
-            anyhow::bail!(
-                "--smpl-pose-iterations refines the alignment: not with --smpl-alignment off"
-            );
-        }
-        data_config
-            .smpl_alignment
-            .get_or_insert_with(SmplAlignment::default)
-            .pose_iterations = iterations;
-    }
-    if !args.subjects.is_empty() {
-        if split != EvalSplit::UnseenSubjects {
-            anyhow::bail!("--subjects names held-out people: use it with --split test");
-        }
-        data_config.protocol = ProtocolName::Subjects;
-        data_config.split = Some(SubjectSplit {
-            train: Vec::new(),
-            test: args.subjects.clone(),
-            input_views: (!args.input_views.is_empty()).then(|| args.input_views.clone()),
-            train_frames: None,
-            test_frame_stride: 1,
-        });
-    }
+    let data_config = data_config(args, &loaded, split)?;
     let root = data_config.root.clone();
     let data = loaded.open_split(&data_config, split)?;
     let items = eval_items(&data, split, task, args.limit)?;
@@ -286,11 +253,92 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             .collect(),
     };
     write_json(&args.out.join("metrics.json"), &metrics)?;
+    write_text(&args.out.join("metrics.csv"), &metrics_csv(&results))?;
 
+    let task_title = match args.task {
+        TaskArg::NovelView => "novel view",
+        TaskArg::NovelPose => "novel pose",
+    };
+    let lpips_name = lpips
+        .as_ref()
+        .map(|(files, _)| format!(" ({})", files.net.name()))
+        .unwrap_or_default();
+    let intro = format!(
+        "# Evaluation: {task_title}, split `{}`\n\nModel `{}` (step {}), data `{}`, {samples} samples per ray.\n\n| subject | images | PSNR (dB) | SSIM | LPIPS{lpips_name} |\n|---|---:|---:|---:|---:|\n",
+        split.name(),
+        loaded.path.display(),
+        loaded.step,
+        root.display()
+    );
+    let md = report_markdown(intro, &by_subject, &overall);
+    write_text(&args.out.join("report.md"), &md)?;
+    println!(
+        "{}",
+        serde_json::json!({
+            "split": split.name(),
+            "task": task_name(args.task),
+            "images": overall.images,
+            "psnr": overall.psnr,
+            "ssim": overall.ssim,
+            "lpips": overall.lpips,
+            "lpips_net": lpips.as_ref().map(|(files, _)| files.net.name()),
+            "diagnostics": overall.diagnostics,
+            "out": args.out,
+        })
+    );
+    Ok(())
+}
+
+/// The model's data settings with the command line's: `--data`, `--smpl`, the SMPL alignment
+/// switches, and `--subjects` (held-out people of the test split, with their input views).
+fn data_config(
+    args: &EvalArgs,
+    loaded: &LoadedModel,
+    split: EvalSplit,
+) -> anyhow::Result<DataConfig> {
+    let mut data_config = loaded.data_config(args.data.as_deref(), args.smpl.as_deref());
+    match args.smpl_alignment {
+        Some(true) => {
+            data_config
+                .smpl_alignment
+                .get_or_insert_with(SmplAlignment::default);
+        }
+        Some(false) => data_config.smpl_alignment = None,
+        None => {}
+    }
+    if let Some(iterations) = args.smpl_pose_iterations {
+        if args.smpl_alignment == Some(false) {
+            anyhow::bail!(
+                "--smpl-pose-iterations refines the alignment: not with --smpl-alignment off"
+            );
+        }
+        data_config
+            .smpl_alignment
+            .get_or_insert_with(SmplAlignment::default)
+            .pose_iterations = iterations;
+    }
+    if !args.subjects.is_empty() {
+        if split != EvalSplit::UnseenSubjects {
+            anyhow::bail!("--subjects names held-out people: use it with --split test");
+        }
+        data_config.protocol = ProtocolName::Subjects;
+        data_config.split = Some(SubjectSplit {
+            train: Vec::new(),
+            test: args.subjects.clone(),
+            input_views: (!args.input_views.is_empty()).then(|| args.input_views.clone()),
+            train_frames: None,
+            test_frame_stride: 1,
+        });
+    }
+    Ok(data_config)
+}
+
+/// `metrics.csv`: one line per image.
+fn metrics_csv(results: &[ImageResult]) -> String {
     let mut csv = String::from(
         "subject,frame,reference_frame,target_view,input_views,psnr,ssim,lpips,rays,point_evaluations,colour_evaluations,seconds\n",
     );
-    for r in &results {
+    for r in results {
         let views: Vec<String> = r.input_views.iter().map(|v| v.to_string()).collect();
         let _ = writeln!(
             csv,
@@ -309,25 +357,19 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             r.seconds
         );
     }
-    write_text(&args.out.join("metrics.csv"), &csv)?;
+    csv
+}
 
-    let task_title = match args.task {
-        TaskArg::NovelView => "novel view",
-        TaskArg::NovelPose => "novel pose",
-    };
-    let lpips_name = lpips
-        .as_ref()
-        .map(|(files, _)| format!(" ({})", files.net.name()))
-        .unwrap_or_default();
+/// `report.md`: after `intro` (the title and the table's head), a row per subject and the
+/// overall one, then the blend diagnostics' table.
+fn report_markdown(
+    intro: String,
+    by_subject: &BTreeMap<String, Vec<ImageResult>>,
+    overall: &EvalSummary,
+) -> String {
     let lpips_cell = |l: Option<f64>| l.map(|l| format!("{l:.4}")).unwrap_or_else(|| "-".into());
-    let mut md = format!(
-        "# Evaluation: {task_title}, split `{}`\n\nModel `{}` (step {}), data `{}`, {samples} samples per ray.\n\n| subject | images | PSNR (dB) | SSIM | LPIPS{lpips_name} |\n|---|---:|---:|---:|---:|\n",
-        split.name(),
-        loaded.path.display(),
-        loaded.step,
-        root.display()
-    );
-    for (name, v) in &by_subject {
+    let mut md = intro;
+    for (name, v) in by_subject {
         if let Some(s) = EvalSummary::of(v) {
             let _ = writeln!(
                 md,
@@ -354,20 +396,5 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     rows.push(("**all**".into(), overall.diagnostics));
     md.push('\n');
     md.push_str(&diagnostics_table(&rows));
-    write_text(&args.out.join("report.md"), &md)?;
-    println!(
-        "{}",
-        serde_json::json!({
-            "split": split.name(),
-            "task": task_name(args.task),
-            "images": overall.images,
-            "psnr": overall.psnr,
-            "ssim": overall.ssim,
-            "lpips": overall.lpips,
-            "lpips_net": lpips.as_ref().map(|(files, _)| files.net.name()),
-            "diagnostics": overall.diagnostics,
-            "out": args.out,
-        })
-    );
-    Ok(())
+    md
 }

@@ -63,6 +63,26 @@ struct Row {
 
 pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     let loaded = LoadedModel::open(&args.model)?;
+    check_counts(args)?;
+    let base_adaptive = loaded.render_options(&args.model)?;
+    check_supersamples(args, &base_adaptive)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let mut rows = measure(args, &loaded, &base_adaptive)?;
+    let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.ms_per_image, r.psnr)).collect();
+    for i in pareto_front(&points) {
+        rows[i].pareto = true;
+    }
+    write_text(&args.out.join("sweep.csv"), &csv(&rows))?;
+    write_text(&args.out.join("sweep.md"), &markdown(args, &loaded, &rows))?;
+    write_text(&args.out.join("sweep.svg"), &svg(&rows)?)?;
+    println!("{}", serde_json::to_string_pretty(&rows)?);
+    Ok(())
+}
+
+/// The swept counts refused before anything runs: fewer than 2 samples, no view, a ratio
+/// outside (0, 1].
+fn check_counts(args: &SweepArgs) -> anyhow::Result<()> {
     if args.sample_counts.iter().any(|&s| s < 2) {
         anyhow::bail!("--sample-counts: every count must be at least 2");
     }
@@ -72,19 +92,31 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     if let Some(r) = args.ratios.iter().find(|r| !(**r > 0.0 && **r <= 1.0)) {
         anyhow::bail!("--ratios: {r} is not in (0, 1]");
     }
-    let split = EvalSplit::UnseenSubjects;
-    let base_adaptive = loaded.render_options(&args.model)?;
+    Ok(())
+}
+
+/// The swept supersamplings refused where the `[render]` options refuse them.
+fn check_supersamples(args: &SweepArgs, base_adaptive: &RenderOptions) -> anyhow::Result<()> {
     for &supersample in &args.supersamples {
         let options = RenderOptions {
             supersample,
-            ..base_adaptive
+            ..*base_adaptive
         };
         if let Err(e) = options.check() {
             anyhow::bail!("--supersamples {supersample}: expected {}", e.expected);
         }
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+    Ok(())
+}
+
+/// One row per setting: every ratio, view count, sample count and supersampling, with
+/// empty-space skipping off and on, evaluated on the first `--limit` unseen-subject images.
+fn measure(
+    args: &SweepArgs,
+    loaded: &LoadedModel,
+    base_adaptive: &RenderOptions,
+) -> anyhow::Result<Vec<Row>> {
+    let split = EvalSplit::UnseenSubjects;
     let total = args.ratios.len()
         * args.view_counts.len()
         * args.sample_counts.len()
@@ -100,20 +132,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             .with_context(|| format!("at ratio {ratio}"))?;
         let items = eval_items(&data, split, EvalTask::NovelView, Some(args.limit))?;
         for &views in &args.view_counts {
-            if let Some(item) = items.iter().find(|i| i.input_views.len() < views) {
-                anyhow::bail!(
-                    "--view-counts {views}: the protocol gives {} only {} input views",
-                    item.subject,
-                    item.input_views.len()
-                );
-            }
-            let items: Vec<EvalItem> = items
-                .iter()
-                .map(|i| EvalItem {
-                    input_views: i.input_views[..views].to_vec(),
-                    ..i.clone()
-                })
-                .collect();
+            let items = first_views(&items, views)?;
             for (&samples, &supersample, skip) in args
                 .sample_counts
                 .iter()
@@ -128,7 +147,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
                 let render = RenderOptions {
                     skip_empty_space: skip,
                     supersample,
-                    ..base_adaptive
+                    ..*base_adaptive
                 };
                 let results = loaded.evaluate(
                     &data,
@@ -168,15 +187,33 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         }
     }
     bar.finish_and_clear();
-    let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.ms_per_image, r.psnr)).collect();
-    for i in pareto_front(&points) {
-        rows[i].pareto = true;
-    }
+    Ok(rows)
+}
 
+/// `items` with their first `views` input views (refused where the protocol gives fewer).
+fn first_views(items: &[EvalItem], views: usize) -> anyhow::Result<Vec<EvalItem>> {
+    if let Some(item) = items.iter().find(|i| i.input_views.len() < views) {
+        anyhow::bail!(
+            "--view-counts {views}: the protocol gives {} only {} input views",
+            item.subject,
+            item.input_views.len()
+        );
+    }
+    Ok(items
+        .iter()
+        .map(|i| EvalItem {
+            input_views: i.input_views[..views].to_vec(),
+            ..i.clone()
+        })
+        .collect())
+}
+
+/// `sweep.csv`: one line per row.
+fn csv(rows: &[Row]) -> String {
     let mut csv = String::from(
         "samples,views,ratio,supersample,skip_empty_space,images,psnr,ssim,ms_per_image,point_evaluations_per_image,pareto\n",
     );
-    for r in &rows {
+    for r in rows {
         let _ = writeln!(
             csv,
             "{},{},{},{},{},{},{:.4},{:.5},{:.2},{:.0},{}",
@@ -193,8 +230,11 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             r.pareto
         );
     }
-    write_text(&args.out.join("sweep.csv"), &csv)?;
+    csv
+}
 
+/// `sweep.md`: the rows as a table, under what was swept.
+fn markdown(args: &SweepArgs, loaded: &LoadedModel, rows: &[Row]) -> String {
     let mut md = format!(
         "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | rays / pixel | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
         loaded.path.display(),
@@ -203,7 +243,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         args.limit,
         loaded.backend.name(),
     );
-    for r in &rows {
+    for r in rows {
         let _ = writeln!(
             md,
             "| {} | {} | {} | {} | {} | {:.2} | {:.4} | {:.0} | {:.0} | {} |",
@@ -219,8 +259,11 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             if r.pareto { "**yes**" } else { "" }
         );
     }
-    write_text(&args.out.join("sweep.md"), &md)?;
+    md
+}
 
+/// `sweep.svg`: PSNR against time per image, skipping off and on, the Pareto front drawn.
+fn svg(rows: &[Row]) -> anyhow::Result<String> {
     let series = |skip: bool, name: &str, colour: RGBColor| Series {
         name: name.to_string(),
         colour,
@@ -245,7 +288,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
         .map(|r| (r.ms_per_image, r.psnr))
         .collect();
     front.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let svg = scatter_svg(
+    Ok(scatter_svg(
         "PSNR against time per image (unseen subjects)",
         "milliseconds per image (log scale)",
         "PSNR (dB)",
@@ -254,8 +297,5 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
             series(true, "skipping on", RGBColor(31, 119, 180)),
         ],
         &front,
-    )?;
-    write_text(&args.out.join("sweep.svg"), &svg)?;
-    println!("{}", serde_json::to_string_pretty(&rows)?);
-    Ok(())
+    )?)
 }

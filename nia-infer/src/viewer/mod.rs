@@ -235,15 +235,12 @@ impl ViewerScene {
         } else {
             self.session.options
         };
-        let Some(img) = self.session.render_with(
-            &encoding,
-            &camera,
-            &body_box,
-            &options,
-            self.session.timed,
-            &mut |_, _| {},
-            cancelled,
-        )?
+        let view =
+            self.session
+                .target_view(&camera, &body_box, self.session.timed, Some(cancelled));
+        let Some(img) = self
+            .session
+            .render_with(&encoding, &view, &options, &mut |_, _| {})?
         else {
             return Ok(None);
         };

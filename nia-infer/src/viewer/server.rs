@@ -312,7 +312,7 @@ fn respond(request: Request, reply: Reply) {
     let mut response = Response::from_data(reply.body).with_status_code(reply.status);
     let mut headers = vec![("Content-Type", reply.content_type.to_string())];
     headers.push(("Cache-Control", "no-store".into()));
-    headers.extend(reply.headers.into_iter().map(|(k, v)| (k, v)));
+    headers.extend(reply.headers);
     for (k, v) in headers {
         if let Ok(h) = Header::from_bytes(k.as_bytes(), v.as_bytes()) {
             response.add_header(h);

@@ -16,7 +16,7 @@
 //!   number of threads.
 //!
 //! Equal to the tensor path up to float summation order, and the same whatever the number of
-//! threads (`nia-model/tests/body_volume.rs`).
+//! threads (`nia-model/tests/body_volume_network.rs`).
 
 use std::sync::Arc;
 
@@ -31,6 +31,7 @@ use rayon::prelude::*;
 
 use nia_data::geometry::sparse::{NeighbourMaps, Rulebook, KERNEL_VOLUME};
 
+use crate::kernels::host_gemm::{product_into, Strided};
 use crate::kernels::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTensor};
 
 /// A rulebook in host memory for the host kernels: the neighbour map and its inverse
@@ -96,16 +97,14 @@ impl SparseConvKernels for Flex {
         let (x, w) = (contiguous_f32(features), contiguous_f32(weight));
         let [n, _, ci] = dims::<3>(&x);
         let co = dims::<3>(&w)[2];
-        let out = blocked_gather_product(
-            values(&x),
-            rules.n_in,
-            ci,
-            &rules.maps.neighbours,
-            rules.n_out,
-            n,
-            values(&w),
-            co,
-        );
+        let gather = Gather {
+            table: values(&x),
+            rows_in: rules.n_in,
+            c: ci,
+            map: &rules.maps.neighbours,
+            rows_out: rules.n_out,
+        };
+        let out = blocked_gather_product(&gather, n, values(&w), co);
         flex_tensor(out, [n, rules.n_out, co])
     }
 
@@ -127,16 +126,14 @@ impl SparseConvKernels for Flex {
                 }
             }
         }
-        let out = blocked_gather_product(
-            values(&g),
-            rules.n_out,
-            co,
-            &rules.maps.inverse,
-            rules.n_in,
-            n,
-            &wt,
-            ci,
-        );
+        let gather = Gather {
+            table: values(&g),
+            rows_in: rules.n_out,
+            c: co,
+            map: &rules.maps.inverse,
+            rows_out: rules.n_in,
+        };
+        let out = blocked_gather_product(&gather, n, &wt, ci);
         flex_tensor(out, [n, rules.n_in, ci])
     }
 
@@ -237,28 +234,34 @@ fn block_rows(width: usize) -> usize {
     (BLOCK_VALUES / width.max(1)).clamp(8, 512)
 }
 
-/// The 27 neighbours of rows `first .. first + len` (views stacked: row `v * rows_out + r`)
-/// into `buf` as `[len, 27 c]`: `table[v, map[r * 27 + k]]` (`table` `[N, rows_in, c]`), a zero
-/// row where the slot holds `rows_in` (no neighbour).
-#[allow(clippy::too_many_arguments)]
-fn gather_columns(
-    buf: &mut [f32],
-    table: &[f32],
+/// The geometry of a neighbour gather: the rows of a table, read through a map of 27 slots per
+/// output row, views stacked.
+#[derive(Clone, Copy)]
+struct Gather<'a> {
+    /// `[N, rows_in, c]`.
+    table: &'a [f32],
+    /// Rows per view of `table`; a slot that holds `rows_in` reads a zero row (no neighbour).
     rows_in: usize,
+    /// Values per row.
     c: usize,
-    map: &[u32],
+    /// `[rows_out * 27]`: slot k of output row r at `r * 27 + k`.
+    map: &'a [u32],
+    /// Output rows per view.
     rows_out: usize,
-    first: usize,
-    len: usize,
-) {
+}
+
+/// The 27 neighbours of rows `first .. first + len` (views stacked: row `v * rows_out + r`)
+/// into `buf` as `[len, 27 c]`: `table[v, map[r * 27 + k]]`, a zero row where the slot holds
+/// `rows_in` (no neighbour).
+fn gather_columns(buf: &mut [f32], gather: &Gather<'_>, first: usize, len: usize) {
     // Narrow rows as constants: a row of 8-32 values is then a few vector moves instead of a
     // `memcpy` call per slot (the tiny network's stages are 8 and 16 wide). Wider rows keep
     // `memcpy`, which is as fast there (docs/speed.md).
-    match c {
-        8 => gather_rows(buf, table, rows_in, Fixed::<8>, map, rows_out, first, len),
-        16 => gather_rows(buf, table, rows_in, Fixed::<16>, map, rows_out, first, len),
-        32 => gather_rows(buf, table, rows_in, Fixed::<32>, map, rows_out, first, len),
-        _ => gather_rows(buf, table, rows_in, Any(c), map, rows_out, first, len),
+    match gather.c {
+        8 => gather_rows(buf, gather, Fixed::<8>, first, len),
+        16 => gather_rows(buf, gather, Fixed::<16>, first, len),
+        32 => gather_rows(buf, gather, Fixed::<32>, first, len),
+        c => gather_rows(buf, gather, Any(c), first, len),
     }
 }
 
@@ -289,18 +292,21 @@ impl RowWidth for Any {
     }
 }
 
-/// [`gather_columns`] for rows of `width` values.
-#[allow(clippy::too_many_arguments)]
+/// [`gather_columns`] for rows of `width` values (`gather.c`).
 fn gather_rows(
     buf: &mut [f32],
-    table: &[f32],
-    rows_in: usize,
+    gather: &Gather<'_>,
     width: impl RowWidth,
-    map: &[u32],
-    rows_out: usize,
     first: usize,
     len: usize,
 ) {
+    let Gather {
+        table,
+        rows_in,
+        map,
+        rows_out,
+        ..
+    } = *gather;
     let c = width.get();
     let k_len = KERNEL_VOLUME * c;
     for (r, cols) in buf.chunks_exact_mut(k_len).take(len).enumerate() {
@@ -318,29 +324,26 @@ fn gather_rows(
     }
 }
 
-/// `out[n, r] = sum_k table[n, map[r * 27 + k]] @ weight[k]` for every view n and row r:
-/// `table` `[N, rows_in, c]`, `map` `[rows_out * 27]` (`rows_in` = none), `weight`
-/// `[27 c, c_out]` row-major; returns `[N, rows_out, c_out]`.
-#[allow(clippy::too_many_arguments)]
+/// `out[n, r] = sum_k table[n, map[r * 27 + k]] @ weight[k]` for every view n and row r of
+/// `gather` (`views` views), `weight` `[27 c, c_out]` row-major; returns
+/// `[N, rows_out, c_out]`.
 fn blocked_gather_product(
-    table: &[f32],
-    rows_in: usize,
-    c: usize,
-    map: &[u32],
-    rows_out: usize,
+    gather: &Gather<'_>,
     views: usize,
     weight: &[f32],
     c_out: usize,
 ) -> Vec<f32> {
+    let (c, rows_out) = (gather.c, gather.rows_out);
     let k_len = KERNEL_VOLUME * c;
     assert!(
-        table.len() == views * rows_in * c
-            && map.len() == rows_out * KERNEL_VOLUME
+        gather.table.len() == views * gather.rows_in * c
+            && gather.map.len() == rows_out * KERNEL_VOLUME
             && weight.len() == k_len * c_out,
-        "host sparse convolution: {} table values for [{views}, {rows_in}, {c}], {} map \
-         entries for {rows_out} rows, {} weights for [{k_len}, {c_out}]",
-        table.len(),
-        map.len(),
+        "host sparse convolution: {} table values for [{views}, {}, {c}], {} map entries for \
+         {rows_out} rows, {} weights for [{k_len}, {c_out}]",
+        gather.table.len(),
+        gather.rows_in,
+        gather.map.len(),
         weight.len()
     );
     let mut out = vec![0.0f32; views * rows_out * c_out];
@@ -353,34 +356,16 @@ fn blocked_gather_product(
         |buf, (b, dst)| {
             let first = b * block;
             let len = dst.len() / c_out;
-            gather_columns(buf, table, rows_in, c, map, rows_out, first, len);
-            let lhs = &buf[..len * k_len];
-            // SAFETY: dst is [len, c_out] row-major, lhs [len, k_len] row-major and weight
-            // [k_len, c_out] row-major; the slices hold exactly those extents (the assert
-            // above and the chunking).
-            unsafe {
-                gemm::gemm(
-                    len,
-                    c_out,
-                    k_len,
-                    dst.as_mut_ptr(),
-                    1,
-                    c_out as isize,
-                    false,
-                    lhs.as_ptr(),
-                    1,
-                    k_len as isize,
-                    weight.as_ptr(),
-                    1,
-                    c_out as isize,
-                    0.0,
-                    1.0,
-                    false,
-                    false,
-                    false,
-                    gemm::Parallelism::None,
-                );
-            }
+            gather_columns(buf, gather, first, len);
+            // dst [len, c_out] = columns [len, k_len] x weight [k_len, c_out].
+            product_into(
+                dst,
+                [len, c_out, k_len],
+                Strided::rows(&buf[..len * k_len], k_len),
+                Strided::rows(weight, c_out),
+                false,
+                gemm::Parallelism::None,
+            );
         },
     );
     out
@@ -420,6 +405,13 @@ fn gathered_outer_sum(
     }
     let block = block_rows(k_len);
     let chunk = weight_chunk_rows(total, block);
+    let gather = Gather {
+        table: x,
+        rows_in,
+        c: ci,
+        map: &rules.maps.neighbours,
+        rows_out,
+    };
     let partials: Vec<Vec<f32>> = (0..total.div_ceil(chunk))
         .into_par_iter()
         .map(|c| {
@@ -428,44 +420,16 @@ fn gathered_outer_sum(
             let end = ((c + 1) * chunk).min(total);
             for first in (c * chunk..end).step_by(block) {
                 let len = block.min(end - first);
-                gather_columns(
-                    &mut buf,
-                    x,
-                    rows_in,
-                    ci,
-                    &rules.maps.neighbours,
-                    rows_out,
-                    first,
-                    len,
+                gather_columns(&mut buf, &gather, first, len);
+                // acc [k_len, co] += columns^T [k_len, len] x dy [len, co].
+                product_into(
+                    &mut acc,
+                    [k_len, co, len],
+                    Strided::transposed(&buf[..len * k_len], k_len),
+                    Strided::rows(&dy[first * co..(first + len) * co], co),
+                    true,
+                    gemm::Parallelism::None,
                 );
-                let lhs = &buf[..len * k_len];
-                let rhs = &dy[first * co..(first + len) * co];
-                // SAFETY: acc is [k_len, co] row-major; lhs read transposed as [k_len, len]
-                // (column stride k_len, row stride 1) from [len, k_len] row-major; rhs
-                // [len, co] row-major. The slices hold those extents (assert and chunking).
-                unsafe {
-                    gemm::gemm(
-                        k_len,
-                        co,
-                        len,
-                        acc.as_mut_ptr(),
-                        1,
-                        co as isize,
-                        true,
-                        lhs.as_ptr(),
-                        k_len as isize,
-                        1,
-                        rhs.as_ptr(),
-                        1,
-                        co as isize,
-                        1.0,
-                        1.0,
-                        false,
-                        false,
-                        false,
-                        gemm::Parallelism::None,
-                    );
-                }
             }
             acc
         })
@@ -498,17 +462,15 @@ mod tests {
             let k_len = KERNEL_VOLUME * c;
             let mut general = vec![-1.0f32; (len + 1) * k_len];
             let mut fast = general.clone();
-            gather_rows(
-                &mut general,
-                &table,
+            let gather = Gather {
+                table: &table,
                 rows_in,
-                Any(c),
-                &map,
+                c,
+                map: &map,
                 rows_out,
-                first,
-                len,
-            );
-            gather_columns(&mut fast, &table, rows_in, c, &map, rows_out, first, len);
+            };
+            gather_rows(&mut general, &gather, Any(c), first, len);
+            gather_columns(&mut fast, &gather, first, len);
             assert_eq!(fast, general, "rows of {c} values");
             // Row 0 of the block is output row 1 of view 0; its slot 4 reads input row 5: empty.
             assert!(general[4 * c..5 * c].iter().all(|&v| v == 0.0), "c = {c}");

@@ -9,7 +9,7 @@
 //! `out[n, m] = sum_j weight[m, j] * features[n, index[m, j]]` in one pass from the corners
 //! the CPU already computed, writing only `[N, M, C]`: same arithmetic, the corners summed in
 //! the same order. The tensor path stays the reference (and the only path with gradients, on
-//! the GPU, and in training); `nia-model/tests/body_volume.rs` checks the two agree.
+//! the GPU, and in training); `nia-model/tests/body_volume_trilinear.rs` checks the two agree.
 //!
 //! The field reduces the read at once, `s_n = W_b^T read + b` ([`HostVolume::reduce`]). The
 //! trilinear read is linear, so for a scale at least as wide as the reduction the product can

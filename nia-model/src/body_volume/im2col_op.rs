@@ -16,35 +16,49 @@
 // ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
 #![allow(deprecated)]
 
-use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
-use burn::backend::autodiff::grads::Gradients;
-use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::{FloatTensor, IntTensor};
 #[cfg(feature = "wgpu")]
 use burn::backend::Cube;
-use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, NdArray, TensorMetadata};
+use burn::backend::{
+    backend_extension, Autodiff, Backend, Dispatch, ExtensionType, NdArray, TensorMetadata,
+};
 use burn::prelude::*;
 use burn::tensor::Slice;
 
 use crate::kernels::row_scatter::{blocks, range, RowScatter};
+use crate::kernels::tracked_op::{self, TwoFloatOp};
 use nia_data::geometry::sparse::KERNEL_VOLUME;
 
+/// The product's inputs, which its backward keeps (the columns are gathered again).
+#[derive(Debug, Clone, ExtensionType)]
+pub struct Im2colInputs<B: Backend> {
+    /// `[R, C_in]`.
+    pub rows: FloatTensor<B>,
+    /// `[27 C_in, C_out]`.
+    pub weight: FloatTensor<B>,
+    /// `[27 N P]` Int: rows of `rows`, 27 per output, in blocks of `chunk` outputs,
+    /// view-major within a block.
+    pub index: IntTensor<B>,
+    /// N.
+    pub views: usize,
+    /// Outputs per view in a block.
+    pub chunk: usize,
+}
+
 /// The product as a backend operation: ndarray and (with the `wgpu` feature) the cubecl
-/// backends, and autodiff over them with this module's backward.
+/// backends ([`forward`]), and autodiff over them with this module's backward.
 #[backend_extension(Autodiff, NdArray, Cube: cfg(feature = "wgpu"))]
 pub trait Im2colBackend: Backend {
-    /// `rows` `[R, C_in]`, `weight` `[27 C_in, C_out]`, `index` `[27 N P]` Int (rows of
-    /// `rows`, 27 per output: blocks of `chunk` outputs, view-major within a block) ->
-    /// `[N, P, C_out]`.
-    fn im2col_product(
-        rows: FloatTensor<Self>,
-        weight: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        views: usize,
-        chunk: usize,
-    ) -> FloatTensor<Self>;
+    /// The product of `inputs`: `[N, P, C_out]`.
+    fn im2col_product(#[extension_type] inputs: Im2colInputs<Self>) -> FloatTensor<Self> {
+        forward::<Self>(&inputs)
+    }
 }
+
+impl Im2colBackend for NdArray {}
+#[cfg(feature = "wgpu")]
+impl Im2colBackend for Cube {}
 
 /// The outputs per view, P, of an index of `views` views.
 fn outputs_per_view<B: Backend>(index: &IntTensor<B>, views: usize) -> usize {
@@ -78,13 +92,9 @@ fn columns<B: Backend>(
 }
 
 /// The forward (module docs): `[N, P, C_out]`.
-pub fn forward<B: Backend>(
-    rows: &FloatTensor<B>,
-    weight: &FloatTensor<B>,
-    index: &IntTensor<B>,
-    views: usize,
-    chunk: usize,
-) -> FloatTensor<B> {
+pub fn forward<B: Backend>(inputs: &Im2colInputs<B>) -> FloatTensor<B> {
+    let (rows, weight, index) = (&inputs.rows, &inputs.weight, &inputs.index);
+    let (views, chunk) = (inputs.views, inputs.chunk);
     let p = outputs_per_view::<B>(index, views);
     let c_out = weight.shape().dims::<2>()[1];
     let mut parts: Vec<FloatTensor<B>> = blocks(p, chunk)
@@ -105,14 +115,17 @@ pub fn forward<B: Backend>(
 
 /// The backward (module docs): the gradients of `rows` `[R, C_in]` and `weight`
 /// `[27 C_in, C_out]` from the output's `grad` `[N, P, C_out]`.
-pub fn backward<B: RowScatter>(grad: FloatTensor<B>, saved: Saved<B>) -> [FloatTensor<B>; 2] {
-    let Saved {
+pub fn backward<B: RowScatter>(
+    grad: FloatTensor<B>,
+    inputs: Im2colInputs<B>,
+) -> [FloatTensor<B>; 2] {
+    let Im2colInputs {
         rows,
         weight,
         index,
         views,
         chunk,
-    } = saved;
+    } = inputs;
     let [r, c_in] = rows.shape().dims::<2>();
     let [_, p, c_out] = grad.shape().dims::<3>();
     let weight_t = B::float_transpose(weight);
@@ -144,101 +157,37 @@ pub fn backward<B: RowScatter>(grad: FloatTensor<B>, saved: Saved<B>) -> [FloatT
     [d_rows, d_weight]
 }
 
-/// What the backward keeps: the inputs (the columns are gathered again).
-#[derive(Debug, Clone)]
-pub struct Saved<B: Backend> {
-    /// `[R, C_in]`.
-    pub rows: FloatTensor<B>,
-    /// `[27 C_in, C_out]`.
-    pub weight: FloatTensor<B>,
-    /// `[27 N P]`.
-    pub index: IntTensor<B>,
-    /// N.
-    pub views: usize,
-    /// Outputs per view in a block.
-    pub chunk: usize,
-}
+/// The product under autodiff: [`forward`] and [`backward`].
+struct Im2col;
 
-/// The operation on a device backend: [`forward`].
-macro_rules! on_device_backend {
-    ($backend:ty) => {
-        impl Im2colBackend for $backend {
-            fn im2col_product(
-                rows: FloatTensor<Self>,
-                weight: FloatTensor<Self>,
-                index: IntTensor<Self>,
-                views: usize,
-                chunk: usize,
-            ) -> FloatTensor<Self> {
-                forward::<Self>(&rows, &weight, &index, views, chunk)
-            }
-        }
-    };
-}
+impl<B: RowScatter> TwoFloatOp<B> for Im2col {
+    type Inputs = Im2colInputs<B>;
 
-on_device_backend!(NdArray);
-#[cfg(feature = "wgpu")]
-on_device_backend!(Cube);
-
-/// The backward of [`Im2colBackend::im2col_product`] under autodiff.
-#[derive(Debug)]
-struct Im2colBackward;
-
-impl<B: RowScatter> Backward<B, 2> for Im2colBackward {
-    type State = Saved<B>;
+    fn forward(inputs: &Self::Inputs) -> FloatTensor<B> {
+        forward::<B>(inputs)
+    }
 
     fn backward(
-        self,
-        ops: Ops<Self::State, 2>,
-        grads: &mut Gradients,
-        _checkpointer: &mut Checkpointer,
-    ) {
-        let grad = grads.consume::<B>(&ops.node);
-        let got = backward::<B>(grad, ops.state);
-        for (node, g) in ops.parents.into_iter().zip(got) {
-            if let Some(node) = node {
-                grads.register::<B>(node.id, g);
-            }
-        }
+        grad: FloatTensor<B>,
+        inputs: Self::Inputs,
+        _wants: [bool; 2],
+    ) -> [Option<FloatTensor<B>>; 2] {
+        backward::<B>(grad, inputs).map(Some)
     }
 }
 
 impl<B: RowScatter, C: CheckpointStrategy> Im2colBackend for Autodiff<B, C> {
-    fn im2col_product(
-        rows: FloatTensor<Self>,
-        weight: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        views: usize,
-        chunk: usize,
-    ) -> FloatTensor<Self> {
-        match Im2colBackward
-            .prepare::<C>([rows.node(), weight.node()])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let rows = rows.into_primitive();
-                let weight = weight.into_primitive();
-                let out = forward::<B>(&rows, &weight, &index, views, chunk);
-                prep.finish(
-                    Saved {
-                        rows,
-                        weight,
-                        index,
-                        views,
-                        chunk,
-                    },
-                    out,
-                )
+    fn im2col_product(inputs: Im2colInputs<Self>) -> FloatTensor<Self> {
+        // The float inputs under autodiff, then the product's inputs on the inner backend.
+        tracked_op::run::<B, C, Im2col>([inputs.rows, inputs.weight], |[rows, weight]| {
+            Im2colInputs {
+                rows,
+                weight,
+                index: inputs.index,
+                views: inputs.views,
+                chunk: inputs.chunk,
             }
-            OpsKind::UnTracked(prep) => prep.finish(forward::<B>(
-                &rows.into_primitive(),
-                &weight.into_primitive(),
-                &index,
-                views,
-                chunk,
-            )),
-        }
+        })
     }
 }
 
@@ -258,11 +207,11 @@ pub fn im2col_product(
     views: usize,
     chunk: usize,
 ) -> Tensor<3> {
-    Tensor::from_dispatch(<Dispatch as Im2colBackend>::im2col_product(
-        rows.into_dispatch(),
-        weight.into_dispatch(),
-        index.into_dispatch(),
+    Tensor::from_dispatch(<Dispatch as Im2colBackend>::im2col_product(Im2colInputs {
+        rows: rows.into_dispatch(),
+        weight: weight.into_dispatch(),
+        index: index.into_dispatch(),
         views,
         chunk,
-    ))
+    }))
 }

@@ -20,18 +20,19 @@ use burn::backend::tensor::FloatTensor;
 use burn::backend::Cube;
 use burn::backend::{Backend, NdArray, TensorMetadata};
 
-use super::site_norm_op::{Saved, SiteNormBackend, SiteNormKernels};
+use super::site_norm_op::{Saved, SiteNormBackend, SiteNormInputs, SiteNormKernels};
 
 /// The forward: `ReLU(gamma x_hat + beta)` and what the backward keeps.
 ///
 /// # Shapes
 /// - `x`: `[N, P, C]`; `gamma`, `beta`: `[C]`; `y`, `x_hat`: `[N, P, C]`; `inv_std`: `[N, C]`
-pub fn forward<B: Backend>(
-    x: FloatTensor<B>,
-    gamma: FloatTensor<B>,
-    beta: FloatTensor<B>,
-    epsilon: f64,
-) -> Saved<FloatTensor<B>> {
+pub fn forward<B: Backend>(inputs: SiteNormInputs<B>) -> Saved<FloatTensor<B>> {
+    let SiteNormInputs {
+        x,
+        gamma,
+        beta,
+        epsilon,
+    } = inputs;
     let [n, _, c] = x.shape().dims::<3>();
     let mean = B::float_mean_dim(x.clone(), 1); // [N, 1, C]
     let centred = B::float_sub(x, mean);
@@ -86,13 +87,8 @@ pub fn backward<B: Backend>(
 macro_rules! on_device_backend {
     ($backend:ty) => {
         impl SiteNormKernels for $backend {
-            fn site_norm_forward(
-                x: FloatTensor<Self>,
-                gamma: FloatTensor<Self>,
-                beta: FloatTensor<Self>,
-                epsilon: f64,
-            ) -> Saved<FloatTensor<Self>> {
-                forward::<Self>(x, gamma, beta, epsilon)
+            fn site_norm_forward(inputs: SiteNormInputs<Self>) -> Saved<FloatTensor<Self>> {
+                forward::<Self>(inputs)
             }
 
             fn site_norm_backward(
@@ -104,13 +100,8 @@ macro_rules! on_device_backend {
         }
 
         impl SiteNormBackend for $backend {
-            fn site_norm_relu(
-                x: FloatTensor<Self>,
-                gamma: FloatTensor<Self>,
-                beta: FloatTensor<Self>,
-                epsilon: f64,
-            ) -> FloatTensor<Self> {
-                forward::<Self>(x, gamma, beta, epsilon).y
+            fn site_norm_relu(inputs: SiteNormInputs<Self>) -> FloatTensor<Self> {
+                forward::<Self>(inputs).y
             }
         }
     };

@@ -12,7 +12,7 @@
 //!
 //! The sums over sites run in fixed blocks of [`ROWS_PER_BLOCK`] rows on rayon's threads, in
 //! f64, the blocks added in order: the same bits for any number of threads. Equal to the tensor
-//! form within float rounding (`nia-model/tests/body_volume.rs`).
+//! form within float rounding (`nia-model/tests/body_volume_conv.rs`).
 // ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
 #![allow(deprecated)]
 
@@ -21,7 +21,7 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, Flex};
+use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, ExtensionType, Flex};
 use burn::prelude::*;
 use rayon::prelude::*;
 
@@ -31,17 +31,25 @@ use crate::kernels::host_op::{contiguous_f32, dims, flex_tensor, values, FlexTen
 /// Rows (sites) of a block of the sums over sites.
 pub const ROWS_PER_BLOCK: usize = 512;
 
+/// The operation's inputs.
+#[derive(Debug, Clone, ExtensionType)]
+pub struct SiteNormInputs<B: Backend> {
+    /// `[N, P, C]`.
+    pub x: FloatTensor<B>,
+    /// `[C]`.
+    pub gamma: FloatTensor<B>,
+    /// `[C]`.
+    pub beta: FloatTensor<B>,
+    /// Added to the variance.
+    pub epsilon: f64,
+}
+
 /// The norm and ReLU as a backend operation: flex, ndarray and (with the `wgpu` feature) the
 /// cubecl backends, and autodiff over them with this module's backward.
 #[backend_extension(Autodiff, Flex, NdArray, Cube: cfg(feature = "wgpu"))]
 pub trait SiteNormBackend: Backend {
-    /// `x` `[N, P, C]`, `gamma` and `beta` `[C]` -> `ReLU(gamma x_hat + beta)` `[N, P, C]`.
-    fn site_norm_relu(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> FloatTensor<Self>;
+    /// `ReLU(gamma x_hat + beta)` `[N, P, C]` of `inputs`.
+    fn site_norm_relu(#[extension_type] inputs: SiteNormInputs<Self>) -> FloatTensor<Self>;
 }
 
 /// What the forward keeps for the backward.
@@ -60,12 +68,7 @@ pub struct Saved<T> {
 /// The host kernels on a concrete backend's buffers.
 pub trait SiteNormKernels: Backend {
     /// The output and what the backward needs.
-    fn site_norm_forward(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> Saved<FloatTensor<Self>>;
+    fn site_norm_forward(inputs: SiteNormInputs<Self>) -> Saved<FloatTensor<Self>>;
     /// `dx` `[N, P, C]`, `d gamma` and `d beta` `[C]` from `dy`.
     fn site_norm_backward(
         grad: FloatTensor<Self>,
@@ -220,12 +223,13 @@ pub fn backward(
 }
 
 impl SiteNormKernels for Flex {
-    fn site_norm_forward(
-        x: FlexTensor,
-        gamma: FlexTensor,
-        beta: FlexTensor,
-        epsilon: f64,
-    ) -> Saved<FlexTensor> {
+    fn site_norm_forward(inputs: SiteNormInputs<Self>) -> Saved<FlexTensor> {
+        let SiteNormInputs {
+            x,
+            gamma,
+            beta,
+            epsilon,
+        } = inputs;
         let (x, gamma, beta) = (
             contiguous_f32(x),
             contiguous_f32(gamma),
@@ -274,13 +278,8 @@ impl SiteNormKernels for Flex {
 }
 
 impl SiteNormBackend for Flex {
-    fn site_norm_relu(
-        x: FlexTensor,
-        gamma: FlexTensor,
-        beta: FlexTensor,
-        epsilon: f64,
-    ) -> FlexTensor {
-        <Flex as SiteNormKernels>::site_norm_forward(x, gamma, beta, epsilon).y
+    fn site_norm_relu(inputs: SiteNormInputs<Self>) -> FlexTensor {
+        <Flex as SiteNormKernels>::site_norm_forward(inputs).y
     }
 }
 
@@ -308,36 +307,32 @@ impl<B: Backend + SiteNormKernels> Backward<B, 3> for SiteNormBackward {
 }
 
 impl<B: Backend + SiteNormKernels, C: CheckpointStrategy> SiteNormBackend for Autodiff<B, C> {
-    fn site_norm_relu(
-        x: FloatTensor<Self>,
-        gamma: FloatTensor<Self>,
-        beta: FloatTensor<Self>,
-        epsilon: f64,
-    ) -> FloatTensor<Self> {
+    fn site_norm_relu(inputs: SiteNormInputs<Self>) -> FloatTensor<Self> {
+        let SiteNormInputs {
+            x,
+            gamma,
+            beta,
+            epsilon,
+        } = inputs;
+        let [(x, x_node), (gamma, gamma_node), (beta, beta_node)] =
+            [x, gamma, beta].map(|t| t.into_parts());
+        let inner = SiteNormInputs {
+            x,
+            gamma,
+            beta,
+            epsilon,
+        };
         match SiteNormBackward
-            .prepare::<C>([x.node(), gamma.node(), beta.node()])
+            .prepare::<C>([x_node, gamma_node, beta_node])
             .compute_bound()
             .stateful()
         {
             OpsKind::Tracked(prep) => {
-                let saved = B::site_norm_forward(
-                    x.into_primitive(),
-                    gamma.into_primitive(),
-                    beta.into_primitive(),
-                    epsilon,
-                );
+                let saved = B::site_norm_forward(inner);
                 let y = saved.y.clone();
                 prep.finish(saved, y)
             }
-            OpsKind::UnTracked(prep) => prep.finish(
-                B::site_norm_forward(
-                    x.into_primitive(),
-                    gamma.into_primitive(),
-                    beta.into_primitive(),
-                    epsilon,
-                )
-                .y,
-            ),
+            OpsKind::UnTracked(prep) => prep.finish(B::site_norm_forward(inner).y),
         }
     }
 }
@@ -349,9 +344,11 @@ impl<B: Backend + SiteNormKernels, C: CheckpointStrategy> SiteNormBackend for Au
 /// - `x`: `[N, P, C]`; `gamma`, `beta`: `[C]`; output `[N, P, C]`
 pub fn site_norm_relu(x: Tensor<3>, gamma: Tensor<1>, beta: Tensor<1>, epsilon: f64) -> Tensor<3> {
     Tensor::from_dispatch(<Dispatch as SiteNormBackend>::site_norm_relu(
-        x.into_dispatch(),
-        gamma.into_dispatch(),
-        beta.into_dispatch(),
-        epsilon,
+        SiteNormInputs {
+            x: x.into_dispatch(),
+            gamma: gamma.into_dispatch(),
+            beta: beta.into_dispatch(),
+            epsilon,
+        },
     ))
 }

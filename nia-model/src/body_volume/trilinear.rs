@@ -95,6 +95,9 @@ pub const BY_CORNER_BLOCK_BYTES: usize = 64 << 20;
 /// [`crate::renderer::shape_buckets::bucket_len`]).
 pub const BY_CORNER_BLOCK_ALIGN: usize = 2048;
 
+/// The corners' sites and weights in host memory, `[M * 8]` each.
+pub type HostCorners = (Arc<Vec<u32>>, Arc<Vec<f32>>);
+
 /// [`TrilinearCorners`] on a device, in the layout of one [`CornerRead`].
 #[derive(Debug, Clone)]
 pub struct TrilinearTensors {
@@ -108,7 +111,7 @@ pub struct TrilinearTensors {
     /// On flex, for [`CornerRead::Stacked`]: the corners' sites and weights in host memory
     /// (`[M * 8]` each), which [`sample`] reads as one weighted gather with its own backward
     /// ([`crate::kernels::weighted_rows`]); every read shares them.
-    pub host: Option<(Arc<Vec<u32>>, Arc<Vec<f32>>)>,
+    pub host: Option<HostCorners>,
     /// M.
     pub num_points: usize,
     /// P_s.

@@ -18,6 +18,10 @@ use burn::prelude::*;
 /// at most two block sizes (the first layer's input channels may differ).
 const CACHED_LAYOUTS: usize = 4;
 
+/// The stacked layouts made so far, oldest first: `(views, groups per block)` and the stacked
+/// indices `[N * G * group]`.
+type Layouts = Vec<((usize, usize), Tensor<1, Int>)>;
+
 /// The host's row indices of one view, grouped (`group` indices per output of a block), and
 /// the stacked layouts made from them so far.
 #[derive(Debug, Clone)]
@@ -30,13 +34,13 @@ pub(crate) struct ViewRows {
     rows: usize,
     device: Device,
     /// `(views, groups per block)` -> the stacked indices `[N * G * group]` on `device`.
-    layouts: Arc<Mutex<Vec<((usize, usize), Tensor<1, Int>)>>>,
+    layouts: Arc<Mutex<Layouts>>,
 }
 
 impl ViewRows {
     /// `index` `[G * group]`: rows `< rows` of one view of the indexed tensor.
     pub(crate) fn new(index: Vec<u32>, group: usize, rows: usize, device: &Device) -> Self {
-        debug_assert!(group > 0 && index.len() % group == 0);
+        debug_assert!(group > 0 && index.len().is_multiple_of(group));
         ViewRows {
             index: index.into(),
             group,

@@ -20,6 +20,7 @@ use rayon::prelude::*;
 
 use crate::encoder::pyramid_host::{HostMaps, HostPyramid};
 use crate::encoder::{BasicBlock, ImageEncoder, IMAGENET_MEAN, IMAGENET_STD};
+use crate::kernels::host_gemm::{product_into, Strided};
 use crate::kernels::readback::host_values_of;
 use crate::shape::ShapeError;
 
@@ -234,32 +235,16 @@ impl FoldedConv {
                             lhs.len(),
                             self.weight.len()
                         );
-                        // SAFETY: dst_run is [run, C_out] row-major, lhs [run, K] with row stride
-                        // lhs_rs, weight [K, C_out] row-major; the assert above checked that the
-                        // slices hold those extents.
-                        unsafe {
-                            gemm::gemm(
-                                run,
-                                co,
-                                k,
-                                dst_run.as_mut_ptr(),
-                                1,
-                                co as isize,
-                                false,
-                                lhs.as_ptr(),
-                                1,
-                                lhs_rs as isize,
-                                self.weight.as_ptr(),
-                                1,
-                                co as isize,
-                                0.0,
-                                1.0,
-                                false,
-                                false,
-                                false,
-                                gemm::Parallelism::None,
-                            );
-                        }
+                        // dst_run [run, C_out] = lhs [run, K] (rows lhs_rs apart) x weight
+                        // [K, C_out].
+                        product_into(
+                            dst_run,
+                            [run, co, k],
+                            Strided::rows_every(lhs, lhs_rs),
+                            Strided::rows(&self.weight, co),
+                            false,
+                            gemm::Parallelism::None,
+                        );
                         let res = residual.map(|r| &r.data()[p * co..(p + run) * co]);
                         for (i, px) in dst_run.chunks_mut(co).enumerate() {
                             for (o, v) in px.iter_mut().enumerate() {

@@ -216,23 +216,13 @@ impl FeaturePyramid {
     /// - `weight`: `[sum_l C_l, d]` (a `Linear`'s weight, input-major)
     /// - output: `[N, d, H/2, W/2]`
     pub fn reduce(&self, weight: Tensor<2>) -> Result<Tensor<4>, ShapeError> {
-        let d = check_reduction_weight(&weight, self.channels())?;
+        check_reduction_weight(&weight, self.channels())?;
         let [_, _, h2, w2] = self.levels[0].dims();
         let mut offset = 0;
         let mut total: Option<Tensor<4>> = None;
         for f in &self.levels {
-            let [n, c, h, w] = f.dims();
-            // [1, d, C_l] x [N, C_l, h w] -> [N, d, h w]: no permute of the maps.
-            let w_l = weight
-                .clone()
-                .narrow(0, offset, c)
-                .transpose()
-                .unsqueeze::<3>();
-            offset += c;
-            let reduced = w_l
-                .matmul(f.clone().reshape([n, c, h * w]))
-                .reshape([n, d, h, w]);
-            let up = upsample_bilinear(reduced, [h2, w2]);
+            let up = upsample_bilinear(reduce_level(&weight, offset, f), [h2, w2]);
+            offset += f.dims()[1];
             total = Some(match total {
                 None => up,
                 Some(t) => t + up,
@@ -240,6 +230,24 @@ impl FeaturePyramid {
         }
         total.ok_or_else(|| ShapeError::empty("feature pyramid levels"))
     }
+}
+
+/// Level l's part of [`FeaturePyramid::reduce`] before upsampling: `W_l^T f_l`, with `W_l` the
+/// `C_l` rows of `weight` from `offset`.
+///
+/// # Shapes
+/// - `weight`: `[sum_l C_l, d]`; `level` f_l: `[N, C_l, h, w]`; output `[N, d, h, w]`
+pub fn reduce_level(weight: &Tensor<2>, offset: usize, level: &Tensor<4>) -> Tensor<4> {
+    let [n, c, h, w] = level.dims();
+    let d = weight.dims()[1];
+    // [1, d, C_l] x [N, C_l, h w] -> [N, d, h w]: no permute of the maps.
+    let w_l = weight
+        .clone()
+        .narrow(0, offset, c)
+        .transpose()
+        .unsqueeze::<3>();
+    w_l.matmul(level.clone().reshape([n, c, h * w]))
+        .reshape([n, d, h, w])
 }
 
 /// The width d of a pyramid reduction's `weight` `[C_img, d]`, checked against the pyramid's

@@ -16,6 +16,7 @@ use rayon::prelude::*;
 
 use crate::encoder::bilinear::ViewRows;
 use crate::encoder::{bilinear_matrix, check_reduction_weight, FeaturePyramid};
+use crate::kernels::host_gemm::{product_into, Strided};
 use crate::kernels::readback::host_values_of;
 use crate::shape::ShapeError;
 
@@ -160,31 +161,15 @@ pub fn reduce_to_rows(pyramid: &HostPyramid, weight: Tensor<2>) -> Result<ViewRo
                 dst.len(),
                 w_l.len()
             );
-            // SAFETY: dst is [h w, d] row-major, lhs [h w, c] row-major, rhs [c, d]
-            // row-major; the assert above checked that the slices hold exactly those extents.
-            unsafe {
-                gemm::gemm(
-                    h * w,
-                    d,
-                    c,
-                    dst.as_mut_ptr(),
-                    1,
-                    d as isize,
-                    read_dst,
-                    map.as_ptr(),
-                    1,
-                    c as isize,
-                    w_l.as_ptr(),
-                    1,
-                    d as isize,
-                    1.0,
-                    1.0,
-                    false,
-                    false,
-                    false,
-                    gemm::Parallelism::Rayon(0),
-                );
-            }
+            // dst [h w, d] (+)= map [h w, c] x w_l [c, d].
+            product_into(
+                dst,
+                [h * w, d, c],
+                Strided::rows(map, c),
+                Strided::rows(w_l, d),
+                read_dst,
+                gemm::Parallelism::Rayon(0),
+            );
         }
         if full {
             out = reduced;

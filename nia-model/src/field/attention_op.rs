@@ -83,7 +83,7 @@ fn tasks_mut(x: &mut [f32], m: usize, d: usize) -> Vec<Vec<&mut [f32]>> {
 
 /// The forward on host slices, `[N, M, d]` each: `O` `[N, M, d]` and `a` `[M, N, N]`.
 pub fn forward(q: &[f32], k: &[f32], v: &[f32], n: usize, d: usize) -> (Vec<f32>, Vec<f32>) {
-    let m = if n * d == 0 { 0 } else { q.len() / (n * d) };
+    let m = q.len().checked_div(n * d).unwrap_or(0);
     let scale = 1.0 / (d as f32).sqrt();
     let mut out = zeroed(m * n * d);
     let mut weights = zeroed(m * n * n);
@@ -133,7 +133,7 @@ pub fn backward(
     d: usize,
 ) -> [Vec<f32>; 3] {
     let len = q.len();
-    let m = if n * d == 0 { 0 } else { len / (n * d) };
+    let m = len.checked_div(n * d).unwrap_or(0);
     let scale = 1.0 / (d as f32).sqrt();
     let (mut dq, mut dk, mut dv) = (zeroed(len), zeroed(len), zeroed(len));
     if m == 0 {

@@ -9,7 +9,7 @@
 //! run in one host pass too ([`crate::ibr::blend_host`]). The activations of F_sigma and F_c0
 //! (softplus, sigmoid) stay tensor operations. [`crate::SceneEncoding::with_host_reads`] reads
 //! the weights once per scene; the tensor path stays the reference, the path with gradients and
-//! the one on the GPU (`nia-model/tests/fields.rs` and `tests/model.rs` compare them).
+//! the one on the GPU (`nia-model/tests/host_network.rs` and `tests/model.rs` compare them).
 
 use burn::prelude::*;
 use burn::tensor::activation::{sigmoid, softplus};
@@ -172,14 +172,7 @@ impl HostNetwork {
         inputs: BlendInputs,
         c0_weight_scale: Option<f32>,
     ) -> Result<(PointColour, Tensor<2>), ShapeError> {
-        blender.check_inputs(
-            &inputs.pixel_feature,
-            &inputs.view_dir_features,
-            &inputs.visibility,
-            &inputs.h,
-            &inputs.confidence,
-            Some((&inputs.c0, &inputs.source_colours)),
-        )?;
+        blender.check_inputs(&inputs)?;
         let [n, m, _] = inputs.source_colours.dims();
         let device = inputs.c0.device();
         let c0 = host_view_of("host F_B c0", inputs.c0.clone())?;

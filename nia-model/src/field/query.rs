@@ -15,6 +15,7 @@ use crate::ibr::fetch_source_colours_from;
 use crate::kernels::linear_rows::linear_rows;
 use crate::kernels::readback::host_view_of;
 use crate::model::NiaModel;
+use crate::renderer::shape_buckets::CallRows;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::{Stage, StageTimes, Stopwatch};
 
@@ -31,33 +32,31 @@ impl NiaModel {
     ) -> Result<PointOutput, ModelError> {
         let device = scene.images.device();
         let mut watch = Stopwatch::new(times, &device);
-        self.field_with(scene, points, dirs, &mut watch)
-    }
-
-    pub(crate) fn field_with(
-        &self,
-        scene: &SceneEncoding,
-        points: &[Vec3],
-        dirs: &[Vec3],
-        watch: &mut Stopwatch<'_>,
-    ) -> Result<PointOutput, ModelError> {
-        let inputs = self.point_tensors(scene, points, dirs, watch)?;
-        self.query_with(scene, &inputs, watch)
+        let inputs = self.point_tensors(scene, points, dirs, CallRows::Exact, &mut watch)?;
+        self.query_with(scene, &inputs, &mut watch)
     }
 
     /// The point inputs of world points (in the rendered pose) on the scene's device, reposed
-    /// into the scene's pose first when the scene was encoded for another pose. `watch`
-    /// charges the host part to [`Stage::PointInputs`].
+    /// into the scene's pose first when the scene was encoded for another pose, in
+    /// `rows.of(M)` rows, the M points first ([`PointTensors::real_points`] = M; with
+    /// [`CallRows::Bucket`] the network's outputs have `bucket_len(M)` rows, which
+    /// [`PointOutput::first`] cuts, or a scatter sends to a spare row). `watch` charges the
+    /// host part to [`Stage::PointInputs`].
     pub(crate) fn point_tensors(
         &self,
         scene: &SceneEncoding,
         points: &[Vec3],
         dirs: &[Vec3],
+        rows: CallRows,
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointTensors, ModelError> {
-        let inputs = self.point_inputs(scene, points, dirs)?;
+        let inputs = self
+            .point_inputs(scene, points, dirs)?
+            .padded(rows.of(points.len()));
         watch.mark(Stage::PointInputs);
-        upload_point_inputs(scene, inputs)
+        let mut tensors = upload_point_inputs(scene, inputs)?;
+        tensors.real_points = points.len();
+        Ok(tensors)
     }
 
     /// [`Self::point_tensors`]' host half: the point inputs of world points (in the rendered
@@ -100,18 +99,6 @@ impl NiaModel {
             }
         };
         Ok(inputs)
-    }
-
-    /// [`Self::field_with`]'s density half: the point inputs and [`Self::query_density`].
-    pub(crate) fn field_density(
-        &self,
-        scene: &SceneEncoding,
-        points: &[Vec3],
-        dirs: &[Vec3],
-        watch: &mut Stopwatch<'_>,
-    ) -> Result<DensityPass, ModelError> {
-        let inputs = self.point_tensors(scene, points, dirs, watch)?;
-        self.query_density(scene, &inputs, watch)
     }
 
     /// The network at M points whose inputs are already on the device: pixel features and

@@ -5,8 +5,9 @@
 //! rescaled odds of c0 ([`crate::ibr::c0_weight_scale::rescale_c0_weight`]) and a second mix,
 //! then the mix `c = w . [c0, c_1..c_N]` ([`crate::ibr::blender::mix`]) and the IBR-only colour.
 //! Here each task of [`ROWS_PER_TASK`] points does all of it per point, in parallel, with the same
-//! formulas in the same order, so the results agree to rounding (`nia-model/tests/fields.rs`).
-//! The tensor path stays the reference, the path with gradients and the one on the GPU.
+//! formulas in the same order, so the results agree to rounding
+//! (`nia-model/tests/host_network.rs`). The tensor path stays the reference, the path with
+//! gradients and the one on the GPU.
 
 use rayon::prelude::*;
 

@@ -145,33 +145,14 @@ pub struct PointColour {
 }
 
 impl Blender {
-    /// The blend logits w_0..w_N (index 0 = the NeRF colour c0).
+    /// The blend logits w_0..w_N (index 0 = the NeRF colour c0) of `inputs` (the colours c0
+    /// and c_n are read with view statistics only).
     ///
     /// # Shapes
-    /// - `pixel_feature` p_n: `[N, M, d]`
-    /// - `view_dir_features` d_hat_n: `[N, M, 4]`
-    /// - `visibility` o_n: `[N, M]`
-    /// - `h`: `[M, d_h]`
-    /// - `confidence` psi: `[M, 1]`
-    /// - `colours` (with view statistics, else ignored): c0 `[M, 3]` and c_n `[N, M, 3]`
+    /// - `inputs`: as [`BlendInputs`]
     /// - output `blend_logits`: `[M, N + 1]`
-    pub fn forward(
-        &self,
-        pixel_feature: Tensor<3>,
-        view_dir_features: Tensor<3>,
-        visibility: Tensor<2>,
-        h: Tensor<2>,
-        confidence: Tensor<2>,
-        colours: Option<(Tensor<2>, Tensor<3>)>,
-    ) -> Result<Tensor<2>, ShapeError> {
-        let (tokens, point) = self.tokens(
-            pixel_feature,
-            view_dir_features,
-            visibility,
-            h,
-            confidence,
-            colours,
-        )?;
+    pub fn forward(&self, inputs: &BlendInputs) -> Result<Tensor<2>, ShapeError> {
+        let (tokens, point) = self.tokens(inputs.clone())?;
         Ok(self.logits(tokens, point))
     }
 
@@ -179,26 +160,20 @@ impl Blender {
     /// module docs).
     ///
     /// # Shapes
-    /// - inputs as [`Self::forward`]'s
+    /// - `inputs`: as [`BlendInputs`]
     /// - outputs: tokens `[N + 1, M, d + 6 (+3)]` (token 0 = c0's), per-point part
     ///   `[M, d_h + 1 (+2d + 6)]`
-    pub fn tokens(
-        &self,
-        pixel_feature: Tensor<3>,
-        view_dir_features: Tensor<3>,
-        visibility: Tensor<2>,
-        h: Tensor<2>,
-        confidence: Tensor<2>,
-        colours: Option<(Tensor<2>, Tensor<3>)>,
-    ) -> Result<(Tensor<3>, Tensor<2>), ShapeError> {
-        self.check_inputs(
-            &pixel_feature,
-            &view_dir_features,
-            &visibility,
-            &h,
-            &confidence,
-            colours.as_ref().map(|(c0, c)| (c0, c)),
-        )?;
+    pub fn tokens(&self, inputs: BlendInputs) -> Result<(Tensor<3>, Tensor<2>), ShapeError> {
+        self.check_inputs(&inputs)?;
+        let BlendInputs {
+            c0,
+            confidence,
+            h,
+            source_colours,
+            pixel_feature,
+            view_dir_features,
+            visibility,
+        } = inputs;
         let [n, m, _] = pixel_feature.dims();
         let device = pixel_feature.device();
 
@@ -221,12 +196,6 @@ impl Blender {
         ];
         let mut point_parts = vec![h, confidence];
         if self.view_statistics {
-            let Some((c0, source_colours)) = colours else {
-                return Err(ShapeError::value(
-                    "F_B `colours`",
-                    "c0 and c_n (view statistics are on)".into(),
-                ));
-            };
             // Visibility-weighted across-view statistics, [M, k] each.
             let omega = view_weights(visibility.clone().reshape([n, m]));
             let (mean_p, var_p) = mean_and_variance(pixel_feature, omega.clone())?;
@@ -243,16 +212,8 @@ impl Blender {
 
     /// The checks of [`Self::tokens`]: every input's shape, at least one view, and with view
     /// statistics the colours c0 `[M, 3]` and c_n `[N, M, 3]`.
-    pub fn check_inputs(
-        &self,
-        pixel_feature: &Tensor<3>,
-        view_dir_features: &Tensor<3>,
-        visibility: &Tensor<2>,
-        h: &Tensor<2>,
-        confidence: &Tensor<2>,
-        colours: Option<(&Tensor<2>, &Tensor<3>)>,
-    ) -> Result<(), ShapeError> {
-        let [n, m, d] = pixel_feature.dims();
+    pub fn check_inputs(&self, inputs: &BlendInputs) -> Result<(), ShapeError> {
+        let [n, m, d] = inputs.pixel_feature.dims();
         let colour_dim = if self.view_statistics { 3 } else { 0 };
         let d_token = self.token_input.weight.dims()[0];
         let d_point =
@@ -267,31 +228,29 @@ impl Blender {
         }
         ShapeError::check(
             "F_B `view_dir_features` [N, M, 4]",
-            &view_dir_features.dims(),
+            &inputs.view_dir_features.dims(),
             &[Some(n), Some(m), Some(VIEW_DIR_FEATURE_DIM)],
         )?;
         ShapeError::check(
             "F_B `visibility` [N, M]",
-            &visibility.dims(),
+            &inputs.visibility.dims(),
             &[Some(n), Some(m)],
         )?;
-        ShapeError::check("F_B `h` [M, d_h]", &h.dims(), &[Some(m), Some(d_point - 1)])?;
+        ShapeError::check(
+            "F_B `h` [M, d_h]",
+            &inputs.h.dims(),
+            &[Some(m), Some(d_point - 1)],
+        )?;
         ShapeError::check(
             "F_B `confidence` [M, 1]",
-            &confidence.dims(),
+            &inputs.confidence.dims(),
             &[Some(m), Some(1)],
         )?;
         if self.view_statistics {
-            let Some((c0, source_colours)) = colours else {
-                return Err(ShapeError::value(
-                    "F_B `colours`",
-                    "c0 and c_n (view statistics are on)".into(),
-                ));
-            };
-            ShapeError::check("F_B `c0` [M, 3]", &c0.dims(), &[Some(m), Some(3)])?;
+            ShapeError::check("F_B `c0` [M, 3]", &inputs.c0.dims(), &[Some(m), Some(3)])?;
             ShapeError::check(
                 "F_B `source_colours` [N, M, 3]",
-                &source_colours.dims(),
+                &inputs.source_colours.dims(),
                 &[Some(n), Some(m), Some(3)],
             )?;
         }
@@ -386,14 +345,12 @@ impl Blender {
                 )
             }
             Variant::NoBody | Variant::Full => {
-                let (tokens, point) = self.tokens(
-                    inputs.pixel_feature,
-                    inputs.view_dir_features,
-                    inputs.visibility,
-                    inputs.h,
-                    inputs.confidence,
-                    Some((inputs.c0.clone(), inputs.source_colours.clone())),
-                )?;
+                // The colours are cloned: the blend below reads them again.
+                let (tokens, point) = self.tokens(BlendInputs {
+                    c0: inputs.c0.clone(),
+                    source_colours: inputs.source_colours.clone(),
+                    ..inputs
+                })?;
                 let blend_logits = self.logits(tokens, point);
                 match c0_weight_scale {
                     None => blend(blend_logits, inputs.c0, inputs.source_colours),

@@ -124,10 +124,10 @@ pub fn surface_colours(
     let inside = |g: &[f32]| g.iter().all(|v| v.abs() < GRID_INSIDE_BOUND);
     let mut slope = vec![0.0f32; n * r * 2];
     for view in 0..n {
-        for ray in 0..r {
+        for (ray, &acc) in acc_v[..r].iter().enumerate() {
             let i = (view * r + ray) * 2;
             let (g0, g1) = (&grid[i..i + 2], &grid_stepped[i..i + 2]);
-            if acc_v[ray] >= SURFACE_ACC_FLOOR && inside(g0) && inside(g1) {
+            if acc >= SURFACE_ACC_FLOOR && inside(g0) && inside(g1) {
                 slope[i] = (g1[0] - g0[0]) / SURFACE_GRID_STEP_M;
                 slope[i + 1] = (g1[1] - g0[1]) / SURFACE_GRID_STEP_M;
             }

@@ -9,13 +9,14 @@
 //! [`ROWS_PER_TASK`] rows: each task carries its rows through every layer in two scratch
 //! buffers that stay in cache, starting each layer's output from its bias and letting the
 //! product accumulate into it, with the ReLU in the same task. The result is the same formula
-//! to rounding (`nia-model/tests/fields.rs` checks it against the tensor path, which stays the
-//! reference, the path with gradients and the one on the GPU).
+//! to rounding (`nia-model/tests/host_network.rs` checks it against the tensor path, which
+//! stays the reference, the path with gradients and the one on the GPU).
 
 use burn::nn::Linear;
 use rayon::prelude::*;
 
 use crate::kernels::host_buffer::zeroed;
+use crate::kernels::host_gemm::{self, Strided};
 use crate::kernels::readback::host_values_of;
 use crate::shape::ShapeError;
 
@@ -288,32 +289,12 @@ fn product_into(dst: &mut [f32], src: &[f32], stride: usize, layer: &HostLinear,
         src.len(),
         layer.weight.len()
     );
-    if n == 0 {
-        return;
-    }
-    // SAFETY: dst is [n, co] row-major, src n rows of k values with row stride `stride`, weight
-    // [k, co] row-major; the assert above checked that the slices hold those extents.
-    unsafe {
-        gemm::gemm(
-            n,
-            co,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            co as isize,
-            true,
-            src.as_ptr(),
-            1,
-            stride as isize,
-            layer.weight.as_ptr(),
-            1,
-            co as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
-    }
+    host_gemm::product_into(
+        dst,
+        [n, co, k],
+        Strided::rows_every(src, stride),
+        Strided::rows(&layer.weight, co),
+        true,
+        gemm::Parallelism::None,
+    );
 }

@@ -34,6 +34,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use rayon::prelude::*;
 
+use crate::kernels::host_gemm::{self, Strided};
 use crate::kernels::host_op::{
     contiguous_f32, dims, flex_tensor, runs_on_host, values, FlexTensor,
 };
@@ -106,95 +107,10 @@ fn parallelism(m: usize, n: usize, k: usize) -> gemm::Parallelism {
     }
 }
 
-/// A strided `[rows, cols]` matrix: element `(i, j)` at `ptr + i * row_stride + j * col_stride`.
-#[derive(Clone, Copy)]
-struct Strided<'a> {
-    values: &'a [f32],
-    row_stride: usize,
-    col_stride: usize,
-}
-
-impl<'a> Strided<'a> {
-    /// `values` as a row-major `[_, cols]` matrix.
-    fn rows(values: &'a [f32], cols: usize) -> Self {
-        Strided {
-            values,
-            row_stride: cols,
-            col_stride: 1,
-        }
-    }
-
-    /// The transpose of a row-major `[_, cols]` matrix.
-    fn transposed(values: &'a [f32], cols: usize) -> Self {
-        Strided {
-            values,
-            row_stride: 1,
-            col_stride: cols,
-        }
-    }
-
-    /// Whether element `(rows - 1, cols - 1)` lies inside the slice.
-    fn holds(&self, rows: usize, cols: usize) -> bool {
-        rows == 0
-            || cols == 0
-            || (rows - 1) * self.row_stride + (cols - 1) * self.col_stride < self.values.len()
-    }
-}
-
-/// `lhs [m, k] x rhs [k, n]` into a new row-major `[m, n]` buffer.
-fn product(m: usize, n: usize, k: usize, lhs: Strided, rhs: Strided) -> Vec<f32> {
-    product_with(m, n, k, lhs, rhs, parallelism(m, n, k))
-}
-
-/// [`product`] on `threads`.
-fn product_with(
-    m: usize,
-    n: usize,
-    k: usize,
-    lhs: Strided,
-    rhs: Strided,
-    threads: gemm::Parallelism,
-) -> Vec<f32> {
-    // The extents the product reads; a mismatch is a bug here, never a read past a slice.
-    assert!(
-        lhs.holds(m, k) && rhs.holds(k, n),
-        "host linear: a [{m}, {k}] x [{k}, {n}] product on slices of {} and {} values",
-        lhs.values.len(),
-        rhs.values.len()
-    );
-    let len = m * n;
-    let mut out: Vec<f32> = Vec::with_capacity(len);
-    if len > 0 {
-        // SAFETY: `out` has room for the row-major [m, n] result; lhs and rhs hold the
-        // extents the assert checked. With `read_dst` false gemm stores every element of the
-        // destination without reading it (zeros when k is 0), so all `len` values are
-        // initialised before `set_len`.
-        unsafe {
-            gemm::gemm(
-                m,
-                n,
-                k,
-                out.as_mut_ptr(),
-                1,
-                n as isize,
-                false,
-                lhs.values.as_ptr(),
-                lhs.col_stride as isize,
-                lhs.row_stride as isize,
-                rhs.values.as_ptr(),
-                rhs.col_stride as isize,
-                rhs.row_stride as isize,
-                0.0,
-                1.0,
-                false,
-                false,
-                false,
-                threads,
-            );
-            out.set_len(len);
-        }
-    }
-    out
+/// `lhs [m, k] x rhs [k, n]` into a new row-major `[m, n]` buffer, on rayon's threads from
+/// [`PARALLEL_PRODUCT`] multiply-adds.
+fn product(m: usize, n: usize, k: usize, lhs: Strided<'_>, rhs: Strided<'_>) -> Vec<f32> {
+    host_gemm::product([m, n, k], lhs, rhs, parallelism(m, n, k))
 }
 
 /// Rows per block of the weight gradient's partial products.
@@ -205,17 +121,11 @@ const WEIGHT_GRADIENT_ROWS: usize = 2048;
 /// [`WEIGHT_GRADIENT_ROWS`] rows give partial products on rayon's threads, added in order: the
 /// result does not depend on the number of threads.
 fn weight_gradient(x: &[f32], g: &[f32], k: usize, n: usize) -> Vec<f32> {
-    let m = if k == 0 {
-        g.len() / n.max(1)
-    } else {
-        x.len() / k
-    };
+    let m = x.len().checked_div(k).unwrap_or(g.len() / n.max(1));
     let block = |first: usize| {
         let rows = WEIGHT_GRADIENT_ROWS.min(m - first);
-        product_with(
-            k,
-            n,
-            rows,
+        host_gemm::product(
+            [k, n, rows],
             Strided::transposed(&x[first * k..(first + rows) * k], k),
             Strided::rows(&g[first * n..(first + rows) * n], n),
             gemm::Parallelism::None,
@@ -267,22 +177,22 @@ fn relu_gradient(grad: &[f32], output: &[f32]) -> Vec<f32> {
         output.len(),
         "host linear: gradient and output sizes"
     );
-    let mask = |(o, (g, y)): (&mut [MaybeUninit<f32>], (&[f32], &[f32]))| {
+    fn mask(o: &mut [MaybeUninit<f32>], g: &[f32], y: &[f32]) {
         for ((o, &g), &y) in o.iter_mut().zip(g).zip(y) {
             o.write(if y > 0.0 { g } else { 0.0 });
         }
-    };
+    }
     let mut out: Vec<f32> = Vec::with_capacity(grad.len());
     let dst = &mut out.spare_capacity_mut()[..grad.len()];
     if grad.len() < PARALLEL_VALUES {
-        mask((dst, (grad, output)));
+        mask(dst, grad, output);
     } else {
         dst.par_chunks_mut(PARALLEL_VALUES)
             .zip(
                 grad.par_chunks(PARALLEL_VALUES)
                     .zip(output.par_chunks(PARALLEL_VALUES)),
             )
-            .for_each(mask);
+            .for_each(|(o, (g, y))| mask(o, g, y));
     }
     // SAFETY: `mask` wrote every one of the first `grad.len()` values.
     unsafe { out.set_len(grad.len()) };

@@ -4,13 +4,14 @@
 //!
 //! Host (flex; inference and CPU training):
 //! - [`host_op`]: what the host operations share (burn's backend extension, with and without
-//!   autodiff); [`host_buffer`]: their output buffers;
+//!   autodiff); [`host_buffer`]: their output buffers; [`host_gemm`]: their matrix products;
 //! - [`linear_host`]: a linear layer (with its ReLU) as one operation;
 //! - [`host_mlp`]: stacks of linear layers fused and in parallel (inference);
 //! - [`weighted_rows`]: the bilinear and trilinear reads as weighted row gathers.
 //!
 //! GPU backends (training):
-//! - [`tap_gather`]: the weighted row gathers as one operation; [`tap_scatter`]: their rows'
+//! - [`tap_gather`]: the weighted row gathers as one operation ([`tracked_op`]: the autodiff side
+//!   it shares with the body volume's `Im2col` product); [`tap_scatter`]: their rows'
 //!   gradient as one cubecl kernel; [`row_scatter`], [`blocked_rows`]: scatter-adds of
 //!   gradient rows on a backend's primitives, in blocks.
 //!
@@ -20,6 +21,7 @@
 
 pub mod blocked_rows;
 pub mod host_buffer;
+pub mod host_gemm;
 pub mod host_mlp;
 pub mod host_op;
 pub mod linear_host;
@@ -28,4 +30,5 @@ pub mod readback;
 pub mod row_scatter;
 pub mod tap_gather;
 pub mod tap_scatter;
+pub mod tracked_op;
 pub mod weighted_rows;

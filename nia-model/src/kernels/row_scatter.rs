@@ -36,6 +36,16 @@ pub fn range(start: usize, len: usize) -> Slice {
     Slice::with_step(start as isize, Some((start + len) as isize), 1)
 }
 
+/// The K taps of L outputs of a weighted row read ([`crate::kernels::tap_gather`]): the rows
+/// they read and their weights.
+#[derive(Debug, Clone)]
+pub struct Taps<B: Backend> {
+    /// `[K, L]` Int.
+    pub index: IntTensor<B>,
+    /// `[K, L]`.
+    pub weight: FloatTensor<B>,
+}
+
 /// The scatter-add of gradient rows, per backend (module docs).
 pub trait RowScatter: Backend {
     /// The most rows of `columns` values a caller should hand one [`Self::scatter_add_rows`]
@@ -51,15 +61,14 @@ pub trait RowScatter: Backend {
     }
 
     /// `rows` `[R, C]` with `weight[j, l] * grad[l]` added at row `index[j, l]` for every tap j
-    /// and output l (`grad` `[L, C]`, `index` `[K, L]`, `weight` `[K, L]`): the rows' gradient
-    /// of [`crate::kernels::tap_gather`] ([`crate::kernels::tap_scatter`]).
+    /// and output l of `taps` (`grad` `[L, C]`): the rows' gradient of
+    /// [`crate::kernels::tap_gather`] ([`crate::kernels::tap_scatter`]).
     fn weighted_scatter_add(
         rows: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        weight: FloatTensor<Self>,
+        taps: Taps<Self>,
     ) -> FloatTensor<Self> {
-        weighted_scatter_tensor_form::<Self>(rows, grad, index, weight)
+        weighted_scatter_tensor_form::<Self>(rows, grad, taps)
     }
 
     /// `target` `[R, C]` with every row of `values` `[L, C]` added at the row `index` `[L]`
@@ -98,13 +107,12 @@ impl RowScatter for Cube {
     fn weighted_scatter_add(
         rows: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        weight: FloatTensor<Self>,
+        taps: Taps<Self>,
     ) -> FloatTensor<Self> {
         if cube_adds_floats_atomically(&rows.device()) {
-            crate::kernels::tap_scatter::cube::fused(rows, grad, index, weight)
+            crate::kernels::tap_scatter::cube::fused(rows, grad, taps.index, taps.weight)
         } else {
-            weighted_scatter_tensor_form::<Self>(rows, grad, index, weight)
+            weighted_scatter_tensor_form::<Self>(rows, grad, taps)
         }
     }
 
@@ -139,14 +147,14 @@ impl RowScatter for Cube {
 /// [`RowScatter::scatter_add_rows`] ([`crate::kernels::tap_scatter`] is the GPU kernel without the buffer).
 ///
 /// # Shapes
-/// - `rows`: `[R, C]`; `grad`: `[L, C]`; `index`: `[K, L]` Int in `0..R`; `weight`: `[K, L]`;
-///   output `[R, C]`
+/// - `rows`: `[R, C]`; `grad`: `[L, C]`; `taps`: `[K, L]` each, the index in `0..R`; output
+///   `[R, C]`
 pub fn weighted_scatter_tensor_form<B: RowScatter>(
     rows: FloatTensor<B>,
     grad: FloatTensor<B>,
-    index: IntTensor<B>,
-    weight: FloatTensor<B>,
+    taps: Taps<B>,
 ) -> FloatTensor<B> {
+    let Taps { index, weight } = taps;
     let [k, l] = index.shape().dims::<2>();
     let c = grad.shape().dims::<2>()[1];
     let values = B::float_mul(

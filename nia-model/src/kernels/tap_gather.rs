@@ -23,32 +23,45 @@
 // ndarray: the reference CPU backend of the tests, deprecated in burn 0.22.
 #![allow(deprecated)]
 
-use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
-use burn::backend::autodiff::grads::Gradients;
-use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::{FloatTensor, IntTensor};
 #[cfg(feature = "wgpu")]
 use burn::backend::Cube;
-use burn::backend::{backend_extension, Autodiff, Backend, Dispatch, NdArray, TensorMetadata};
+use burn::backend::{
+    backend_extension, Autodiff, Backend, Dispatch, ExtensionType, NdArray, TensorMetadata,
+};
 use burn::prelude::*;
 use burn::tensor::Slice;
 
-use crate::kernels::row_scatter::{blocks, range, RowScatter};
+use crate::kernels::row_scatter::{blocks, range, RowScatter, Taps};
+use crate::kernels::tracked_op::{self, TwoFloatOp};
 
-/// The read as a backend operation: ndarray and (with the `wgpu` feature) the cubecl backends,
-/// and autodiff over them with this module's backward.
+/// The read's inputs, which its backward keeps.
+#[derive(Debug, Clone, ExtensionType)]
+pub struct TapGatherInputs<B: Backend> {
+    /// `[R, C]`.
+    pub rows: FloatTensor<B>,
+    /// `[K, L]` Int in `0..R`.
+    pub index: IntTensor<B>,
+    /// `[K, L]`.
+    pub weight: FloatTensor<B>,
+    /// Outputs read at a time in the forward.
+    pub block: usize,
+}
+
+/// The read as a backend operation: ndarray and (with the `wgpu` feature) the cubecl backends
+/// ([`forward`]), and autodiff over them with this module's backward.
 #[backend_extension(Autodiff, NdArray, Cube: cfg(feature = "wgpu"))]
 pub trait TapGatherBackend: Backend {
-    /// `rows` `[R, C]`, `index` `[K, L]` Int in `0..R`, `weight` `[K, L]`, read `block`
-    /// outputs at a time -> `[L, C]`.
-    fn tap_gather(
-        rows: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        weight: FloatTensor<Self>,
-        block: usize,
-    ) -> FloatTensor<Self>;
+    /// The read of `inputs`: `[L, C]`.
+    fn tap_gather(#[extension_type] inputs: TapGatherInputs<Self>) -> FloatTensor<Self> {
+        forward::<Self>(&inputs)
+    }
 }
+
+impl TapGatherBackend for NdArray {}
+#[cfg(feature = "wgpu")]
+impl TapGatherBackend for Cube {}
 
 /// Tap `j`'s index `[len]` and weight `[len, 1]` for outputs `start..start + len` of `l`.
 fn tap<B: Backend>(
@@ -88,18 +101,14 @@ fn taps<B: Backend>(
 }
 
 /// The forward (module docs): `[L, C]`.
-pub fn forward<B: Backend>(
-    rows: &FloatTensor<B>,
-    index: &IntTensor<B>,
-    weight: &FloatTensor<B>,
-    block: usize,
-) -> FloatTensor<B> {
+pub fn forward<B: Backend>(inputs: &TapGatherInputs<B>) -> FloatTensor<B> {
+    let (rows, index, weight) = (&inputs.rows, &inputs.index, &inputs.weight);
     let [k, l] = index.shape().dims::<2>();
     let c = rows.shape().dims::<2>()[1];
     if l == 0 || k == 0 {
         return B::float_zeros([l, c].into(), &rows.device(), rows.dtype().into());
     }
-    let mut parts: Vec<FloatTensor<B>> = blocks(l, block)
+    let mut parts: Vec<FloatTensor<B>> = blocks(l, inputs.block)
         .map(|outputs| {
             (0..k)
                 .map(|j| {
@@ -117,31 +126,31 @@ pub fn forward<B: Backend>(
     }
 }
 
-/// The backward (module docs): the gradients of `rows` `[R, C]` (when `wants.0`) and `weight`
-/// `[K, L]` (when `wants.1`) from the output's `grad` `[L, C]`.
+/// The backward (module docs): the gradients of `rows` `[R, C]` (when `wants[0]`) and `weight`
+/// `[K, L]` (when `wants[1]`) from the output's `grad` `[L, C]`.
 pub fn backward<B: RowScatter>(
     grad: FloatTensor<B>,
-    saved: &Saved<B>,
-    wants: (bool, bool),
-) -> (Option<FloatTensor<B>>, Option<FloatTensor<B>>) {
-    let Saved {
-        rows,
-        index,
-        weight,
-    } = saved;
+    inputs: &TapGatherInputs<B>,
+    wants: [bool; 2],
+) -> [Option<FloatTensor<B>>; 2] {
+    let (rows, index, weight) = (&inputs.rows, &inputs.index, &inputs.weight);
     let [r, c] = rows.shape().dims::<2>();
     let [k, l] = index.shape().dims::<2>();
-    let mut d_rows = wants
-        .0
-        .then(|| B::float_zeros([r, c].into(), &rows.device(), rows.dtype().into()));
+    let mut d_rows =
+        wants[0].then(|| B::float_zeros([r, c].into(), &rows.device(), rows.dtype().into()));
     // Where the backend has the scatter-add of weighted taps as one operation (a GPU kernel),
     // the rows' gradient is that, whole; else one scatter-add for all K taps of each block.
-    let fused = wants.0 && B::scatters_weighted_taps(&rows.device());
+    let fused = wants[0] && B::scatters_weighted_taps(&rows.device());
     if fused {
-        d_rows = d_rows
-            .map(|acc| B::weighted_scatter_add(acc, grad.clone(), index.clone(), weight.clone()));
-        if !wants.1 {
-            return (d_rows, None);
+        d_rows = d_rows.map(|acc| {
+            let taps = Taps {
+                index: index.clone(),
+                weight: weight.clone(),
+            };
+            B::weighted_scatter_add(acc, grad.clone(), taps)
+        });
+        if !wants[1] {
+            return [d_rows, None];
         }
     }
     let mut d_weight = Vec::new();
@@ -163,7 +172,7 @@ pub fn backward<B: RowScatter>(
                 B::float_reshape(values, [k * len, c].into()),
             ));
         }
-        if wants.1 {
+        if wants[1] {
             let read =
                 B::float_reshape(B::float_select(rows.clone(), 0, index), [k, len, c].into());
             let dot = B::float_sum_dim(B::float_mul(read, g), 2);
@@ -175,98 +184,39 @@ pub fn backward<B: RowScatter>(
         1 => d_weight.pop(),
         _ => Some(B::float_cat(d_weight, 1)),
     };
-    (d_rows, d_weight)
+    [d_rows, d_weight]
 }
 
-/// What the backward keeps: the inputs.
-#[derive(Debug, Clone)]
-pub struct Saved<B: Backend> {
-    /// `[R, C]`.
-    pub rows: FloatTensor<B>,
-    /// `[K, L]`.
-    pub index: IntTensor<B>,
-    /// `[K, L]`.
-    pub weight: FloatTensor<B>,
-}
+/// The read under autodiff: [`forward`] and [`backward`].
+struct TapGather;
 
-/// The operation on a device backend: [`forward`].
-macro_rules! on_device_backend {
-    ($backend:ty) => {
-        impl TapGatherBackend for $backend {
-            fn tap_gather(
-                rows: FloatTensor<Self>,
-                index: IntTensor<Self>,
-                weight: FloatTensor<Self>,
-                block: usize,
-            ) -> FloatTensor<Self> {
-                forward::<Self>(&rows, &index, &weight, block)
-            }
-        }
-    };
-}
+impl<B: RowScatter> TwoFloatOp<B> for TapGather {
+    type Inputs = TapGatherInputs<B>;
 
-on_device_backend!(NdArray);
-#[cfg(feature = "wgpu")]
-on_device_backend!(Cube);
-
-/// The backward of [`TapGatherBackend::tap_gather`] under autodiff.
-#[derive(Debug)]
-struct TapGatherBackward;
-
-impl<B: RowScatter> Backward<B, 2> for TapGatherBackward {
-    type State = Saved<B>;
+    fn forward(inputs: &Self::Inputs) -> FloatTensor<B> {
+        forward::<B>(inputs)
+    }
 
     fn backward(
-        self,
-        ops: Ops<Self::State, 2>,
-        grads: &mut Gradients,
-        _checkpointer: &mut Checkpointer,
-    ) {
-        let grad = grads.consume::<B>(&ops.node);
-        let [rows_node, weight_node] = ops.parents;
-        let wants = (rows_node.is_some(), weight_node.is_some());
-        let (d_rows, d_weight) = backward::<B>(grad, &ops.state, wants);
-        if let (Some(node), Some(g)) = (rows_node, d_rows) {
-            grads.register::<B>(node.id, g);
-        }
-        if let (Some(node), Some(g)) = (weight_node, d_weight) {
-            grads.register::<B>(node.id, g);
-        }
+        grad: FloatTensor<B>,
+        inputs: Self::Inputs,
+        wants: [bool; 2],
+    ) -> [Option<FloatTensor<B>>; 2] {
+        backward::<B>(grad, &inputs, wants)
     }
 }
 
 impl<B: RowScatter, C: CheckpointStrategy> TapGatherBackend for Autodiff<B, C> {
-    fn tap_gather(
-        rows: FloatTensor<Self>,
-        index: IntTensor<Self>,
-        weight: FloatTensor<Self>,
-        block: usize,
-    ) -> FloatTensor<Self> {
-        match TapGatherBackward
-            .prepare::<C>([rows.node(), weight.node()])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let rows = rows.into_primitive();
-                let weight = weight.into_primitive();
-                let out = forward::<B>(&rows, &index, &weight, block);
-                prep.finish(
-                    Saved {
-                        rows,
-                        index,
-                        weight,
-                    },
-                    out,
-                )
+    fn tap_gather(inputs: TapGatherInputs<Self>) -> FloatTensor<Self> {
+        // The float inputs under autodiff, then the read's inputs on the inner backend.
+        tracked_op::run::<B, C, TapGather>([inputs.rows, inputs.weight], |[rows, weight]| {
+            TapGatherInputs {
+                rows,
+                index: inputs.index,
+                weight,
+                block: inputs.block,
             }
-            OpsKind::UnTracked(prep) => prep.finish(forward::<B>(
-                &rows.into_primitive(),
-                &index,
-                &weight.into_primitive(),
-                block,
-            )),
-        }
+        })
     }
 }
 
@@ -283,9 +233,11 @@ pub fn tap_gather(
     block: usize,
 ) -> Tensor<2> {
     Tensor::from_dispatch(<Dispatch as TapGatherBackend>::tap_gather(
-        rows.into_dispatch(),
-        index.into_dispatch(),
-        weight.into_dispatch(),
-        block,
+        TapGatherInputs {
+            rows: rows.into_dispatch(),
+            index: index.into_dispatch(),
+            weight: weight.into_dispatch(),
+            block,
+        },
     ))
 }

@@ -184,7 +184,7 @@ fn check_taps(taps: &Taps) {
         taps.per_row > 0
             && taps.views > 0
             && taps.index.len() == taps.weight.len()
-            && taps.index.len() % taps.per_row == 0,
+            && taps.index.len().is_multiple_of(taps.per_row),
         "weighted rows: {} indices and {} weights, {} per row, {} views",
         taps.index.len(),
         taps.weight.len(),

@@ -28,6 +28,7 @@ use crate::field::PointOutput;
 use crate::kernels::blocked_rows::scatter_add_rows;
 use crate::kernels::readback::host_values;
 use crate::model::NiaModel;
+use crate::renderer::shape_buckets::CallRows;
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::Stopwatch;
@@ -159,7 +160,10 @@ impl NiaModel {
             points.push(samples.points[p]);
             dirs.push(samples.dirs[p]);
         }
-        let coloured = self.field_with(scene, &points, &dirs, watch)?;
+        // The whole network at the chosen points, padded to a bucket on a GPU.
+        let rows = CallRows::on(&scene.images.device());
+        let inputs = self.point_tensors(scene, &points, &dirs, rows, watch)?;
+        let coloured = self.query_with(scene, &inputs, watch)?.first(points.len());
         let device = scene.images.device();
         let m = index.len();
         let factor = Tensor::<1>::from_data(

@@ -12,7 +12,7 @@ use glam::Vec3;
 use nia_data::geometry::rays::RayBundle;
 
 use super::quadrature::{render_rays_delta, RenderOutput};
-use super::shape_buckets::pads_to_buckets;
+use super::shape_buckets::CallRows;
 use crate::config::SourceColoursAt;
 use crate::error::ModelError;
 use crate::field::PointOutput;
@@ -124,10 +124,10 @@ impl NiaModel {
             // takes goes in several calls (training's step is one call, as its rays are).
             let out = if jitter.is_none() && points.len() > scene.points_per_call {
                 self.field_in_calls(scene, points, dirs, watch)?
-            } else if pads_to_buckets(&device) {
-                self.field_in_bucket(scene, points, dirs, watch)?
             } else {
-                self.field_with(scene, points, dirs, watch)?
+                let inputs =
+                    self.point_tensors(scene, points, dirs, CallRows::on(&device), watch)?;
+                self.query_with(scene, &inputs, watch)?
             };
             let evaluated = ray_samples.evaluated();
             (out, ray_samples.kept.clone(), evaluated, evaluated)
@@ -143,7 +143,7 @@ impl NiaModel {
 
     /// The field at `points` / `dirs` ([M] each) in calls of at most the scene's
     /// `points_per_call` points, the outputs in order. On a GPU backend each call is padded to
-    /// its bucket and the last call's padding kept (as [`Self::field_in_bucket`]'s: more than
+    /// its bucket and the last call's padding kept (as [`Self::point_tensors`] says: more than
     /// M rows, which the scatter sends to its spare row, so its shapes stay bucketed).
     fn field_in_calls(
         &self,
@@ -152,17 +152,18 @@ impl NiaModel {
         dirs: &[Vec3],
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointOutput, ModelError> {
-        let pad = pads_to_buckets(&scene.images.device());
+        let rows = CallRows::on(&scene.images.device());
         let call = scene.points_per_call.max(1);
         let calls = points.len().div_ceil(call);
         let mut parts = Vec::new();
         for (k, (points, dirs)) in points.chunks(call).zip(dirs.chunks(call)).enumerate() {
-            parts.push(match (pad, k + 1 == calls) {
-                (true, true) => self.field_in_bucket(scene, points, dirs, watch)?,
-                (true, false) => self
-                    .field_in_bucket(scene, points, dirs, watch)?
-                    .first(points.len()),
-                (false, _) => self.field_with(scene, points, dirs, watch)?,
+            let inputs = self.point_tensors(scene, points, dirs, rows, watch)?;
+            let out = self.query_with(scene, &inputs, watch)?;
+            // Every padded call but the last drops its padding.
+            parts.push(if rows == CallRows::Bucket && k + 1 < calls {
+                out.first(points.len())
+            } else {
+                out
             });
         }
         PointOutput::cat(parts).ok_or_else(|| ModelError::Input("no point to evaluate".into()))

@@ -7,15 +7,8 @@
 //! Padded to a bucket (the last point repeated, its outputs dropped), the calls of every image
 //! reuse a few shapes. On the CPU backends nothing compiles, so nothing is padded.
 
-use glam::Vec3;
-
 use crate::device::computes_on_cpu;
-use crate::error::ModelError;
-use crate::field::query::upload_point_inputs;
-use crate::field::{PointOutput, PointTensors};
-use crate::model::NiaModel;
-use crate::scene_encoding::SceneEncoding;
-use crate::timing::{Stage, Stopwatch};
+use crate::field::PointOutput;
 use burn::tensor::Device;
 
 /// The smallest bucket: every call of fewer points is padded to it.
@@ -49,6 +42,35 @@ pub fn pads_to_buckets(device: &Device) -> bool {
     !computes_on_cpu(device)
 }
 
+/// How a network call lays out its points: one row per point, or padded to their bucket.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CallRows {
+    /// One row per point (the CPU backends).
+    Exact,
+    /// [`bucket_len`] rows, the points first and the last one repeated (the GPU backends).
+    Bucket,
+}
+
+impl CallRows {
+    /// The layout of renders on `device`: [`Self::Bucket`] where they pad to buckets
+    /// ([`pads_to_buckets`]).
+    pub fn on(device: &Device) -> Self {
+        if pads_to_buckets(device) {
+            CallRows::Bucket
+        } else {
+            CallRows::Exact
+        }
+    }
+
+    /// The rows of a call of `n` points.
+    pub fn of(self, n: usize) -> usize {
+        match self {
+            CallRows::Exact => n,
+            CallRows::Bucket => bucket_len(n),
+        }
+    }
+}
+
 /// `items` followed by copies of its last element up to `len` items (`items` unchanged when
 /// empty or already that long).
 pub fn pad_to<T: Copy>(items: &[T], len: usize) -> Vec<T> {
@@ -57,40 +79,6 @@ pub fn pad_to<T: Copy>(items: &[T], len: usize) -> Vec<T> {
         out.resize(len.max(items.len()), last);
     }
     out
-}
-
-impl NiaModel {
-    /// The point inputs of `points` padded to their bucket on the scene's device:
-    /// `bucket_len(M)` rows, the M points first ([`PointTensors::real_points`] = M).
-    pub(crate) fn point_tensors_in_bucket(
-        &self,
-        scene: &SceneEncoding,
-        points: &[Vec3],
-        dirs: &[Vec3],
-        watch: &mut Stopwatch<'_>,
-    ) -> Result<PointTensors, ModelError> {
-        let inputs = self
-            .point_inputs(scene, points, dirs)?
-            .padded(bucket_len(points.len()));
-        watch.mark(Stage::PointInputs);
-        let mut tensors = upload_point_inputs(scene, inputs)?;
-        tensors.real_points = points.len();
-        Ok(tensors)
-    }
-
-    /// [`NiaModel::field_with`] at `points` padded to their bucket: `bucket_len(M)` rows of
-    /// outputs, the M points' first ([`PointOutput::first`] drops the padding; a scatter may
-    /// instead send it to a spare row and keep its index a bucket long).
-    pub(crate) fn field_in_bucket(
-        &self,
-        scene: &SceneEncoding,
-        points: &[Vec3],
-        dirs: &[Vec3],
-        watch: &mut Stopwatch<'_>,
-    ) -> Result<PointOutput, ModelError> {
-        let inputs = self.point_tensors_in_bucket(scene, points, dirs, watch)?;
-        self.query_with(scene, &inputs, watch)
-    }
 }
 
 impl PointOutput {

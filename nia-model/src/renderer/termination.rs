@@ -26,7 +26,7 @@ use crate::field::PointOutput;
 use crate::kernels::readback::host_values;
 use crate::model::NiaModel;
 use crate::renderer::colour_culling::cull;
-use crate::renderer::shape_buckets::{bucket_len, pad_to, pads_to_buckets};
+use crate::renderer::shape_buckets::{bucket_len, pad_to, CallRows};
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::Stopwatch;
@@ -110,16 +110,13 @@ impl NiaModel {
         let samples = walk.samples;
         let s = samples.per_ray.max(1);
         let device = scene.images.device();
-        let pad = pads_to_buckets(&device);
+        let rows = CallRows::on(&device);
+        let pad = rows == CallRows::Bucket;
         let points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
         let dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
         // With padding, the density pass has bucket_len(chosen) points, the chosen first.
-        let density = if pad {
-            let inputs = self.point_tensors_in_bucket(scene, &points, &dirs, watch)?;
-            self.query_density(scene, &inputs, watch)?
-        } else {
-            self.field_density(scene, &points, &dirs, watch)?
-        };
+        let inputs = self.point_tensors(scene, &points, &dirs, rows, watch)?;
+        let density = self.query_density(scene, &inputs, watch)?;
         let mut sigma = host_values(density.sigma.clone())
             .map_err(|e| ModelError::Input(format!("reading densities: {e}")))?;
         sigma.truncate(chosen.len());

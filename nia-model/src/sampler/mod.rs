@@ -202,7 +202,9 @@ impl RaySamples {
             .with_min_len(RAYS_PER_TASK)
             .for_each_init(Vec::new, |segments, (r, ((t, delta), hit))| {
                 let jitter = jitter.map(|j| &j[r * samples..(r + 1) * samples]);
-                *hit = band_samples(rays, r, step, band, jitter, segments, t, delta);
+                // A ray that misses the band gets S samples at `near` with zero intervals.
+                band_segments(rays, r, step, band, segments);
+                *hit = spread_in_segments(segments, rays.near[r], jitter, t, delta);
             });
         Self::keep_occupied(rays, samples, t, delta, occupancy, Some(&hit))
     }
@@ -295,22 +297,16 @@ impl RaySamples {
 /// Rays per rayon task of the band sampler and of the occupancy test.
 const RAYS_PER_TASK: usize = 64;
 
-/// [`RaySamples::in_band`] for ray `r` of `rays`: its S samples' `t` and `delta` ([S] each),
-/// `jitter` its [S] jitter (bin centres when `None`), `segments` a scratch list. Returns
-/// whether the ray meets the band; a ray that misses it gets S samples at `near` with zero
-/// intervals.
-#[allow(clippy::too_many_arguments)]
-fn band_samples(
+/// The `(t_in, t_out)` segments of ray `r` of `rays` inside `band`, in order, into `segments`:
+/// the ray's `step`-long steps from near to far whose middle is occupied, adjacent ones
+/// merged.
+fn band_segments(
     rays: &RayBundle,
     r: usize,
     step: f32,
     band: &OccupancyGrid,
-    jitter: Option<&[f32]>,
     segments: &mut Vec<(f32, f32)>,
-    t: &mut [f32],
-    delta: &mut [f32],
-) -> bool {
-    let samples = t.len();
+) {
     let (near, far) = (rays.near[r], rays.far[r]);
     segments.clear();
     let steps = ((far - near) / step).ceil().max(0.0) as usize;
@@ -324,6 +320,19 @@ fn band_samples(
             }
         }
     }
+}
+
+/// S samples `t` and their intervals `delta` ([S] each) spread evenly over the total length of
+/// `segments`, bin by bin (`jitter` [S] within each bin, its centre when `None`). Returns
+/// whether there was any length; without, the S samples sit at `near` with zero intervals.
+fn spread_in_segments(
+    segments: &[(f32, f32)],
+    near: f32,
+    jitter: Option<&[f32]>,
+    t: &mut [f32],
+    delta: &mut [f32],
+) -> bool {
+    let samples = t.len();
     let length: f32 = segments.iter().map(|(a, b)| b - a).sum();
     if length <= 0.0 {
         t.fill(near);

@@ -12,6 +12,8 @@ use nia_data::geometry::rays::{near_far, pixel_ray, Aabb, RayBundle};
 use nia_data::geometry::visibility::visibility;
 use nia_data::scene::{SceneBody, SceneInput, SourceView, RAY_BOX_PADDING_M};
 
+pub mod volume;
+
 /// Depth tolerance of the test visibility (2 cm, as NHP-style implementations use).
 pub const VIS_TOL_M: f32 = 0.02;
 
@@ -143,7 +145,7 @@ pub fn wgpu_device() -> Option<burn::tensor::Device> {
         (device, x)
     });
     match probe {
-        Ok((device, x)) if x == 3.0 => Some(device),
+        Ok((device, 3.0)) => Some(device),
         _ if required => {
             panic!("NIA_REQUIRE_WGPU=1 but no working wgpu adapter (install mesa-vulkan-drivers)")
         }
@@ -211,4 +213,67 @@ pub fn central_difference(x: &[f32], i: usize, h: f32, f: impl Fn(Vec<f32>) -> f
     up[i] += h;
     down[i] -= h;
     (f(up) - f(down)) / (2.0 * h)
+}
+
+/// f32 forward values computed along two different paths (reordered sums, sin/cos of the
+/// same angles): a few ulps of O(1) values.
+pub const VALUE_TOL: f32 = 1e-5;
+/// Values through a small MLP (a few hundred f32 multiply-adds per output).
+pub const MLP_TOL: f32 = 1e-4;
+/// Central finite-difference step for f32 inputs of O(1).
+pub const FD_STEP: f32 = 1e-3;
+/// Finite differences vs autodiff: O(FD_STEP^2) truncation plus f32 rounding of O(1) losses
+/// divided by the step (~1e-7 / 1e-3), with margin: absolute plus relative to the gradient.
+pub const FD_ABS_TOL: f32 = 2e-3;
+pub const FD_REL_TOL: f32 = 2e-2;
+
+/// `n` values drawn uniformly in `[lo, hi)`.
+pub fn random(rng: &mut nia_data::rng::Rng, n: usize, lo: f32, hi: f32) -> Vec<f32> {
+    (0..n).map(|_| rng.range(lo, hi)).collect()
+}
+
+/// Asserts that `v` is not empty and every value is finite.
+pub fn assert_finite(v: &[f32], what: &str) {
+    assert!(!v.is_empty(), "{what}: empty");
+    assert!(v.iter().all(|x| x.is_finite()), "{what}: not finite: {v:?}");
+}
+
+/// Asserts that an autodiff gradient is within [`FD_ABS_TOL`] plus [`FD_REL_TOL`] of the
+/// finite difference `fd`.
+pub fn assert_fd_close(autodiff: f32, fd: f32, what: &str) {
+    assert!(
+        (autodiff - fd).abs() <= FD_ABS_TOL + FD_REL_TOL * fd.abs(),
+        "{what}: autodiff {autodiff} vs finite difference {fd}"
+    );
+}
+
+/// Asserts that autodiff's gradient `grad` of `f` at `x` matches the central differences, one
+/// coordinate at a time (`what[i]`).
+pub fn assert_gradient(what: &str, x: &[f32], grad: &[f32], f: impl Fn(Vec<f32>) -> f32) {
+    assert_eq!(grad.len(), x.len(), "{what}");
+    for (i, &g) in grad.iter().enumerate() {
+        let fd = central_difference(x, i, FD_STEP, &f);
+        assert_fd_close(g, fd, &format!("{what}[{i}]"));
+    }
+}
+
+/// A linear layer with given weights `[d_in, d_out]` (row-major) and bias.
+pub fn linear(
+    weight: Vec<f32>,
+    bias: Vec<f32>,
+    d_in: usize,
+    d_out: usize,
+    dev: &Device,
+) -> burn::nn::Linear {
+    burn::nn::Linear {
+        weight: burn::module::Param::from_tensor(tensor(weight, [d_in, d_out], dev)),
+        bias: Some(burn::module::Param::from_tensor(tensor(bias, [d_out], dev))),
+    }
+}
+
+/// The `d x d` identity matrix, row-major.
+pub fn identity(d: usize) -> Vec<f32> {
+    (0..d * d)
+        .map(|i| if i / d == i % d { 1.0 } else { 0.0 })
+        .collect()
 }

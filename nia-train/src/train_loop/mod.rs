@@ -15,12 +15,14 @@
 //! take its own scene and the gradients would be summed with burn's `MultiGradientsParams` and
 //! `ModuleOptimizer::step_multi` before the same clipping and step.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
 use burn::optim::AdamConfig;
-use nia_data::dataset::loader::{BandGrid, BodyVolumeGrid, SceneLoader};
+use burn::optim::ModuleOptimizer;
+use burn::prelude::*;
+use nia_data::dataset::loader::{BandGrid, BodyVolumeGrid, LoaderConfig, SceneLoader};
 use nia_data::dataset::protocol::EvalSplit;
 use nia_eval::eval::{
     eval_items, evaluate_images, evaluate_items, EvalError, EvalOptions, EvalSummary, EvalTask,
@@ -29,14 +31,15 @@ use nia_eval::pictures::{comparison_grid, save_evaluated};
 use nia_model::body_volume::NUM_SCALES;
 use nia_model::kernels::host_op::runs_on_host;
 use nia_model::loss::psnr_from_mse;
+use nia_model::lpips::Lpips;
 use nia_model::renderer::call_size::rays_per_chunk;
 use nia_model::sampler::RaySampler;
 use nia_model::store::checkpoint::{self, CheckpointError};
-use nia_model::ModelError;
+use nia_model::{ModelError, NiaModel};
 
 use crate::config::TrainConfig;
 use crate::data::{DataError, TrainData};
-use crate::events::{Phase, TrainEvent};
+use crate::events::{Phase, StepReport, TrainEvent};
 
 mod gradients;
 mod step;
@@ -59,12 +62,14 @@ pub enum TrainError {
     Backend(#[from] nia_model::device::BackendUnavailable),
     #[error("train.devices: {0}")]
     Device(#[from] nia_model::device::DeviceError),
+    /// The model failed on a training scene (boxed: the largest error, it would make every
+    /// `Result` of the loop carry its size).
     #[error("step {step} ({subject}, frame {frame}): {source}")]
     Model {
         step: u64,
         subject: String,
         frame: usize,
-        source: ModelError,
+        source: Box<ModelError>,
     },
     #[error(transparent)]
     Eval(#[from] EvalError),
@@ -132,46 +137,24 @@ pub fn train(
         generated: data.generated,
     });
     let t = &config.train;
-    // Data parallelism: K devices, K scenes per step, one per device; the first device holds
-    // the model and the optimiser.
-    let specs = t.device_specs();
-    let devices = specs
-        .iter()
-        .map(|s| {
-            s.device().map(|d| match t.gradient_checkpointing {
-                true => d.autodiff().gradient_checkpointing(),
-                false => d.autodiff(),
-            })
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let devices = training_devices(config)?;
     let k = devices.len() as u64;
     let device = devices[0].clone();
     device.seed(t.seed);
-    let mut model = config.model.init(&device);
-    let mut optimizer = adam(config).init();
+    // The model first: its initialisation draws from the seeded device.
+    let (mut model, mut optimizer, first_step, last_checkpoint) =
+        initial_state(config, options, &device)?;
     // LPIPS of validation and the final evaluation, on the evaluation (non-autodiff) device.
     let lpips = match &t.lpips {
         Some(files) => Some(Arc::new(files.load(&device.clone().inner())?)),
         None => None,
     };
-    let mut first_step = 0;
-    let mut last_checkpoint = None;
-    let resume_from = if options.resume {
-        checkpoint::latest(&options.out)?
-    } else {
-        None
+    let evaluation = Evaluation {
+        data: &data,
+        config,
+        device: &device,
+        lpips,
     };
-    if let Some((_, dir)) = resume_from {
-        let (m, o, step) = checkpoint::load(&dir, model, optimizer)?;
-        model = m;
-        optimizer = o;
-        first_step = step;
-        last_checkpoint = Some(dir);
-    } else if let Some(dir) = &t.init_from {
-        model = checkpoint::load_model(dir, model)?;
-    } else if let Some(path) = &t.encoder_weights {
-        model.encoder = model.encoder.load_torchvision(path)?;
-    }
     on_event(TrainEvent::Started {
         first_step,
         steps: t.steps,
@@ -181,23 +164,11 @@ pub fn train(
         .flat_map(|step| (0..k).map(move |i| step * k + i))
         .map(|scene| data.request_for_step(t.seed, scene, t.source_views))
         .collect();
-    // The loader's workers build each training scene's band grid ahead of the step.
-    let mut loader_config = data.dataset.loader;
-    loader_config.band_grid = match model.ray_sampler {
-        RaySampler::Band { margin_m, cell_m } => Some(BandGrid {
-            threshold_m: margin_m,
-            cell_m,
-        }),
-        RaySampler::Stratified => None,
-    };
-    // ... and its body volume's sites and rulebooks, with the neighbour maps that the CPU's
-    // host sparse convolution reads (any device on the host: the maps serve them all).
-    loader_config.body_volume = model.variant.uses_body().then(|| BodyVolumeGrid {
-        grid: model.voxel_grid(),
-        levels: NUM_SCALES,
-        neighbour_maps: devices.iter().any(runs_on_host),
-    });
-    let mut loader = SceneLoader::new(data.dataset.source.clone(), requests, loader_config)?;
+    let mut loader = SceneLoader::new(
+        data.dataset.source.clone(),
+        requests,
+        loader_config(&data, &model, &devices),
+    )?;
     let run_start = Instant::now();
     let mut summary = TrainSummary {
         steps: first_step,
@@ -236,7 +207,7 @@ pub fn train(
                 model = optimizer.step(lr, model, grads);
                 let seconds = started.elapsed().as_secs_f64().max(1e-9);
                 summary.last_loss = Some(loss);
-                on_event(TrainEvent::Step {
+                on_event(TrainEvent::Step(StepReport {
                     step,
                     loss,
                     mse,
@@ -244,62 +215,14 @@ pub fn train(
                     psnr: psnr_from_mse(mse),
                     rays_per_s: rays as f64 / seconds,
                     lr,
-                });
+                }));
             }
         }
         let done = step + 1;
         summary.steps = done;
         summary.steps_run += 1;
         if t.validate_every > 0 && done % t.validate_every == 0 {
-            let items = eval_items(
-                &data.dataset,
-                EvalSplit::UnseenSubjects,
-                EvalTask::NovelView,
-                Some(t.validation_images),
-            )?;
-            let chunk = rays_per_chunk(&device, t.samples, &config.render);
-            let total = items.len();
-            let done_steps = done;
-            on_event(TrainEvent::Progress {
-                phase: Phase::Validation,
-                done: 0,
-                total,
-            });
-            if let Some(m) = evaluate_items(
-                &model,
-                &data.dataset,
-                &items,
-                t.samples,
-                chunk,
-                config.render,
-                lpips.clone(),
-                &device,
-                &mut |done, evaluated| {
-                    if done <= VALIDATION_PICTURES {
-                        let grid = comparison_grid(evaluated);
-                        on_event(TrainEvent::ValidationImage {
-                            step: done_steps,
-                            index: done - 1,
-                            width: grid.width(),
-                            height: grid.height(),
-                            rgb: grid.into_raw(),
-                        });
-                    }
-                    on_event(TrainEvent::Progress {
-                        phase: Phase::Validation,
-                        done,
-                        total,
-                    })
-                },
-            )? {
-                on_event(TrainEvent::Validation {
-                    step: done,
-                    images: m.images,
-                    psnr: m.psnr,
-                    ssim: m.ssim,
-                    lpips: m.lpips,
-                });
-            }
+            evaluation.validate(&model, done, on_event)?;
         }
         if done % t.checkpoint_every == 0 || done == t.steps {
             let path = checkpoint::save(
@@ -319,36 +242,197 @@ pub fn train(
         }
     }
     if t.evaluate_at_end {
+        evaluation.final_evaluation(&model, summary.steps, &options.out, on_event)?;
+    }
+    on_event(TrainEvent::Finished {
+        steps: summary.steps,
+        seconds: run_start.elapsed().as_secs_f64(),
+    });
+    Ok(summary)
+}
+
+/// The autodiff devices of `train.devices` (data parallelism: K devices, K scenes per step,
+/// one per device; the first device holds the model and the optimiser), with gradient
+/// checkpointing when asked for.
+fn training_devices(config: &TrainConfig) -> Result<Vec<Device>, TrainError> {
+    let t = &config.train;
+    let devices = t
+        .device_specs()
+        .iter()
+        .map(|s| {
+            s.device().map(|d| match t.gradient_checkpointing {
+                true => d.autodiff().gradient_checkpointing(),
+                false => d.autodiff(),
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(devices)
+}
+
+/// The model and optimiser the run starts from, on `device`, with the first step and the
+/// checkpoint they came from: the newest checkpoint in the output folder when resuming, else
+/// a fresh model (from `train.init_from`'s weights, or with `train.encoder_weights`'
+/// encoder).
+fn initial_state(
+    config: &TrainConfig,
+    options: &RunOptions,
+    device: &Device,
+) -> Result<(NiaModel, ModuleOptimizer, u64, Option<PathBuf>), TrainError> {
+    let t = &config.train;
+    let mut model = config.model.init(device);
+    let optimizer = adam(config).init();
+    let resume_from = if options.resume {
+        checkpoint::latest(&options.out)?
+    } else {
+        None
+    };
+    if let Some((_, dir)) = resume_from {
+        let (model, optimizer, step) = checkpoint::load(&dir, model, optimizer)?;
+        return Ok((model, optimizer, step, Some(dir)));
+    }
+    if let Some(dir) = &t.init_from {
+        model = checkpoint::load_model(dir, model)?;
+    } else if let Some(path) = &t.encoder_weights {
+        model.encoder = model.encoder.load_torchvision(path)?;
+    }
+    Ok((model, optimizer, 0, None))
+}
+
+/// The loader settings of the run: the dataset's, with the geometry its workers build ahead of
+/// each step for `model` on `devices`.
+fn loader_config(data: &TrainData, model: &NiaModel, devices: &[Device]) -> LoaderConfig {
+    let mut loader_config = data.dataset.loader;
+    // The loader's workers build each training scene's band grid ahead of the step.
+    loader_config.band_grid = match model.ray_sampler {
+        RaySampler::Band { margin_m, cell_m } => Some(BandGrid {
+            threshold_m: margin_m,
+            cell_m,
+        }),
+        RaySampler::Stratified => None,
+    };
+    // ... and its body volume's sites and rulebooks, with the neighbour maps that the CPU's
+    // host sparse convolution reads (any device on the host: the maps serve them all).
+    loader_config.body_volume = model.variant.uses_body().then(|| BodyVolumeGrid {
+        grid: model.voxel_grid(),
+        levels: NUM_SCALES,
+        neighbour_maps: devices.iter().any(runs_on_host),
+    });
+    loader_config
+}
+
+/// The event that `phase` starts, with `total` images to do.
+fn phase_start(phase: Phase, total: usize) -> TrainEvent {
+    TrainEvent::Progress {
+        phase,
+        done: 0,
+        total,
+    }
+}
+
+/// The run's held-out evaluations: validation every `train.validate_every` steps and the
+/// final evaluation, novel views of the unseen subjects.
+struct Evaluation<'a> {
+    data: &'a TrainData,
+    config: &'a TrainConfig,
+    /// The training device (evaluations run on its non-autodiff version).
+    device: &'a Device,
+    lpips: Option<Arc<Lpips>>,
+}
+
+impl Evaluation<'_> {
+    /// The settings of both evaluations: the training samples, the `[render]` options.
+    fn options(&self) -> EvalOptions {
+        let t = &self.config.train;
+        EvalOptions {
+            task: EvalTask::NovelView,
+            samples: t.samples,
+            chunk: rays_per_chunk(self.device, t.samples, &self.config.render),
+            timed: false,
+            render: self.config.render,
+            lpips: self.lpips.clone(),
+        }
+    }
+
+    /// Validation after step `step` (`train.validation_images` images), reported with the
+    /// comparison grids of the first [`VALIDATION_PICTURES`].
+    fn validate(
+        &self,
+        model: &NiaModel,
+        step: u64,
+        on_event: &mut dyn FnMut(TrainEvent),
+    ) -> Result<(), TrainError> {
+        let items = eval_items(
+            &self.data.dataset,
+            EvalSplit::UnseenSubjects,
+            EvalTask::NovelView,
+            Some(self.config.train.validation_images),
+        )?;
+        let total = items.len();
+        on_event(phase_start(Phase::Validation, total));
+        let summary = evaluate_items(
+            model,
+            &self.data.dataset,
+            &items,
+            self.options(),
+            self.device,
+            &mut |done, evaluated| {
+                if done <= VALIDATION_PICTURES {
+                    let grid = comparison_grid(evaluated);
+                    on_event(TrainEvent::ValidationImage {
+                        step,
+                        index: done - 1,
+                        width: grid.width(),
+                        height: grid.height(),
+                        rgb: grid.into_raw(),
+                    });
+                }
+                on_event(TrainEvent::Progress {
+                    phase: Phase::Validation,
+                    done,
+                    total,
+                })
+            },
+        )?;
+        if let Some(m) = summary {
+            on_event(TrainEvent::Validation {
+                step,
+                images: m.images,
+                psnr: m.psnr,
+                ssim: m.ssim,
+                lpips: m.lpips,
+            });
+        }
+        Ok(())
+    }
+
+    /// The final evaluation of the whole unseen-subject split after `step` steps, with the
+    /// pictures of [`FINAL_PICTURES`] images spread over it in `<out>/evaluation/`.
+    fn final_evaluation(
+        &self,
+        model: &NiaModel,
+        step: u64,
+        out: &Path,
+        on_event: &mut dyn FnMut(TrainEvent),
+    ) -> Result<(), TrainError> {
         let split = EvalSplit::UnseenSubjects;
-        let items = eval_items(&data.dataset, split, EvalTask::NovelView, None)?;
-        let pictures = options.out.join("evaluation");
+        let items = eval_items(&self.data.dataset, split, EvalTask::NovelView, None)?;
+        let pictures = out.join("evaluation");
         std::fs::create_dir_all(&pictures)
             .map_err(|e| EvalError::Output(format!("creating {}: {e}", pictures.display())))?;
         // Pictures of images spread over the split (every k-th), so they show several views.
         let every = items.len().div_ceil(FINAL_PICTURES).max(1);
         let mut index = 0usize;
         let total = items.len();
-        on_event(TrainEvent::Progress {
-            phase: Phase::Evaluation,
-            done: 0,
-            total,
-        });
+        on_event(phase_start(Phase::Evaluation, total));
         let results = evaluate_images(
-            &model,
-            &data.dataset,
+            model,
+            &self.data.dataset,
             split,
             &items,
-            EvalOptions {
-                task: EvalTask::NovelView,
-                samples: t.samples,
-                chunk: rays_per_chunk(&device, t.samples, &config.render),
-                timed: false,
-                render: config.render,
-                lpips: lpips.clone(),
-            },
-            &device,
+            self.options(),
+            self.device,
             &mut |evaluated| {
-                let keep = index % every == 0;
+                let keep = index.is_multiple_of(every);
                 index += 1;
                 if keep {
                     save_evaluated(&pictures, &evaluated)
@@ -364,7 +448,7 @@ pub fn train(
         )?;
         if let Some(m) = EvalSummary::of(&results) {
             on_event(TrainEvent::Evaluation {
-                step: summary.steps,
+                step,
                 split: split.name().to_string(),
                 images: m.images,
                 psnr: m.psnr,
@@ -378,12 +462,8 @@ pub fn train(
                 pictures: pictures.clone(),
             });
         }
+        Ok(())
     }
-    on_event(TrainEvent::Finished {
-        steps: summary.steps,
-        seconds: run_start.elapsed().as_secs_f64(),
-    });
-    Ok(summary)
 }
 
 /// Adam with the configured betas and epsilon (clipping is applied by the loop, by global norm).

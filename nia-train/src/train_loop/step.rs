@@ -152,11 +152,11 @@ fn scene_gradients(
     let SceneTarget::Rays(rays) = &scene.target else {
         return Err(TrainError::NoRays(step));
     };
-    let model_err = |source| TrainError::Model {
+    let model_err = |source: ModelError| TrainError::Model {
         step,
         subject: scene.subject.clone(),
         frame: scene.frame,
-        source,
+        source: Box::new(source),
     };
     let input = SceneInput::from_loaded(scene, faces);
     let c0_shuffle = (config.train.c0_shuffle > 0.0).then(|| C0Shuffle {

@@ -82,7 +82,7 @@ pub(super) fn cases() -> Vec<Case> {
             |c| {
                 let text = config_text(&c.data());
                 let at = text.find("[train]").unwrap();
-                let config = c.config_raw(text[..at].as_bytes());
+                let config = c.config_raw(&text.as_bytes()[..at]);
                 c.train_args(&config, &[])
             },
         ),

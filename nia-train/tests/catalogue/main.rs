@@ -262,11 +262,14 @@ impl Ctx {
     }
 }
 
+/// How a row builds its bad input, returning the arguments.
+type Setup = dyn Fn(&mut Ctx) -> Vec<OsString>;
+
 /// One row: a name, how to build the bad input (returning the arguments), the texts stderr
 /// must contain.
 struct Case {
     name: &'static str,
-    setup: Box<dyn Fn(&mut Ctx) -> Vec<OsString>>,
+    setup: Box<Setup>,
     expect: Vec<String>,
 }
 

@@ -1,9 +1,6 @@
 //! The pixel loop of one set-up triangle: coverage at pixel centres by the edge functions and
 //! the top-left rule, the depth test, and perspective-correct barycentrics in the original face.
 
-// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use super::setup::{TriSetup, Viewport};
 use crate::geometry::camera::PIXEL_CENTRE_OFFSET;
 

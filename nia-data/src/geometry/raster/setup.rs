@@ -2,9 +2,6 @@
 //! plane when it crosses it, and turned into edge functions (top-left rule), inverse depths and
 //! a pixel bounding box.
 
-// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use glam::Vec3;
 
 use super::NEAR_PLANE_M;

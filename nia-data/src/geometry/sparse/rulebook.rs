@@ -253,8 +253,8 @@ impl Rulebook {
         let mut in_index = Vec::new();
         let mut out_index = Vec::new();
         let mut group_start = [0usize; KERNEL_VOLUME + 1];
-        for k in 0..KERNEL_VOLUME {
-            group_start[k] = in_index.len();
+        for (k, start) in group_start[..KERNEL_VOLUME].iter_mut().enumerate() {
+            *start = in_index.len();
             let d = kernel_offset(k);
             for (o, c) in sites.sites().iter().enumerate() {
                 if let Some(i) = sites.get([c[0] + d[0], c[1] + d[1], c[2] + d[2]]) {
@@ -308,8 +308,8 @@ impl Rulebook {
         let mut in_index = Vec::new();
         let mut out_index = Vec::new();
         let mut group_start = [0usize; KERNEL_VOLUME + 1];
-        for k in 0..KERNEL_VOLUME {
-            group_start[k] = in_index.len();
+        for (k, start) in group_start[..KERNEL_VOLUME].iter_mut().enumerate() {
+            *start = in_index.len();
             for (i, c) in sites.sites().iter().enumerate() {
                 if let Some(key) = reach(*c, k) {
                     // Every reached key is an output site by construction.

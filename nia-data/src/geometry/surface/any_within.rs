@@ -2,9 +2,6 @@
 //! stops at the first face found, for the occupancy grid's cell-by-cell test
 //! ([`crate::geometry::occupancy`]).
 
-// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use glam::Vec3;
 
 use super::{closest_point_on_triangle, SurfaceIndex, STACK_DEPTH};

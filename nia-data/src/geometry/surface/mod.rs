@@ -13,9 +13,6 @@
 //! - [`any_within`]: whether any face lies within a distance (the occupancy grid's test);
 //! - [`closest`]: the closest point on a triangle, and per-vertex values interpolated there.
 
-// `!(a < b)` comparisons are deliberate: they reject NaN along with the failing case.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-
 use crate::geometry::raster::{validate_faces, MeshError};
 use glam::Vec3;
 use rayon::prelude::*;

@@ -17,6 +17,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use burn::prelude::*;
 use image::RgbImage;
 use nia_data::dataset::protocol::{EvalItem, EvalSplit};
 use nia_eval::eval::{eval_items, evaluate_images, EvalError, EvalOptions, EvalTask, ImageResult};
@@ -24,6 +25,7 @@ use nia_eval::pictures::{rgb8, row, save_png};
 use nia_model::renderer::call_size::rays_per_chunk;
 use nia_model::store::checkpoint::{self, CheckpointError};
 use nia_model::variant::Variant;
+use nia_model::NiaModel;
 use serde::Serialize;
 
 use crate::config::TrainConfig;
@@ -31,16 +33,27 @@ use crate::data::TrainData;
 use crate::events::TrainEvent;
 use crate::train_loop::{train, RunOptions, TrainError};
 
-/// Errors of an ablation run, naming the variant or file.
+mod table;
+
+pub use table::{ablation_markdown, orderings};
+
+/// Errors of an ablation run, naming the variant or file. The training and evaluation errors
+/// are boxed: they are the largest, and every `Result` of the run would carry their size.
 #[derive(Debug, thiserror::Error)]
 pub enum AblationError {
     /// Opening the data, the device or the held-out items.
     #[error("{0}")]
-    Setup(TrainError),
+    Setup(Box<TrainError>),
     #[error("variant `{variant}`: {source}")]
-    Train { variant: String, source: TrainError },
+    Train {
+        variant: String,
+        source: Box<TrainError>,
+    },
     #[error("variant `{variant}`: evaluation: {source}")]
-    Eval { variant: String, source: EvalError },
+    Eval {
+        variant: String,
+        source: Box<EvalError>,
+    },
     #[error("variant `{variant}`: {source}")]
     Checkpoint {
         variant: String,
@@ -136,38 +149,151 @@ pub fn run(
         path: out.to_path_buf(),
         source,
     })?;
+    let setup = Setup::open(config, on_event)?;
     let mut rows = Vec::new();
     // Tiles of the first held-out image: ground truth, then one per row.
     let mut tiles: Vec<RgbImage> = Vec::new();
     let mut crop: Option<Crop> = None;
-    // The data, the device and the evaluation items are the same for every variant (opening
-    // generates a `[synth]` dataset if it is missing, so training finds it).
-    let data = TrainData::open(config, &mut |done, total| {
-        on_event(AblationEvent::Generating { done, total })
-    })
-    .map_err(|e| AblationError::Setup(e.into()))?;
-    let device = config
-        .train
-        .backend
-        .device()
-        .map_err(|e| AblationError::Setup(e.into()))?
-        .autodiff();
-    let split = EvalSplit::UnseenSubjects;
-    let items = eval_items(&data.dataset, split, EvalTask::NovelView, None)
-        .map_err(|e| AblationError::Setup(e.into()))?;
-    if items.is_empty() {
-        return Err(AblationError::NothingToEvaluate);
-    }
     for variant in Variant::ALL {
+        let run = VariantRun::train(config, &setup, out, variant, on_event)?;
+        let label = format!("({}) {}", run.letter, run.name);
+        let mut case = EvalCase {
+            label: &label,
+            items: &setup.items,
+            task: EvalTask::NovelView,
+            skip: true,
+        };
+        let on = run.evaluate(&setup, &case, &mut crop, on_event)?;
+        let no_skipping = format!("{label}, no skipping");
+        case.label = &no_skipping;
+        case.skip = false;
+        let off = run.evaluate(&setup, &case, &mut crop, on_event)?;
+        if let Some((tile, gt)) = on.picture {
+            if tiles.is_empty() {
+                tiles.extend(gt);
+            }
+            tiles.push(tile);
+        }
+        let views = setup.items[0].input_views.len();
+        let row = run.row(
+            RowInputs {
+                label,
+                views,
+                task: "novel_view",
+                on: &on.results,
+                off: Some(&off.results),
+            },
+            on.seconds_per_image,
+        );
+        on_event(AblationEvent::Row(&row));
+        rows.push(row);
+        if variant == Variant::Full {
+            let (full_rows, full_tiles) =
+                run.full_model_rows(&setup, views, &mut crop, on_event)?;
+            rows.extend(full_rows);
+            tiles.extend(full_tiles);
+        }
+    }
+    write_report(config, out, rows, &tiles)
+}
+
+/// What every variant shares: the data, the device and the evaluation items (opening
+/// generates a `[synth]` dataset if it is missing, so training finds it).
+struct Setup {
+    data: TrainData,
+    device: Device,
+    /// The novel views of the unseen subjects.
+    items: Vec<EvalItem>,
+}
+
+impl Setup {
+    fn open(
+        config: &TrainConfig,
+        on_event: &mut dyn FnMut(AblationEvent<'_>),
+    ) -> Result<Self, AblationError> {
+        let data = TrainData::open(config, &mut |done, total| {
+            on_event(AblationEvent::Generating { done, total })
+        })
+        .map_err(|e| AblationError::Setup(Box::new(e.into())))?;
+        let device = config
+            .train
+            .backend
+            .device()
+            .map_err(|e| AblationError::Setup(Box::new(e.into())))?
+            .autodiff();
+        let items = eval_items(&data.dataset, SPLIT, EvalTask::NovelView, None)
+            .map_err(|e| AblationError::Setup(Box::new(e.into())))?;
+        if items.is_empty() {
+            return Err(AblationError::NothingToEvaluate);
+        }
+        Ok(Setup {
+            data,
+            device,
+            items,
+        })
+    }
+}
+
+/// The split every row is evaluated on.
+const SPLIT: EvalSplit = EvalSplit::UnseenSubjects;
+
+/// One variant, trained: its run config, the model of its newest checkpoint and its training
+/// time.
+struct VariantRun {
+    variant: Variant,
+    name: String,
+    /// Its letter in the paper's Table 3.
+    letter: char,
+    config: TrainConfig,
+    model: NiaModel,
+    train_seconds: f64,
+}
+
+/// One evaluation of a variant: the per-image results, the mean seconds per image and the
+/// tile of its first image (with the ground truth's).
+struct Evaluated {
+    results: Vec<ImageResult>,
+    seconds_per_image: f64,
+    picture: Option<(RgbImage, Option<RgbImage>)>,
+}
+
+/// One evaluation of the ablation: its label, the items and task, and whether empty-space
+/// skipping is on.
+struct EvalCase<'a> {
+    label: &'a str,
+    items: &'a [EvalItem],
+    task: EvalTask,
+    skip: bool,
+}
+
+/// What one row of the table summarises, besides the variant's own figures.
+struct RowInputs<'a> {
+    label: String,
+    /// Source views at evaluation.
+    views: usize,
+    task: &'static str,
+    /// The per-image results with empty-space skipping on, and off where measured.
+    on: &'a [ImageResult],
+    off: Option<&'a [ImageResult]>,
+}
+
+impl VariantRun {
+    /// `variant` of `config` trained into `out/<variant>` (without validation or final
+    /// evaluation) and its newest checkpoint loaded.
+    fn train(
+        config: &TrainConfig,
+        setup: &Setup,
+        out: &Path,
+        variant: Variant,
+        on_event: &mut dyn FnMut(AblationEvent<'_>),
+    ) -> Result<Self, AblationError> {
         let name = variant.name().to_string();
-        let letter = paper_letter(variant);
         let dir = out.join(&name);
         let mut run_config = config.clone();
         run_config.model.variant = variant;
         run_config.train.evaluate_at_end = false;
         run_config.train.validate_every = 0;
         let train_seconds = train_variant(&run_config, &dir, variant, on_event)?;
-
         let checkpoint_err = |source| AblationError::Checkpoint {
             variant: name.clone(),
             source,
@@ -175,99 +301,87 @@ pub fn run(
         let (_, last) = checkpoint::latest(&dir)
             .map_err(checkpoint_err)?
             .ok_or_else(|| AblationError::NoCheckpoint(name.clone()))?;
-        let model = checkpoint::load_model(&last, run_config.model.init(&device))
+        let model = checkpoint::load_model(&last, run_config.model.init(&setup.device))
             .map_err(checkpoint_err)?;
-        let mut evaluate = |on_event: &mut dyn FnMut(AblationEvent<'_>),
-                            label: &str,
-                            items: &[EvalItem],
-                            task: EvalTask,
-                            skip: bool,
-                            picture: &mut Option<(RgbImage, Option<RgbImage>)>|
-         -> Result<(Vec<ImageResult>, f64), AblationError> {
-            on_event(AblationEvent::Evaluating { label });
-            let mut adaptive = run_config.render;
-            adaptive.skip_empty_space = skip;
-            let started = Instant::now();
-            let mut first = true;
-            let results = evaluate_images(
-                &model,
-                &data.dataset,
-                split,
-                items,
-                EvalOptions {
-                    task,
-                    samples: run_config.train.samples,
-                    chunk: rays_per_chunk(&device, run_config.train.samples, &adaptive),
-                    timed: false,
-                    render: adaptive,
-                    lpips: None,
-                },
-                &device,
-                &mut |e| {
-                    if std::mem::take(&mut first) {
-                        let (w, h) = (e.rendered.width, e.rendered.height);
-                        let gt = rgb8(&e.ground_truth.image, w, h);
-                        let c = *crop.get_or_insert_with(|| Crop::of(e.mask_at_box, w, h));
-                        *picture =
-                            Some((c.apply(&rgb8(&e.rendered.rgb, w, h)), Some(c.apply(&gt))));
-                    }
-                    Ok(())
-                },
-            )
-            .map_err(|source| AblationError::Eval {
-                variant: name.clone(),
-                source,
-            })?;
-            let seconds = started.elapsed().as_secs_f64() / results.len().max(1) as f64;
-            Ok((results, seconds))
-        };
-        let mut picture = None;
-        let (on, seconds) = evaluate(
-            on_event,
-            &format!("({letter}) {name}"),
-            &items,
-            EvalTask::NovelView,
-            true,
-            &mut picture,
-        )?;
-        let (off, _) = evaluate(
-            on_event,
-            &format!("({letter}) {name}, no skipping"),
-            &items,
-            EvalTask::NovelView,
-            false,
-            &mut None,
-        )?;
-        if let Some((tile, gt)) = picture {
-            if tiles.is_empty() {
-                tiles.extend(gt);
-            }
-            tiles.push(tile);
-        }
-        let views = items[0].input_views.len();
-        let row = summarise(
-            format!("({letter}) {name}"),
+        Ok(VariantRun {
             variant,
-            views,
-            "novel_view",
-            &on,
-            Some(&off),
+            letter: paper_letter(variant),
+            name,
+            config: run_config,
+            model,
             train_seconds,
-            seconds,
-        );
-        on_event(AblationEvent::Row(&row));
-        rows.push(row);
-        if variant != Variant::Full {
-            continue;
-        }
-        // (e) with fewer source views, then in novel poses (no row where no frame has another
-        // to repose from).
+        })
+    }
+
+    /// The model on `case`; the first image's tile is cut to `crop` (the first scored region
+    /// of the ablation).
+    fn evaluate(
+        &self,
+        setup: &Setup,
+        case: &EvalCase<'_>,
+        crop: &mut Option<Crop>,
+        on_event: &mut dyn FnMut(AblationEvent<'_>),
+    ) -> Result<Evaluated, AblationError> {
+        on_event(AblationEvent::Evaluating { label: case.label });
+        let mut adaptive = self.config.render;
+        adaptive.skip_empty_space = case.skip;
+        let started = Instant::now();
+        let mut picture = None;
+        let samples = self.config.train.samples;
+        let results = evaluate_images(
+            &self.model,
+            &setup.data.dataset,
+            SPLIT,
+            case.items,
+            EvalOptions {
+                task: case.task,
+                samples,
+                chunk: rays_per_chunk(&setup.device, samples, &adaptive),
+                timed: false,
+                render: adaptive,
+                lpips: None,
+            },
+            &setup.device,
+            &mut |e| {
+                if picture.is_none() {
+                    let (w, h) = (e.rendered.width, e.rendered.height);
+                    let gt = rgb8(&e.ground_truth.image, w, h);
+                    let c = *crop.get_or_insert_with(|| Crop::of(e.mask_at_box, w, h));
+                    picture = Some((c.apply(&rgb8(&e.rendered.rgb, w, h)), Some(c.apply(&gt))));
+                }
+                Ok(())
+            },
+        )
+        .map_err(|source| AblationError::Eval {
+            variant: self.name.clone(),
+            source: Box::new(source),
+        })?;
+        let seconds_per_image = started.elapsed().as_secs_f64() / results.len().max(1) as f64;
+        Ok(Evaluated {
+            results,
+            seconds_per_image,
+            picture,
+        })
+    }
+
+    /// The full model (e) with fewer source views than the `views` it was trained with, then
+    /// in novel poses (no row where no frame has another to repose from): their rows, and the
+    /// tiles of the fewer views.
+    fn full_model_rows(
+        &self,
+        setup: &Setup,
+        views: usize,
+        crop: &mut Option<Crop>,
+        on_event: &mut dyn FnMut(AblationEvent<'_>),
+    ) -> Result<(Vec<AblationRow>, Vec<RgbImage>), AblationError> {
+        let (mut rows, mut tiles) = (Vec::new(), Vec::new());
         let fewer_views = (1..views).rev().map(|fewer| {
             let label = format!(
                 "(e) full, {fewer} view{}",
                 if fewer == 1 { "" } else { "s" }
             );
-            let subset: Vec<EvalItem> = items
+            let subset: Vec<EvalItem> = setup
+                .items
                 .iter()
                 .map(|item| EvalItem {
                     input_views: item.input_views[..fewer].to_vec(),
@@ -278,7 +392,7 @@ pub fn run(
         });
         let novel_pose = (
             "(e) full, novel pose".to_string(),
-            items.clone(),
+            setup.items.clone(),
             EvalTask::NovelPose {
                 reference_frame: None,
             },
@@ -286,75 +400,88 @@ pub fn run(
         );
         for (label, subset, task, used_views) in fewer_views.chain([novel_pose]) {
             let pose = matches!(task, EvalTask::NovelPose { .. });
-            let mut picture = None;
-            let (r, seconds) = evaluate(on_event, &label, &subset, task, true, &mut picture)?;
-            if let Some((tile, _)) = picture.filter(|_| !pose) {
+            let case = EvalCase {
+                label: &label,
+                items: &subset,
+                task,
+                skip: true,
+            };
+            let evaluated = self.evaluate(setup, &case, crop, on_event)?;
+            if let Some((tile, _)) = evaluated.picture.filter(|_| !pose) {
                 tiles.push(tile);
             }
-            if pose && r.is_empty() {
+            if pose && evaluated.results.is_empty() {
                 continue;
             }
             let task_name = if pose { "novel_pose" } else { "novel_view" };
-            let row = summarise(
-                label,
-                variant,
-                used_views,
-                task_name,
-                &r,
-                None,
-                train_seconds,
-                seconds,
+            let row = self.row(
+                RowInputs {
+                    label,
+                    views: used_views,
+                    task: task_name,
+                    on: &evaluated.results,
+                    off: None,
+                },
+                evaluated.seconds_per_image,
             );
             on_event(AblationEvent::Row(&row));
             rows.push(row);
         }
+        Ok((rows, tiles))
     }
+
+    /// A row from the per-image results with skipping on (and off, where measured).
+    fn row(&self, inputs: RowInputs<'_>, seconds_per_image: f64) -> AblationRow {
+        let RowInputs {
+            label,
+            views,
+            task,
+            on,
+            off,
+        } = inputs;
+        let mean = |r: &[ImageResult], f: fn(&ImageResult) -> f64| {
+            r.iter().map(f).sum::<f64>() / r.len().max(1) as f64
+        };
+        let seen: Vec<f64> = on
+            .iter()
+            .filter_map(|x| x.diagnostics.c0_weight_seen)
+            .collect();
+        AblationRow {
+            label,
+            variant: self.variant,
+            views,
+            task,
+            images: on.len(),
+            psnr: mean(on, |r| r.psnr),
+            ssim: mean(on, |r| r.ssim),
+            psnr_no_skip: off.map(|r| mean(r, |x| x.psnr)),
+            ssim_no_skip: off.map(|r| mean(r, |x| x.ssim)),
+            train_seconds: self.train_seconds,
+            seconds_per_image,
+            c0_share_seen: (!seen.is_empty()).then(|| seen.iter().sum::<f64>() / seen.len() as f64),
+        }
+    }
+}
+
+/// The table (`ablation.md`, `ablation.json`) and the picture (`ablation.png`) of `rows` and
+/// `tiles` under `out`.
+fn write_report(
+    config: &TrainConfig,
+    out: &Path,
+    rows: Vec<AblationRow>,
+    tiles: &[RgbImage],
+) -> Result<AblationReport, AblationError> {
     let table = out.join("ablation.md");
     write_file(&table, ablation_markdown(config, &rows).as_bytes())?;
     let json = serde_json::to_string_pretty(&rows).unwrap_or_default();
     write_file(&out.join("ablation.json"), json.as_bytes())?;
     let picture = out.join("ablation.png");
-    save_png(&picture, &row(&tiles)).map_err(|e| AblationError::Picture(e.to_string()))?;
+    save_png(&picture, &row(tiles)).map_err(|e| AblationError::Picture(e.to_string()))?;
     Ok(AblationReport {
         rows,
         table,
         picture,
     })
-}
-
-/// A row from the per-image results with skipping on (and off, where measured).
-#[allow(clippy::too_many_arguments)]
-fn summarise(
-    label: String,
-    variant: Variant,
-    views: usize,
-    task: &'static str,
-    on: &[ImageResult],
-    off: Option<&[ImageResult]>,
-    train_seconds: f64,
-    seconds_per_image: f64,
-) -> AblationRow {
-    let mean = |r: &[ImageResult], f: fn(&ImageResult) -> f64| {
-        r.iter().map(f).sum::<f64>() / r.len().max(1) as f64
-    };
-    let seen: Vec<f64> = on
-        .iter()
-        .filter_map(|x| x.diagnostics.c0_weight_seen)
-        .collect();
-    AblationRow {
-        label,
-        variant,
-        views,
-        task,
-        images: on.len(),
-        psnr: mean(on, |r| r.psnr),
-        ssim: mean(on, |r| r.ssim),
-        psnr_no_skip: off.map(|r| mean(r, |x| x.psnr)),
-        ssim_no_skip: off.map(|r| mean(r, |x| x.ssim)),
-        train_seconds,
-        seconds_per_image,
-        c0_share_seen: (!seen.is_empty()).then(|| seen.iter().sum::<f64>() / seen.len() as f64),
-    }
 }
 
 /// Trains one variant into `dir` (resuming from its newest checkpoint), returning its total
@@ -389,7 +516,7 @@ fn train_variant(
     )
     .map_err(|source| AblationError::Train {
         variant: variant.name().to_string(),
-        source,
+        source: Box::new(source),
     })?;
     let total = before + this_run;
     write_file(&seconds_path, format!("{total:.1}\n").as_bytes())?;
@@ -448,99 +575,4 @@ impl Crop {
             image::imageops::FilterType::Nearest,
         )
     }
-}
-
-/// The markdown table and the paper's orderings, each marked as holding or not.
-pub fn ablation_markdown(config: &TrainConfig, rows: &[AblationRow]) -> String {
-    let t = &config.train;
-    let mut md = String::new();
-    md.push_str("# Ablation (NIA Table 3) on the held-out subjects\n\n");
-    md.push_str(&format!(
-        "Each variant trained for {} steps of {} rays x {} samples with {} source views \
-         (equal budget), backend `{}`. PSNR over `mask_at_box`, SSIM on its bounding crop.\n\n",
-        t.steps,
-        t.rays_per_step,
-        t.samples,
-        t.source_views,
-        t.backend.name()
-    ));
-    md.push_str(
-        "| variant | task | views | images | PSNR (dB) | SSIM | PSNR, no skipping | SSIM, no skipping | c0 share (seen) | train (s) | eval (s/image) |\n\
-         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-    );
-    let opt = |v: Option<f64>, digits: usize| {
-        v.map(|x| format!("{x:.digits$}"))
-            .unwrap_or_else(|| "-".into())
-    };
-    for r in rows {
-        md.push_str(&format!(
-            "| {} | {} | {} | {} | {:.2} | {:.4} | {} | {} | {} | {:.0} | {:.2} |\n",
-            r.label,
-            r.task.replace('_', " "),
-            r.views,
-            r.images,
-            r.psnr,
-            r.ssim,
-            opt(r.psnr_no_skip, 2),
-            opt(r.ssim_no_skip, 4),
-            opt(r.c0_share_seen, 2),
-            r.train_seconds,
-            r.seconds_per_image
-        ));
-    }
-    md.push_str("\nThe paper's orderings (PSNR, skipping on):\n\n");
-    for line in orderings(rows) {
-        md.push_str(&format!("- {line}\n"));
-    }
-    md
-}
-
-/// The paper's orderings e > d > c, e > a, e > b and 1 < 2 < 3 views, each with its verdict.
-pub fn orderings(rows: &[AblationRow]) -> Vec<String> {
-    let novel_view = |variant: Variant, views: Option<usize>| {
-        rows.iter()
-            .find(|r| {
-                r.variant == variant && r.task == "novel_view" && views.is_none_or(|v| r.views == v)
-            })
-            .map(|r| r.psnr)
-    };
-    let full_views = rows
-        .iter()
-        .filter(|r| r.variant == Variant::Full && r.task == "novel_view")
-        .map(|r| r.views)
-        .max();
-    let mut lines = Vec::new();
-    let mut check = |name: String, pairs: Vec<(Option<f64>, Option<f64>)>| {
-        let values: Option<Vec<(f64, f64)>> =
-            pairs.into_iter().map(|(a, b)| Some((a?, b?))).collect();
-        let verdict = match values {
-            None => "not measured".to_string(),
-            Some(v) => {
-                let holds = v.iter().all(|(a, b)| a > b);
-                let gaps: Vec<String> =
-                    v.iter().map(|(a, b)| format!("{:+.2} dB", a - b)).collect();
-                format!(
-                    "{} ({})",
-                    if holds { "holds" } else { "does not hold" },
-                    gaps.join(", ")
-                )
-            }
-        };
-        lines.push(format!("{name}: {verdict}"));
-    };
-    let e = novel_view(Variant::Full, full_views);
-    let d = novel_view(Variant::CosineWeighted, None);
-    let c = novel_view(Variant::SimpleAverage, None);
-    check("e > d > c".into(), vec![(e, d), (d, c)]);
-    check("e > a".into(), vec![(e, novel_view(Variant::NoBody, None))]);
-    check("e > b".into(), vec![(e, novel_view(Variant::NoIbr, None))]);
-    if let Some(n) = full_views {
-        let by_views: Vec<Option<f64>> = (1..=n)
-            .map(|v| novel_view(Variant::Full, Some(v)))
-            .collect();
-        let pairs = by_views.windows(2).map(|w| (w[1], w[0])).collect();
-        let names: Vec<String> = (1..=n).map(|v| v.to_string()).collect();
-        check(format!("{} views", names.join(" < ")), pairs);
-    }
-    lines
 }
