@@ -180,6 +180,10 @@ pub struct FitConfig {
     pub keypoint_sigma_px: f32,
     /// Geman-McClure scale of the silhouette distances, pixels.
     pub silhouette_sigma_px: f32,
+    /// Weight of the hips', neck's and shoulders' keypoints in the pose and shape stages, on
+    /// top of their confidence: a detector places them centimetres off SMPL's joints
+    /// (`KeypointBinding::is_offset_prone`). 1 trusts them as the others.
+    pub offset_prone_weight: f32,
     /// Weight of projected vertices' distance outside the mask (averaged over the views with
     /// a mask).
     pub silhouette_out_weight: f32,
@@ -211,6 +215,7 @@ impl Default for FitConfig {
             boundary_samples: 150,
             keypoint_sigma_px: 20.0,
             silhouette_sigma_px: 20.0,
+            offset_prone_weight: 1.0,
             silhouette_out_weight: 0.2,
             silhouette_in_weight: 0.1,
             pose_prior_weight: 1.0,
@@ -237,6 +242,7 @@ impl FitConfig {
         for (name, v) in [
             ("silhouette_out_weight", self.silhouette_out_weight),
             ("silhouette_in_weight", self.silhouette_in_weight),
+            ("offset_prone_weight", self.offset_prone_weight),
             ("pose_prior_weight", self.pose_prior_weight),
             ("joint_limit_weight", self.joint_limit_weight),
             ("shape_prior_weight", self.shape_prior_weight),

@@ -339,6 +339,13 @@ impl<'m> Fitter<'m> {
             bindings: &self.bindings,
             sigma2: c.keypoint_sigma_px * c.keypoint_sigma_px,
             torso_only: stage == Stage::Global,
+            // The placement needs the torso's keypoints; the pose trusts the offset-prone
+            // ones less.
+            offset_prone_weight: if stage == Stage::Global {
+                1.0
+            } else {
+                c.offset_prone_weight
+            },
         };
         let priors = if stage == Stage::Global {
             Priors::default()

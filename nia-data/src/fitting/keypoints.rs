@@ -65,6 +65,16 @@ impl KeypointBinding {
             && self.joints.iter().all(|(j, _)| TORSO.contains(j))
     }
 
+    /// Whether it is made of the joints a 2D detector places off SMPL's (hips, neck,
+    /// shoulders: a detector's hips sit higher and wider, its shoulders above and outside;
+    /// docs/data.md "Own-capture inputs"), so that a fit may trust it less.
+    pub fn is_offset_prone(&self) -> bool {
+        const OFF_SMPL: [usize; 5] = [1, 2, 12, 16, 17];
+        !self.joints.is_empty()
+            && self.vertices.is_empty()
+            && self.joints.iter().all(|(j, _)| OFF_SMPL.contains(j))
+    }
+
     /// Checks indices against a model of `vertex_count` vertices.
     pub(crate) fn check(&self, keypoint: usize, vertex_count: usize) -> Result<(), FitError> {
         let bad = |what: String| FitError::BadBinding { keypoint, what };
@@ -94,6 +104,9 @@ pub(crate) struct KeypointTerms<'a> {
     pub sigma2: f32,
     /// Only the torso's keypoints count (the rigid placement of a frame fitted from scratch).
     pub torso_only: bool,
+    /// The weight of the keypoints a detector places off SMPL's joints
+    /// ([`KeypointBinding::is_offset_prone`]), on top of their confidence.
+    pub offset_prone_weight: f32,
 }
 
 impl KeypointTerms<'_> {
@@ -103,6 +116,8 @@ impl KeypointTerms<'_> {
         let c = view.keypoints.get(k).map_or(0.0, |p| p[2]);
         if binding.is_unmapped() || (self.torso_only && !binding.is_torso()) {
             0.0
+        } else if binding.is_offset_prone() {
+            c * self.offset_prone_weight
         } else {
             c
         }

@@ -353,6 +353,7 @@ mod tests {
                         // Large: the keypoint term nearly quadratic, its weights smooth.
                         sigma2: 1e6,
                         torso_only: false,
+                        offset_prone_weight: 1.0,
                     }),
                     priors: Priors {
                         pose: Some((
