@@ -72,6 +72,57 @@ pub fn projection_grid(geometry: &SceneGeometry, points: &[Vec3]) -> Vec<f32> {
     grid
 }
 
+/// The inputs only the colour half reads: the view-direction features `[N, M, 4]` and the
+/// visibility `[N, M]` of `image_points`.
+fn colour_inputs(
+    geometry: &SceneGeometry,
+    image_points: &[Vec3],
+    dirs: &[Vec3],
+    view_dir_features: &mut [f32],
+    visibility: &mut [f32],
+) {
+    let m = image_points.len();
+    const D: usize = VIEW_DIR_FEATURE_DIM;
+    for (view, camera) in geometry.cameras.iter().enumerate() {
+        let centre = camera.centre();
+        let vdf = &mut view_dir_features[view * m * D..(view + 1) * m * D];
+        vdf.par_chunks_mut(D)
+            .zip(image_points.par_iter().zip(dirs.par_iter()))
+            .for_each(|(f, (&x, &d))| {
+                let d_n = (x - centre).normalize_or_zero();
+                f.copy_from_slice(&view_direction_feature(d, d_n));
+            });
+    }
+    // o_n: one nearest-face query per point serves every view.
+    let nearest = geometry.surface.nearest_batch(image_points);
+    let faces = geometry.surface.faces();
+    for (view, vis) in geometry.vertex_visibility.iter().enumerate() {
+        let out = &mut visibility[view * m..(view + 1) * m];
+        out.par_iter_mut()
+            .zip(nearest.par_iter())
+            .for_each(|(o, near)| {
+                *o = if near.is_hit() {
+                    let [i, j, k] = faces[near.face as usize];
+                    let b = near.bary;
+                    vis[i as usize] * b[0] + vis[j as usize] * b[1] + vis[k as usize] * b[2]
+                } else {
+                    0.0
+                };
+            });
+    }
+}
+
+/// Which of the network's halves the inputs feed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InputsFor {
+    /// The whole network: every input.
+    Network,
+    /// The density half alone (the projections, the body volume's corners and the carving):
+    /// the view-direction features and the visibility, which only the colour half reads, stay
+    /// zero and cost nothing (the nearest-face query is most of the inputs' time).
+    Density,
+}
+
 impl PointInputs {
     /// Inputs for `image_points` ([M] world points where the source views are read; x, or x'
     /// after reposing) with target directions `dirs` ([M] unit), and, when the model uses the
@@ -83,38 +134,30 @@ impl PointInputs {
         dirs: &[Vec3],
         volume: Option<VolumeSamples<'_>>,
     ) -> Self {
+        Self::compute_for(geometry, image_points, dirs, volume, InputsFor::Network)
+    }
+
+    /// [`Self::compute`] for the network's half `what`.
+    pub fn compute_for(
+        geometry: &SceneGeometry,
+        image_points: &[Vec3],
+        dirs: &[Vec3],
+        volume: Option<VolumeSamples<'_>>,
+        what: InputsFor,
+    ) -> Self {
         let m = image_points.len();
         let n = geometry.num_views();
         let proj_grid = projection_grid(geometry, image_points);
-        const D: usize = VIEW_DIR_FEATURE_DIM;
-        let mut view_dir_features = vec![0.0f32; n * m * D];
-        for (view, camera) in geometry.cameras.iter().enumerate() {
-            let centre = camera.centre();
-            let vdf = &mut view_dir_features[view * m * D..(view + 1) * m * D];
-            vdf.par_chunks_mut(D)
-                .zip(image_points.par_iter().zip(dirs.par_iter()))
-                .for_each(|(f, (&x, &d))| {
-                    let d_n = (x - centre).normalize_or_zero();
-                    f.copy_from_slice(&view_direction_feature(d, d_n));
-                });
-        }
-        // o_n: one nearest-face query per point serves every view.
-        let nearest = geometry.surface.nearest_batch(image_points);
-        let faces = geometry.surface.faces();
+        let mut view_dir_features = vec![0.0f32; n * m * VIEW_DIR_FEATURE_DIM];
         let mut visibility = vec![0.0f32; n * m];
-        for (view, vis) in geometry.vertex_visibility.iter().enumerate() {
-            let out = &mut visibility[view * m..(view + 1) * m];
-            out.par_iter_mut()
-                .zip(nearest.par_iter())
-                .for_each(|(o, near)| {
-                    *o = if near.is_hit() {
-                        let [i, j, k] = faces[near.face as usize];
-                        let b = near.bary;
-                        vis[i as usize] * b[0] + vis[j as usize] * b[1] + vis[k as usize] * b[2]
-                    } else {
-                        0.0
-                    };
-                });
+        if what == InputsFor::Network {
+            colour_inputs(
+                geometry,
+                image_points,
+                dirs,
+                &mut view_dir_features,
+                &mut visibility,
+            );
         }
         let corners = match volume {
             Some((scales, points)) => scales

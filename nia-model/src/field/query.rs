@@ -3,7 +3,7 @@
 
 use burn::prelude::*;
 use glam::Vec3;
-use nia_data::scene::PointInputs;
+use nia_data::scene::{InputsFor, PointInputs};
 use rayon::prelude::*;
 
 use super::heads::view_mean;
@@ -50,8 +50,22 @@ impl NiaModel {
         rows: CallRows,
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointTensors, ModelError> {
+        self.point_tensors_for(scene, points, dirs, rows, InputsFor::Network, watch)
+    }
+
+    /// [`Self::point_tensors`] for the network's half `what` (the density half alone leaves
+    /// the inputs only the colour half reads at zero: [`InputsFor::Density`]).
+    pub(crate) fn point_tensors_for(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        rows: CallRows,
+        what: InputsFor,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointTensors, ModelError> {
         let inputs = self
-            .point_inputs(scene, points, dirs)?
+            .point_inputs_for(scene, points, dirs, what)?
             .padded(rows.of(points.len()));
         watch.mark(Stage::PointInputs);
         let mut tensors = upload_point_inputs(scene, inputs)?;
@@ -67,6 +81,17 @@ impl NiaModel {
         points: &[Vec3],
         dirs: &[Vec3],
     ) -> Result<PointInputs, ModelError> {
+        self.point_inputs_for(scene, points, dirs, InputsFor::Network)
+    }
+
+    /// [`Self::point_inputs`] for the network's half `what`.
+    pub(crate) fn point_inputs_for(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        what: InputsFor,
+    ) -> Result<PointInputs, ModelError> {
         let geometry = &scene.geometry;
         let scales = scene.volume.as_ref().map(|(vg, _)| &vg.levels[1..]);
         // The visual hull is read where the source views are: at x, or x' when reposed.
@@ -79,7 +104,10 @@ impl NiaModel {
                 let volume_points: Option<Vec<[f32; 3]>> =
                     scales.map(|_| points.par_iter().map(|&p| geometry.to_smpl(p)).collect());
                 let volume = scales.zip(volume_points.as_deref());
-                carve(PointInputs::compute(geometry, points, dirs, volume), points)
+                carve(
+                    PointInputs::compute_for(geometry, points, dirs, volume, what),
+                    points,
+                )
             }
             Some(reposer) => {
                 // The body volume lives in the target pose (SMPL frame of the target); pixel
@@ -94,7 +122,8 @@ impl NiaModel {
                     .map_points(points, dirs)
                     .map_err(|e| ModelError::Input(format!("reposing: {e}")))?;
                 let volume = scales.zip(volume_points.as_deref());
-                let inputs = PointInputs::compute(geometry, &mapped.points, &mapped.dirs, volume);
+                let inputs =
+                    PointInputs::compute_for(geometry, &mapped.points, &mapped.dirs, volume, what);
                 carve(inputs, &mapped.points)
             }
         };

@@ -21,6 +21,8 @@
 use burn::prelude::*;
 use glam::Vec3;
 
+use nia_data::scene::InputsFor;
+
 use crate::error::ModelError;
 use crate::field::PointOutput;
 use crate::kernels::readback::host_values;
@@ -114,8 +116,15 @@ impl NiaModel {
         let pad = rows == CallRows::Bucket;
         let points: Vec<Vec3> = chosen.iter().map(|&p| samples.points[p]).collect();
         let dirs: Vec<Vec3> = chosen.iter().map(|&p| samples.dirs[p]).collect();
-        // With padding, the density pass has bucket_len(chosen) points, the chosen first.
-        let inputs = self.point_tensors(scene, &points, &dirs, rows, watch)?;
+        // With padding, the density pass has bucket_len(chosen) points, the chosen first. A
+        // walk that colours nothing (the colour-once mode's density walk) computes only the
+        // density half's inputs.
+        let what = if walk.budget == f32::INFINITY {
+            InputsFor::Density
+        } else {
+            InputsFor::Network
+        };
+        let inputs = self.point_tensors_for(scene, &points, &dirs, rows, what, watch)?;
         let density = self.query_density(scene, &inputs, watch)?;
         let mut sigma = host_values(density.sigma.clone())
             .map_err(|e| ModelError::Input(format!("reading densities: {e}")))?;
