@@ -73,18 +73,9 @@ impl NiaModel {
         Ok(tensors)
     }
 
-    /// [`Self::point_tensors`]' host half: the point inputs of world points (in the rendered
-    /// pose), reposed into the scene's pose first when the scene was encoded for another pose.
-    pub(crate) fn point_inputs(
-        &self,
-        scene: &SceneEncoding,
-        points: &[Vec3],
-        dirs: &[Vec3],
-    ) -> Result<PointInputs, ModelError> {
-        self.point_inputs_for(scene, points, dirs, InputsFor::Network)
-    }
-
-    /// [`Self::point_inputs`] for the network's half `what`.
+    /// [`Self::point_tensors_for`]' host half: the point inputs of world points (in the
+    /// rendered pose) for the network's half `what`, reposed into the scene's pose first when
+    /// the scene was encoded for another pose.
     pub(crate) fn point_inputs_for(
         &self,
         scene: &SceneEncoding,
