@@ -12,6 +12,7 @@
 //! Timing is an observer: every stage method takes `Option<&mut StageTimes>` and charges its
 //! stages there when given (synchronising the device), and does nothing extra otherwise.
 
+use burn::module::{ModuleVisitor, Param};
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use nia_data::geometry::sparse::VoxelGridSpec;
@@ -73,7 +74,18 @@ pub struct NiaModel {
 
 impl ModelConfig {
     /// A freshly initialised network on `device` (use an autodiff device for training).
+    ///
+    /// Every parameter is drawn here, on the calling thread: burn 0.22 initialises parameters
+    /// lazily, from the random stream of whichever thread reads them first, so a model
+    /// first used on worker threads (one per device in data-parallel training) would
+    /// otherwise start from other weights than the same seed gives on one thread.
     pub fn init(&self, device: &Device) -> NiaModel {
+        let model = self.init_lazily(device);
+        model.visit(&mut DrawParameters);
+        model
+    }
+
+    fn init_lazily(&self, device: &Device) -> NiaModel {
         let c_img = self.image_channels();
         NiaModel {
             encoder: self.encoder().init(device),
@@ -94,6 +106,15 @@ impl ModelConfig {
             source_colours_at: self.source_colours_at.unwrap_or_default(),
             source_colour_balance: self.source_colour_balance.unwrap_or(false),
         }
+    }
+}
+
+/// Reads every float parameter once, which draws the ones still uninitialised.
+struct DrawParameters;
+
+impl ModuleVisitor for DrawParameters {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let _ = param.val();
     }
 }
 

@@ -85,18 +85,46 @@ fn train(dir: &Path, name: &str, steps: u64, devices: &str, extra: &[&str]) -> P
     out
 }
 
-/// Every float parameter of `model`, flattened in visiting order.
+/// Every trained float parameter of `model`, flattened in visiting order: the batch-norm
+/// running statistics (`running_mean`, `running_var`) are left out. They are buffers, not
+/// gradients: burn 0.22's `RunningState` keeps one pending update per thread and averages
+/// them, so devices on their own threads (the multi-device path) give the average of the
+/// scenes' batch statistics where one thread taking both scenes (the reference) keeps the
+/// last one.
 fn flat_weights(model: &NiaModel) -> Vec<f32> {
-    struct Collect(Vec<f32>);
+    struct Collect {
+        path: Vec<String>,
+        values: Vec<f32>,
+    }
     impl ModuleVisitor for Collect {
+        fn enter_module(&mut self, name: &str, _container_type: &str) {
+            self.path.push(name.to_string());
+        }
+        fn exit_module(&mut self, _name: &str, _container_type: &str) {
+            self.path.pop();
+        }
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let running = matches!(
+                self.path.last().map(String::as_str),
+                Some("running_mean" | "running_var")
+            );
+            if running {
+                return;
+            }
             let v = param.val().into_data().convert::<f32>();
-            self.0.extend(v.try_to_vec::<f32>().unwrap());
+            self.values.extend(v.try_to_vec::<f32>().unwrap());
         }
     }
-    let mut c = Collect(Vec::new());
+    let mut c = Collect {
+        path: Vec::new(),
+        values: Vec::new(),
+    };
     model.visit(&mut c);
-    c.0
+    assert!(
+        c.path.is_empty(),
+        "every module entered was left again (the path walk above is balanced)"
+    );
+    c.values
 }
 
 /// Every parameter of the newest checkpoint of `out`, flattened.

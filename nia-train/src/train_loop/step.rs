@@ -50,23 +50,34 @@ pub(super) fn train_step(
         return Err(TrainError::NoRays(step));
     }
     let k = devices.len() as u64;
-    // The devices take their scenes one after the other, each on its replica of the model
-    // (forked to it; the first is the model itself). Running the replicas' backward passes
-    // on threads at once gave other gradients than one at a time with burn 0.22's autodiff
-    // (weights 0.76 apart after 2 steps, nia-train/tests/multi_device.rs), so this build
-    // does not overlap devices.
-    let mut outcomes = Vec::with_capacity(scenes.len());
-    for (i, (scene, device)) in scenes.iter().zip(devices).enumerate() {
-        let replica = if i == 0 {
-            model.clone()
-        } else {
-            model.clone().fork(device)
-        };
-        let index = step * k + i as u64;
-        outcomes.push(scene_gradients(
-            &replica, scene, faces, config, step, index, device,
-        ));
-    }
+    // One thread per device, each on its replica of the model (forked to it; the first is the
+    // model itself), all at once. A panic on a device's thread is passed on unchanged, as the
+    // same panic on one thread would be.
+    let outcomes: Vec<Result<SceneOutcome, TrainError>> = std::thread::scope(|threads| {
+        let handles: Vec<_> = scenes
+            .iter()
+            .zip(devices)
+            .enumerate()
+            .map(|(i, (scene, device))| {
+                let replica = if i == 0 {
+                    model.clone()
+                } else {
+                    model.clone().fork(device)
+                };
+                let index = step * k + i as u64;
+                threads.spawn(move || {
+                    scene_gradients(&replica, scene, faces, config, step, index, device)
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+            })
+            .collect()
+    });
     combine(model, outcomes, devices, config)
 }
 
