@@ -559,12 +559,13 @@ fn render_and_animate_write_pictures() {
 #[test]
 fn sweep_writes_the_table_and_the_plot() {
     let out_dir = scratch("sweep");
-    let axes = "--sample-counts 8 --view-counts 1,3 --ratios 1.0 --supersamples 1,2";
+    let axes =
+        "--sample-counts 8 --view-counts 1,3 --ratios 1.0 --supersamples 1,2 --colour-point-counts 0,1";
     ok(&on_model("sweep", axes, &["--limit", "1"], &out_dir));
     let csv = std::fs::read_to_string(out_dir.join("sweep.csv")).unwrap();
-    // 1 sample count x 2 view counts x 1 ratio x 2 supersamplings x skipping on/off, plus the
-    // header.
-    assert_eq!(csv.lines().count(), 1 + 8, "{csv}");
+    // 1 sample count x 2 view counts x 1 ratio x 2 supersamplings x 2 colour-point counts x
+    // skipping on/off, plus the header.
+    assert_eq!(csv.lines().count(), 1 + 16, "{csv}");
     let rows: Vec<Vec<&str>> = csv
         .lines()
         .skip(1)
@@ -580,7 +581,7 @@ fn sweep_writes_the_table_and_the_plot() {
     }
     let evals = |supersample: &str, skip: &str| -> f64 {
         rows.iter()
-            .find(|r| r[1] == "3" && r[3] == supersample && r[4] == skip)
+            .find(|r| r[1] == "3" && r[3] == supersample && r[4] == skip && r[11] == "0")
             .unwrap()[9]
             .parse()
             .unwrap()
@@ -596,7 +597,10 @@ fn sweep_writes_the_table_and_the_plot() {
     // Every setting is a labelled dot (once with skipping on, once off), and the legend
     // names both series and the front.
     for r in &rows {
-        let label = format!("r{} v{} s{} x{}", r[2], r[1], r[0], r[3]);
+        let mut label = format!("r{} v{} s{} x{}", r[2], r[1], r[0], r[3]);
+        if r[11] != "0" {
+            label += &format!(" c{}", r[11]);
+        }
         let drawn = svg.lines().filter(|l| l.trim() == label).count();
         assert_eq!(drawn, 2, "{label}");
     }

@@ -38,6 +38,10 @@ pub struct SweepArgs {
     /// ray through the centre).
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     pub supersamples: Vec<usize>,
+    /// Colour points per ray to try (`[render] colour_points`, `--colour-points`: 0 colours every sample, the
+    /// paper's; K colours the K samples with the largest weights; default: the model's own).
+    #[arg(long, value_delimiter = ',')]
+    pub colour_point_counts: Vec<usize>,
     /// Images per setting (the first N of the unseen-subject split).
     #[arg(long, default_value_t = 6)]
     pub limit: usize,
@@ -53,6 +57,7 @@ struct Row {
     ratio: f32,
     supersample: usize,
     skip_empty_space: bool,
+    colour_points: usize,
     images: usize,
     psnr: f64,
     ssim: f64,
@@ -95,7 +100,8 @@ fn check_counts(args: &SweepArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The swept supersamplings refused where the `[render]` options refuse them.
+/// The swept supersamplings and colour points refused where the `[render]` options refuse
+/// them.
 fn check_supersamples(args: &SweepArgs, base_adaptive: &RenderOptions) -> anyhow::Result<()> {
     for &supersample in &args.supersamples {
         let options = RenderOptions {
@@ -104,6 +110,18 @@ fn check_supersamples(args: &SweepArgs, base_adaptive: &RenderOptions) -> anyhow
         };
         if let Err(e) = options.check() {
             anyhow::bail!("--supersamples {supersample}: expected {}", e.expected);
+        }
+    }
+    for &colour_points in &args.colour_point_counts {
+        let options = RenderOptions {
+            colour_points,
+            ..*base_adaptive
+        };
+        if let Err(e) = options.check() {
+            anyhow::bail!(
+                "--colour-point-counts {colour_points}: expected {}",
+                e.expected
+            );
         }
     }
     Ok(())
@@ -117,10 +135,16 @@ fn measure(
     base_adaptive: &RenderOptions,
 ) -> anyhow::Result<Vec<Row>> {
     let split = EvalSplit::UnseenSubjects;
+    let colour_points = if args.colour_point_counts.is_empty() {
+        vec![base_adaptive.colour_points]
+    } else {
+        args.colour_point_counts.clone()
+    };
     let total = args.ratios.len()
         * args.view_counts.len()
         * args.sample_counts.len()
         * args.supersamples.len()
+        * colour_points.len()
         * 2;
     let bar = progress_bar(total as u64, "sweep");
     let mut rows = Vec::new();
@@ -133,20 +157,23 @@ fn measure(
         let items = eval_items(&data, split, EvalTask::NovelView, Some(args.limit))?;
         for &views in &args.view_counts {
             let items = first_views(&items, views)?;
-            for (&samples, &supersample, skip) in args
+            for (&samples, &supersample, &points, skip) in args
                 .sample_counts
                 .iter()
                 .flat_map(|s| args.supersamples.iter().map(move |x| (s, x)))
-                .flat_map(|(s, x)| [false, true].map(|skip| (s, x, skip)))
+                .flat_map(|(s, x)| colour_points.iter().map(move |k| (s, x, k)))
+                .flat_map(|(s, x, k)| [false, true].map(|skip| (s, x, k, skip)))
             {
                 let skipping = if skip { "on" } else { "off" };
                 bar.set_message(format!(
                     "ratio {ratio}, {views} views, {samples} samples, \
-                     {supersample}x{supersample} rays per pixel, skipping {skipping}"
+                     {supersample}x{supersample} rays per pixel, {points} colour points, \
+                     skipping {skipping}"
                 ));
                 let render = RenderOptions {
                     skip_empty_space: skip,
                     supersample,
+                    colour_points: points,
                     ..*base_adaptive
                 };
                 let results = loaded.evaluate(
@@ -171,6 +198,7 @@ fn measure(
                     ratio,
                     supersample,
                     skip_empty_space: skip,
+                    colour_points: points,
                     images: summary.images,
                     psnr: summary.psnr,
                     ssim: summary.ssim,
@@ -211,12 +239,12 @@ fn first_views(items: &[EvalItem], views: usize) -> anyhow::Result<Vec<EvalItem>
 /// `sweep.csv`: one line per row.
 fn csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "samples,views,ratio,supersample,skip_empty_space,images,psnr,ssim,ms_per_image,point_evaluations_per_image,pareto\n",
+        "samples,views,ratio,supersample,skip_empty_space,images,psnr,ssim,ms_per_image,point_evaluations_per_image,pareto,colour_points\n",
     );
     for r in rows {
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{},{:.4},{:.5},{:.2},{:.0},{}",
+            "{},{},{},{},{},{},{:.4},{:.5},{:.2},{:.0},{},{}",
             r.samples,
             r.views,
             r.ratio,
@@ -227,7 +255,8 @@ fn csv(rows: &[Row]) -> String {
             r.ssim,
             r.ms_per_image,
             r.point_evaluations_per_image,
-            r.pareto
+            r.pareto,
+            r.colour_points
         );
     }
     csv
@@ -236,7 +265,7 @@ fn csv(rows: &[Row]) -> String {
 /// `sweep.md`: the rows as a table, under what was swept.
 fn markdown(args: &SweepArgs, loaded: &LoadedModel, rows: &[Row]) -> String {
     let mut md = format!(
-        "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | rays / pixel | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
+        "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | rays / pixel | colour points | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
         loaded.path.display(),
         loaded.step,
         args.data.as_ref().unwrap_or(&loaded.run.data.root).display(),
@@ -246,11 +275,16 @@ fn markdown(args: &SweepArgs, loaded: &LoadedModel, rows: &[Row]) -> String {
     for r in rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {:.2} | {:.4} | {:.0} | {:.0} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {:.2} | {:.4} | {:.0} | {:.0} | {} |",
             r.ratio,
             r.views,
             r.samples,
             r.supersample * r.supersample,
+            if r.colour_points == 0 {
+                "every sample".to_string()
+            } else {
+                r.colour_points.to_string()
+            },
             if r.skip_empty_space { "on" } else { "off" },
             r.psnr,
             r.ssim,
@@ -262,6 +296,19 @@ fn markdown(args: &SweepArgs, loaded: &LoadedModel, rows: &[Row]) -> String {
     md
 }
 
+/// A row's dot label: `r<ratio> v<views> s<samples> x<supersample>`, and ` c<K>` where colour
+/// is read at K points per ray.
+fn label(r: &Row) -> String {
+    let mut label = format!(
+        "r{} v{} s{} x{}",
+        r.ratio, r.views, r.samples, r.supersample
+    );
+    if r.colour_points > 0 {
+        let _ = write!(label, " c{}", r.colour_points);
+    }
+    label
+}
+
 /// `sweep.svg`: PSNR against time per image, skipping off and on, the Pareto front drawn.
 fn svg(rows: &[Row]) -> anyhow::Result<String> {
     let series = |skip: bool, name: &str, colour: RGBColor| Series {
@@ -270,16 +317,7 @@ fn svg(rows: &[Row]) -> anyhow::Result<String> {
         points: rows
             .iter()
             .filter(|r| r.skip_empty_space == skip)
-            .map(|r| {
-                (
-                    r.ms_per_image,
-                    r.psnr,
-                    format!(
-                        "r{} v{} s{} x{}",
-                        r.ratio, r.views, r.samples, r.supersample
-                    ),
-                )
-            })
+            .map(|r| (r.ms_per_image, r.psnr, label(r)))
             .collect(),
     };
     let mut front: Vec<(f64, f64)> = rows
