@@ -82,6 +82,9 @@ pub enum TrainError {
     },
     #[error("the loader produced a scene without training rays at step {0}")]
     NoRays(u64),
+    /// A device's thread pool could not be started (several devices per step).
+    #[error("train.devices: starting a device's thread pool: {0}")]
+    ThreadPool(#[from] rayon::ThreadPoolBuildError),
     /// `train.lpips` could not be loaded.
     #[error("train.lpips: {0}")]
     Lpips(#[from] nia_model::lpips::LpipsLoadError),
@@ -164,6 +167,7 @@ pub fn train(
         .flat_map(|step| (0..k).map(move |i| step * k + i))
         .map(|scene| data.request_for_step(t.seed, scene, t.source_views))
         .collect();
+    let pools = step::DevicePools::new(devices.len())?;
     let mut loader = SceneLoader::new(
         data.dataset.source.clone(),
         requests,
@@ -186,6 +190,7 @@ pub fn train(
         let lr = config.optim.lr_at(step);
         let outcome = train_step(
             &model,
+            &pools,
             &scenes,
             &data.dataset.source.faces,
             config,

@@ -38,8 +38,41 @@ pub(super) enum StepOutcome {
     Skipped(String),
 }
 
+/// The CPU threads each device's work runs on. One device uses rayon's global pool; several
+/// devices each get a pool of their own with an equal share of the global pool's threads (at
+/// least one), so that two devices' parallel kernels do not queue on one pool (measured in
+/// docs/data.md, "Training on a GPU, or on several devices").
+pub(super) struct DevicePools(Vec<rayon::ThreadPool>);
+
+impl DevicePools {
+    pub(super) fn new(devices: usize) -> Result<Self, TrainError> {
+        if devices < 2 {
+            return Ok(Self(Vec::new()));
+        }
+        let threads = (rayon::current_num_threads() / devices).max(1);
+        let pools = (0..devices)
+            .map(|i| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .thread_name(move |t| format!("nia-device-{i}-{t}"))
+                    .build()
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self(pools))
+    }
+
+    /// Runs `work` on device `i`'s pool (the calling thread's pool for one device).
+    fn install<R: Send>(&self, i: usize, work: impl FnOnce() -> R + Send) -> R {
+        match self.0.get(i) {
+            Some(pool) => pool.install(work),
+            None => work(),
+        }
+    }
+}
+
 pub(super) fn train_step(
     model: &NiaModel,
+    pools: &DevicePools,
     scenes: &[Scene],
     faces: &[[u32; 3]],
     config: &TrainConfig,
@@ -66,7 +99,9 @@ pub(super) fn train_step(
                 };
                 let index = step * k + i as u64;
                 threads.spawn(move || {
-                    scene_gradients(&replica, scene, faces, config, step, index, device)
+                    pools.install(i, || {
+                        scene_gradients(&replica, scene, faces, config, step, index, device)
+                    })
                 })
             })
             .collect();
