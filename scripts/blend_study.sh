@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The blend study of docs/results.md ("The learned blend under each flaw"): the main command's
-# recipe (configs/quickstart.toml) trained on its own people (generator seed 0, 8 cameras) with
+# recipe (configs/quickstart.toml) trained on generator seed 0's people (4, 8 cameras) with
 # one capture flaw at a time, as the full model (e) and as the simple average (c), then each
 # model evaluated with scripts/robustness.sh on sets of other people with the same flaw.
 #
@@ -17,7 +17,7 @@
 #             for them in the run and model names (default "base")
 #   FLAGS     robustness.sh's eval flag sets (default "" = the model's own render settings)
 #   CONFIG    the training config (default configs/quickstart.toml)
-#   BIN       folder holding nia-train and nia-infer (default target/release)
+#   BIN       folder holding nia-train and nia-infer (default the dev profile's)
 #   RUNS, MODELS, DATA  where runs, .nia files and data go (default runs/blend, models/blend,
 #             data/blend); everything already there is reused, so the script resumes.
 set -euo pipefail
@@ -31,7 +31,7 @@ SETTINGS=${SETTINGS:-}
 TAG=${TAG:-base}
 FLAGS=${FLAGS:-}
 CONFIG=${CONFIG:-configs/quickstart.toml}
-BIN=${BIN:-target/release}
+BIN=${BIN:-${CARGO_TARGET_DIR:-target}/debug}
 RUNS=${RUNS:-runs/blend}
 MODELS=${MODELS:-models/blend}
 DATA=${DATA:-data/blend}
@@ -68,6 +68,7 @@ for flaw in $FLAWS; do
         # shellcheck disable=SC2086
         "$BIN/nia-train" --config "$CONFIG" --out "$run" --overwrite \
           --set "data.root=\"$DATA/train_s0_c8_$name\"" "${synth[@]}" "${variant_set[@]}" \
+          --set synth.seed=0 --set synth.subjects=4 --set synth.test_fraction=0.25 \
           --set train.seed="$tseed" --set train.evaluate_at_end=false \
           --set train.validate_every=1000000 $SETTINGS > "$run.log" 2>&1
         "$BIN/nia-infer" export --checkpoint "$run" --out "$model" > /dev/null

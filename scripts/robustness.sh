@@ -14,7 +14,7 @@
 #            calibration=1 colour=1 zju_like,smpl-fit=2")
 #   FLAGS    `|`-separated nia-infer eval flag sets, each one row (default: "" = the model's)
 #   DATA     where the sets are generated (default data/robustness; kept between runs)
-#   BIN      folder holding nia-train and nia-infer (default target/release)
+#   BIN      folder holding nia-train and nia-infer (default the dev profile's)
 set -euo pipefail
 
 SEEDS=${SEEDS:-"23 24"}
@@ -22,7 +22,7 @@ CAMERAS=${CAMERAS:-8}
 FLAWS=${FLAWS:-"none zju_like smpl-fit=1 mask=1 geometry=1 calibration=1 colour=1 zju_like,smpl-fit=2"}
 FLAGS=${FLAGS:-""}
 DATA=${DATA:-data/robustness}
-BIN=${BIN:-target/release}
+BIN=${BIN:-${CARGO_TARGET_DIR:-target}/debug}
 [ $# -ge 1 ] || { echo "usage: $0 MODEL.nia [MODEL.nia ...]" >&2; exit 2; }
 for m in "$@"; do [ -f "$m" ] || { echo "$m: no such model file" >&2; exit 2; }; done
 
