@@ -107,8 +107,11 @@ pub struct ViewRequest {
     pub fast: bool,
 }
 
-/// Samples coloured per ray in the frames of a drag (`nia_model::renderer::colour_once`).
-pub const FAST_COLOUR_POINTS: usize = 1;
+/// Samples coloured per ray in the frames of a drag (`nia_model::renderer::colour_once`; 0:
+/// every sample, as the model's own settings). 0: colour once washed the main command's model
+/// out by 5.3 dB (K = 1) and 2.1 dB (K = 2) on a report set (docs/accuracy-time.md), so a drag
+/// shows the reference colours at reduced size.
+pub const FAST_COLOUR_POINTS: usize = 0;
 
 /// A rendered view and what it cost.
 pub struct ViewFrame {
