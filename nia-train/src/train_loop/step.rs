@@ -86,6 +86,13 @@ pub(super) fn train_step(
     // One thread per device, each on its replica of the model (forked to it; the first is the
     // model itself), all at once. A panic on a device's thread is passed on unchanged, as the
     // same panic on one thread would be.
+    // One device stays on the calling thread: burn 0.22's batch-norm running statistics keep a
+    // pending update per thread and average them in a hash map's order, so a new thread each
+    // step would make them differ between runs in the last bit (nia-train/tests/determinism.rs).
+    if let ([scene], [device]) = (scenes, devices) {
+        let outcome = scene_gradients(model, scene, faces, config, step, step, device);
+        return combine(model, vec![outcome], devices, config);
+    }
     let outcomes: Vec<Result<SceneOutcome, TrainError>> = std::thread::scope(|threads| {
         let handles: Vec<_> = scenes
             .iter()
