@@ -39,12 +39,15 @@ mkdir -p "$RUNS" "$MODELS" "$DATA"
 
 # `--set` words of the training data for one FLAWS entry: "mask=1" -> synth.mask_level=1.
 data_sets() {
-  local out=() part key
+  local out=() part key preset=none
   IFS=',' read -ra parts <<< "$1"
+  # A single flaw is that flaw alone: the preset is "none" unless the entry names zju_like
+  # (the config's own preset would otherwise add every other flaw).
+  for part in "${parts[@]}"; do [ "$part" = zju_like ] && preset=zju_like; done
+  out+=(--set "synth.capture=\"$preset\"")
   for part in "${parts[@]}"; do
     case "$part" in
-      none) out+=(--set 'synth.capture="none"') ;;
-      zju_like) out+=(--set 'synth.capture="zju_like"') ;;
+      none|zju_like) ;;
       *=*) key=${part%%=*}; out+=(--set "synth.${key//-/_}_level=${part##*=}") ;;
       *) echo "unknown flaw \`$part\`" >&2; exit 2 ;;
     esac
