@@ -70,7 +70,7 @@ pub fn run(args: &SweepArgs) -> anyhow::Result<()> {
     let loaded = LoadedModel::open(&args.model)?;
     check_counts(args)?;
     let base_adaptive = loaded.render_options(&args.model)?;
-    check_supersamples(args, &base_adaptive)?;
+    check_render_axes(args, &base_adaptive)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let mut rows = measure(args, &loaded, &base_adaptive)?;
@@ -102,7 +102,7 @@ fn check_counts(args: &SweepArgs) -> anyhow::Result<()> {
 
 /// The swept supersamplings and colour points refused where the `[render]` options refuse
 /// them.
-fn check_supersamples(args: &SweepArgs, base_adaptive: &RenderOptions) -> anyhow::Result<()> {
+fn check_render_axes(args: &SweepArgs, base_adaptive: &RenderOptions) -> anyhow::Result<()> {
     for &supersample in &args.supersamples {
         let options = RenderOptions {
             supersample,

@@ -61,7 +61,7 @@ impl DevicePools {
         Ok(Self(pools))
     }
 
-    /// Runs `work` on device `i`'s pool (the calling thread's pool for one device).
+    /// Runs `work` on device `i`'s pool (on the calling thread where there is none).
     fn install<R: Send>(&self, i: usize, work: impl FnOnce() -> R + Send) -> R {
         match self.0.get(i) {
             Some(pool) => pool.install(work),
@@ -83,9 +83,6 @@ pub(super) fn train_step(
         return Err(TrainError::NoRays(step));
     }
     let k = devices.len() as u64;
-    // One thread per device, each on its replica of the model (forked to it; the first is the
-    // model itself), all at once. A panic on a device's thread is passed on unchanged, as the
-    // same panic on one thread would be.
     // One device stays on the calling thread: burn 0.22's batch-norm running statistics keep a
     // pending update per thread and average them in a hash map's order, so a new thread each
     // step would make them differ between runs in the last bit (nia-train/tests/determinism.rs).
@@ -93,6 +90,9 @@ pub(super) fn train_step(
         let outcome = scene_gradients(model, scene, faces, config, step, step, device);
         return combine(model, vec![outcome], devices, config);
     }
+    // Several: one thread per device, each on its replica of the model (forked to it; the first
+    // is the model itself), all at once. A panic on a device's thread is passed on unchanged,
+    // as the same panic on one thread would be.
     let outcomes: Vec<Result<SceneOutcome, TrainError>> = std::thread::scope(|threads| {
         let handles: Vec<_> = scenes
             .iter()
