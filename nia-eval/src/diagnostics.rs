@@ -19,6 +19,9 @@
 //!   8-neighbour of the other mask value), and over the rest of the scored region. At 128 px a
 //!   person's silhouette band is about a seventh of the scored pixels and, in the quickstart,
 //!   half of the squared error: a blurred or shifted outline costs more than blurred prints.
+//! - `psnr_truth`, `ssim_truth`, `psnr_ibr_truth` (only with a truth set,
+//!   [`crate::truth::TruthData`]): the image's PSNR and SSIM and the IBR-only composite's PSNR
+//!   against the truth set's image of the same view, on the same region.
 
 use glam::Vec3;
 use nia_data::dataset::loader::Scene;
@@ -46,6 +49,12 @@ pub struct BlendDiagnostics {
     pub opacity_inside: Option<f64>,
     pub psnr_silhouette: Option<f64>,
     pub psnr_interior: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psnr_truth: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ssim_truth: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub psnr_ibr_truth: Option<f64>,
 }
 
 /// The pixels on either side of the boundary of `mask`: those with an 8-neighbour (inside the
@@ -134,6 +143,8 @@ pub struct DiagnosticsInput<'a> {
     pub faces: &'a [[u32; 3]],
     /// The scene of the source views (its per-view vertex visibility, same vertex indices).
     pub sources: &'a Scene,
+    /// [H * W * 3] the truth set's image of the target view ([`crate::truth::TruthData`]).
+    pub truth: Option<&'a [f32]>,
 }
 
 fn mean(sum: f64, count: usize) -> Option<f64> {
@@ -153,6 +164,23 @@ impl BlendDiagnostics {
         };
         let psnr_nerf = psnr_of(&r.rgb0, "NeRF-only composite")?;
         let psnr_ibr = psnr_of(&r.rgb_ibr, "IBR-only composite")?;
+        let against_truth = |rgb: &[f32], name: &'static str| -> Result<_, MetricsError> {
+            match input.truth {
+                Some(truth) => {
+                    let pv = ImageView::new(name, rgb, w, h, 3)?;
+                    let tv = ImageView::new("truth set's image", truth, w, h, 3)?;
+                    Ok(Some(evaluate(
+                        &pv,
+                        &tv,
+                        input.mask_at_box,
+                        SsimOptions::nhp(),
+                    )?))
+                }
+                None => Ok(None),
+            }
+        };
+        let truth = against_truth(&r.rgb, "prediction")?;
+        let ibr_truth = against_truth(&r.rgb_ibr, "IBR-only composite")?;
         let (psnr_silhouette, psnr_interior) = silhouette_split(
             &ImageView::new("prediction", &r.rgb, w, h, 3)?,
             &ImageView::new("ground truth", input.ground_truth, w, h, 3)?,
@@ -235,6 +263,9 @@ impl BlendDiagnostics {
             opacity_inside: mean(in_sum, in_n),
             psnr_silhouette,
             psnr_interior,
+            psnr_truth: truth.map(|m| m.psnr),
+            ssim_truth: truth.map(|m| m.ssim),
+            psnr_ibr_truth: ibr_truth.map(|m| m.psnr),
         })
     }
 
@@ -255,6 +286,9 @@ impl BlendDiagnostics {
             opacity_inside: avg(&|d| d.opacity_inside),
             psnr_silhouette: avg(&|d| d.psnr_silhouette),
             psnr_interior: avg(&|d| d.psnr_interior),
+            psnr_truth: avg(&|d| d.psnr_truth),
+            ssim_truth: avg(&|d| d.ssim_truth),
+            psnr_ibr_truth: avg(&|d| d.psnr_ibr_truth),
         }
     }
 }

@@ -12,6 +12,7 @@
 
 use crate::diagnostics::{BlendDiagnostics, DiagnosticsInput};
 use crate::perceptual::lpips_masked_crop;
+use crate::truth::{TruthData, TruthError};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -47,6 +48,8 @@ pub enum EvalError {
         view: usize,
         message: String,
     },
+    #[error(transparent)]
+    Truth(#[from] TruthError),
     /// A writer of results (pictures, tables) failed.
     #[error("{0}")]
     Output(String),
@@ -113,6 +116,9 @@ pub struct EvalOptions {
     pub render: RenderOptions,
     /// Also score LPIPS with this network (on the evaluation device), on SSIM's crop.
     pub lpips: Option<Arc<Lpips>>,
+    /// Also score every image against this set's image of the same view
+    /// ([`crate::truth`]).
+    pub truth: Option<Arc<TruthData>>,
 }
 
 /// The score and cost of one evaluated image.
@@ -458,6 +464,15 @@ fn evaluate_image(
         ),
         None => None,
     };
+    let truth = match &options.truth {
+        Some(t) => Some(t.view(
+            &scene.subject,
+            scene.frame,
+            target.request.target_view,
+            &image.camera,
+        )?),
+        None => None,
+    };
     let diagnostics = BlendDiagnostics::measure(&DiagnosticsInput {
         rendered: &rendered,
         camera: &image.camera,
@@ -470,6 +485,7 @@ fn evaluate_image(
             .map_or(&scene.vertices[..], |r| r.target_vertices()),
         faces: &data.source.faces,
         sources,
+        truth: truth.as_ref().map(|t| t.image.as_slice()),
     })
     .map_err(metrics_err)?;
     let result = ImageResult {

@@ -10,6 +10,8 @@
 //! - [`plot`]: SVG plots (the sweep's accuracy-time scatter, training curves);
 //! - [`run_settings`]: the settings evaluation and inference take from the run a model was
 //!   trained with;
+//! - [`truth`]: a truer ground truth than the dataset's (the same synthetic capture without
+//!   its mask flaw), scored beside the protocol's;
 //! - [`heap`]: the process heap's policy for tensor buffers (both binaries set it first thing).
 //!
 //! The library never prints.
@@ -21,3 +23,4 @@ pub mod perceptual;
 pub mod pictures;
 pub mod plot;
 pub mod run_settings;
+pub mod truth;

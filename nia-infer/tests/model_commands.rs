@@ -227,6 +227,39 @@ fn eval_on_another_synthetic_set_uses_that_sets_split() {
     }
 }
 
+/// `--truth-data` scores the same render against a second set: against the model's own data the
+/// truth scores equal the protocol's to the bit; a root without the subject is an error naming
+/// the truth set and the subject.
+#[test]
+fn eval_scores_against_a_truth_set() {
+    let out_dir = scratch("eval-truth");
+    let data = trained().dir.join("data");
+    let flags = "--backend ndarray --no-pictures --limit 2";
+    ok(&on_model(
+        "eval",
+        flags,
+        &["--truth-data", s(&data)],
+        &out_dir,
+    ));
+    let metrics = json_file(&out_dir.join("metrics.json"));
+    let images = metrics["images"].as_array().unwrap();
+    assert_eq!(images.len(), 2);
+    for row in images.iter().chain([&metrics["overall"]]) {
+        let g = &row["diagnostics"];
+        assert_eq!(g["psnr_truth"], row["psnr"], "{row}");
+        assert_eq!(g["ssim_truth"], row["ssim"], "{row}");
+        assert_eq!(g["psnr_ibr_truth"], g["psnr_ibr"], "{row}");
+    }
+    // Without the flag there is no truth score.
+    ok(&on_model("eval", flags, &[], &out_dir));
+    let plain = json_file(&out_dir.join("metrics.json"));
+    assert!(plain["overall"]["diagnostics"].get("psnr_truth").is_none());
+    // A truth root that lacks the subject.
+    let empty = scratch("eval-truth-empty");
+    let refused = on_model("eval", flags, &["--truth-data", s(&empty)], &out_dir);
+    fails_with(&refused, &["truth set", "eval-truth-empty", "subject"]);
+}
+
 /// `--smpl-alignment on` moves each scene's fit onto its source masks and lists the correction
 /// per image (and the settings once); `off` (the model's default) lists none.
 #[test]
@@ -391,6 +424,7 @@ fn exported_file_renders_what_the_checkpoint_renders() {
         timed: false,
         render: run.render,
         lpips: None,
+        truth: None,
     };
     let render = |model| {
         let mut images = Vec::new();

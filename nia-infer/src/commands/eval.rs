@@ -7,15 +7,17 @@ use nia_eval::diagnostics::{diagnostics_table, BlendDiagnostics};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use nia_data::dataset::protocol::{EvalSplit, SubjectSplit};
-use nia_data::dataset::{DataConfig, ProtocolName};
+use nia_data::dataset::{DataConfig, DatasetConfig, ProtocolName};
 use nia_data::fitting::SmplAlignment;
 use nia_eval::eval::{eval_items, EvalError, EvalOptions, EvalSummary, EvalTask, ImageResult};
 use nia_eval::perceptual::LpipsFiles;
 use nia_eval::pictures::{save_evaluated, ERROR_MAP_MAX};
+use nia_eval::truth::TruthData;
 use nia_model::render_options::RenderOptions;
 use serde::Serialize;
 
@@ -94,6 +96,12 @@ pub struct EvalArgs {
     pub smpl_pose_iterations: Option<usize>,
     #[command(flatten)]
     pub lpips: LpipsArgs,
+    /// Also score every image against the same view of this dataset root (same subjects,
+    /// frames and cameras): a synthetic set generated with the same spec but without the mask
+    /// flaw holds the image the flawed ground truth stands for. Adds `psnr_truth`,
+    /// `ssim_truth` and `psnr_ibr_truth` to the diagnostics.
+    #[arg(long)]
+    pub truth_data: Option<PathBuf>,
     /// Skip the grid and blend-weight PNGs.
     #[arg(long)]
     pub no_pictures: bool,
@@ -206,6 +214,15 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
             timed: args.stage_times.timed(),
             render: adaptive,
             lpips: lpips.as_ref().map(|(_, net)| net.clone()),
+            truth: args.truth_data.as_deref().map(|root| {
+                Arc::new(TruthData::new(
+                    root,
+                    DatasetConfig {
+                        ratio: data_config.ratio,
+                        ..DatasetConfig::for_format(data_config.format)
+                    },
+                ))
+            }),
         },
         &mut |e| {
             bar.inc(1);

@@ -187,6 +187,7 @@ fn measure(
                         timed: false,
                         render,
                         lpips: None,
+                        truth: None,
                     },
                     &mut |_| Ok(()),
                 )?;

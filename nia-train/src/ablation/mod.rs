@@ -340,6 +340,7 @@ impl VariantRun {
                 timed: false,
                 render: adaptive,
                 lpips: None,
+                truth: None,
             },
             &setup.device,
             &mut |e| {

@@ -355,6 +355,7 @@ impl Evaluation<'_> {
             timed: false,
             render: self.config.render,
             lpips: self.lpips.clone(),
+            truth: None,
         }
     }
 
