@@ -70,6 +70,8 @@ fn start_viewer() -> Viewer {
         .arg("--data")
         .arg(&data)
         .args(["--subject", &subject, "--port", "0", "--chunk", "1024"])
+        // 32 samples per ray at rest, so that a drag's frame takes a quarter of them.
+        .args(["--samples", "32"])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -198,13 +200,24 @@ fn routes_give_pngs_state_and_4xx_for_bad_input() {
         (200, (64, 64)),
         "defaults: full size"
     );
-    // A drag's frame: full size, the fast mode.
-    let (status, _, body) = get(a, "/render?fast=1");
+    // A drag's frame: full size, the fast mode's samples per ray.
+    let (status, headers, body) = get(a, "/render?fast=1");
     assert_eq!(
         (status, png_size(&body)),
         (200, (64, 64)),
         "fast: full size"
     );
+    let samples = |headers: &[(String, String)]| {
+        let stats = headers
+            .iter()
+            .find(|(k, _)| k == "x-nia-stats")
+            .map(|(_, v)| serde_json::from_str::<serde_json::Value>(v).unwrap())
+            .expect("X-Nia-Stats");
+        stats["samples"].as_u64().unwrap() as usize
+    };
+    let (_, rest_headers, _) = get(a, "/render");
+    assert_eq!(samples(&rest_headers), 32, "at rest: the session's samples");
+    assert_eq!(samples(&headers), 8, "a drag's frame: a quarter of them");
     let (status, _, body) = get(a, "/source/1.png");
     assert_eq!((status, png_size(&body)), (200, (64, 64)));
 

@@ -101,9 +101,9 @@ pub struct ViewRequest {
     pub mode: Mode,
     /// Image size relative to the cameras', in [`SCALE_RANGE`].
     pub scale: f32,
-    /// A frame of a drag: the fast mode ([`FAST_COLOUR_POINTS`] coloured samples per ray, one
-    /// ray per pixel); otherwise the model's `[render]` settings, the picture the camera rests
-    /// on.
+    /// A frame of a drag: the fast mode ([`fast_samples`] samples per ray, one ray per
+    /// pixel); otherwise the model's samples and `[render]` settings, the picture the camera
+    /// rests on.
     pub fast: bool,
 }
 
@@ -112,6 +112,22 @@ pub struct ViewRequest {
 /// out by 5.3 dB (K = 1) and 2.1 dB (K = 2) on a report set (docs/accuracy-time.md), so a drag
 /// shows the reference colours at reduced size.
 pub const FAST_COLOUR_POINTS: usize = 0;
+
+/// The frames of a drag take the model's samples per ray divided by this ...
+pub const FAST_SAMPLE_DIVISOR: usize = 4;
+/// ... but at least this many (or the model's own, if fewer).
+pub const FAST_MIN_SAMPLES: usize = 8;
+
+/// Samples per ray in the frames of a drag for a model that renders with `samples`: a quarter,
+/// at least [`FAST_MIN_SAMPLES`]. Chosen on the quickstart's clean 512-px set (generator seed 0,
+/// 3 images: the tiny network 32 -> 8 samples -0.14 dB, 2.6x faster; the paper network 64 -> 16
+/// -0.19 dB, 3.3x faster) and checked on report seed 51 `zju_like` (the main command's model,
+/// 12 images, 32 -> 8: -0.03 dB) (docs/accuracy-time.md).
+pub fn fast_samples(samples: usize) -> usize {
+    (samples / FAST_SAMPLE_DIVISOR)
+        .max(FAST_MIN_SAMPLES)
+        .min(samples)
+}
 
 /// A rendered view and what it cost.
 pub struct ViewFrame {
@@ -125,6 +141,8 @@ pub struct ViewStats {
     pub width: u32,
     pub height: u32,
     pub rays: usize,
+    /// Samples per ray (fewer in a drag's frames: [`fast_samples`]).
+    pub samples: usize,
     pub point_evaluations: u64,
     /// Milliseconds of the whole request, of reposing set-up (0 for the reference pose or a
     /// cached one) and of each network stage.
@@ -227,8 +245,8 @@ impl ViewerScene {
             request.scale,
         )?;
         let (encoding, body_box, pose_ms) = self.pose(request.frame)?;
-        // The frames of a drag take one ray per pixel and colour one sample per ray; the
-        // picture the camera rests on takes the `[render]` settings.
+        // The frames of a drag take one ray per pixel and a quarter of the samples per ray;
+        // the picture the camera rests on takes the model's samples and `[render]` settings.
         let options = if request.fast {
             RenderOptions {
                 supersample: 1,
@@ -238,9 +256,12 @@ impl ViewerScene {
         } else {
             self.session.options
         };
-        let view =
+        let mut view =
             self.session
                 .target_view(&camera, &body_box, self.session.timed, Some(cancelled));
+        if request.fast {
+            view.image.samples = fast_samples(view.image.samples);
+        }
         let Some(img) = self
             .session
             .render_with(&encoding, &view, &options, &mut |_, _| {})?
@@ -256,6 +277,7 @@ impl ViewerScene {
                 width: camera.width,
                 height: camera.height,
                 rays: img.rays,
+                samples: view.image.samples,
                 point_evaluations: img.point_evaluations,
                 total_ms: started.elapsed().as_secs_f64() * 1e3,
                 pose_ms,
@@ -323,4 +345,19 @@ fn png_bytes(img: &RgbImage) -> anyhow::Result<Vec<u8>> {
     img.write_to(&mut Cursor::new(&mut out), image::ImageFormat::Png)
         .context("encoding a PNG")?;
     Ok(out)
+}
+
+#[cfg(test)]
+mod fast_samples_tests {
+    use super::*;
+
+    #[test]
+    fn a_drag_takes_a_quarter_of_the_samples_but_at_least_eight_and_never_more() {
+        assert_eq!(fast_samples(64), 16);
+        assert_eq!(fast_samples(32), 8);
+        assert_eq!(fast_samples(16), 8);
+        assert_eq!(fast_samples(8), 8);
+        assert_eq!(fast_samples(4), 4);
+        assert_eq!(fast_samples(1), 1);
+    }
 }
