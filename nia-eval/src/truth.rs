@@ -27,7 +27,7 @@ pub enum TruthError {
     Dataset {
         root: PathBuf,
         subject: String,
-        source: DatasetError,
+        source: Box<DatasetError>,
     },
     #[error(
         "truth set {root}: subject {subject}, view {view}: its camera differs from the \
@@ -77,7 +77,7 @@ impl TruthData {
         let dataset = |source| TruthError::Dataset {
             root: self.root.clone(),
             subject: subject.to_string(),
-            source,
+            source: Box::new(source),
         };
         let opened = {
             // A poisoned lock only means another image's open panicked; the map is still valid.
