@@ -60,11 +60,6 @@ impl TruthData {
         }
     }
 
-    /// The folder of the truth set.
-    pub fn root(&self) -> &Path {
-        &self.root
-    }
-
     /// View `view` of `frame` of `subject` in the truth set, checked to be taken by `camera`
     /// (the evaluated image's camera).
     pub fn view(
