@@ -164,20 +164,6 @@ impl TrainData {
         let n = self.dataset.source.subjects[subject].num_cameras();
         let mut views: Vec<usize> = (0..n).collect();
         rng.shuffle(&mut views);
-        if std::env::var("NIA_SPREAD_SOURCES").is_ok() {
-            let r = rng.below(n);
-            let inputs: Vec<usize> = (0..source_views).map(|k| (r + (k * n + 1) / source_views) % n).collect();
-            let rest: Vec<usize> = (0..n).filter(|v| !inputs.contains(v)).collect();
-            let target = rest[rng.below(rest.len())];
-            return SceneRequest {
-                subject,
-                frame,
-                input_views: inputs,
-                target_view: target,
-                target: TargetKind::Rays,
-                seed: rng.next_u64(),
-            };
-        }
         SceneRequest {
             subject,
             frame,

@@ -18,13 +18,6 @@
 //! point no view sees keeps its true c0, the one colour it has, so F_B learns to hand such
 //! points to c0 (the paper's "c0 takes over where no source sees") however strongly the seen
 //! points are shuffled.
-//!
-//! With a `tint` t > 0, every point that may be shuffled (the seen ones with `seen_only`)
-//! blends its c0 (or its donor's) detached and multiplied by one per-channel gain per scene,
-//! drawn from [1 - t, 1 + t]: c0 as it is on a person F_c0 has not seen, about right but off
-//! in colour and brightness everywhere at once (on unseen people c0 is dark: its mean colour
-//! in the mask is 0.82 of the truth's, docs/robustness.md), which shuffling, a colour that is
-//! wrong point by point, does not show F_B.
 
 use burn::prelude::*;
 use nia_data::rng::Rng;
@@ -38,16 +31,10 @@ pub struct C0Shuffle {
     pub seed: u64,
     /// Shuffle only points that some source view sees (module docs).
     pub seen_only: bool,
-    /// Half-width t of the per-channel gain [1 - t, 1 + t] on the blended c0 (0: off; module
-    /// docs).
-    pub tint: f32,
 }
 
 /// Visibility o_n above which a view counts as seeing a point ([`C0Shuffle::seen_only`]).
 pub const SEEN_VISIBILITY: f32 = 0.5;
-
-/// The label of the tint's random stream, forked from the shuffle's seed.
-const TINT_STREAM: u64 = 0x7417;
 
 impl C0Shuffle {
     /// For M points: the point each one's blended c0 is read from (itself, or for about
@@ -65,21 +52,9 @@ impl C0Shuffle {
             .unzip()
     }
 
-    /// The scene's per-channel gain on the blended c0: 1 without a tint, else each channel
-    /// uniform in [1 - tint, 1 + tint] (a stream of its own, so the donors do not change).
-    pub fn gain(&self) -> [f32; 3] {
-        if self.tint <= 0.0 {
-            return [1.0; 3];
-        }
-        let mut rng = Rng::new(self.seed).fork(TINT_STREAM);
-        [(); 3].map(|_| rng.range(1.0 - self.tint, 1.0 + self.tint))
-    }
-
     /// The c0 that F_B blends: `c0` with the replaced rows taken from their source point,
     /// detached (no gradient reaches F_c0 through a shuffled colour). With `seen_only`, rows
     /// whose `visibility` is at most [`SEEN_VISIBILITY`] in every view keep their own c0.
-    /// With a tint, every row that may be shuffled is then detached and multiplied by
-    /// [`C0Shuffle::gain`].
     /// Only the first `points` rows are points; rows from there on are shape-bucket padding
     /// (`renderer::shape_buckets`), which keep their own c0 and lend it to no point, so the
     /// points draw the same donors padded or not.
@@ -96,10 +71,6 @@ impl C0Shuffle {
         let index = Tensor::<1, Int>::from_data(TensorData::new(sources, [m]), &device);
         let mask: Vec<f32> = replaced.iter().map(|&r| r as u8 as f32).collect();
         let mut mask = Tensor::<2>::from_data(TensorData::new(mask, [m, 1]), &device);
-        // [M, 1]: 1 on the rows that may be shuffled (the points, and with seen_only the seen
-        // ones), where the tint applies.
-        let real: Vec<f32> = (0..m).map(|i| (i < points) as u8 as f32).collect();
-        let mut eligible = Tensor::<2>::from_data(TensorData::new(real, [m, 1]), &device);
         if self.seen_only {
             // [N, M] -> [1, M] -> [M, 1]: 1 where some view sees the point.
             let seen = visibility
@@ -108,25 +79,10 @@ impl C0Shuffle {
                 .greater_elem(SEEN_VISIBILITY)
                 .float()
                 .reshape([m, 1]);
-            mask = mask * seen.clone();
-            eligible = eligible * seen;
+            mask = mask * seen;
         }
         let shuffled = c0.clone().detach().select(0, index);
-        let mixed = c0 * mask.clone().neg().add_scalar(1.0) + shuffled * mask;
-        let soften: f32 = std::env::var("NIA_C0_SOFTEN").ok().and_then(|v| v.parse().ok()).unwrap_or(0.0);
-        if self.tint <= 0.0 && soften <= 0.0 {
-            return mixed;
-        }
-        let gain = Tensor::<1>::from_floats(self.gain(), &device).reshape([1, 3]);
-        let mut base = mixed.clone().detach();
-        if soften > 0.0 {
-            let k = Rng::new(self.seed).fork(TINT_STREAM + 1).range(1.0 - soften, 1.0);
-            let count: f32 = eligible.clone().sum().into_scalar::<f32>().max(1.0);
-            let mean = (base.clone() * eligible.clone()).sum_dim(0) / count; // [1, 3]
-            base = mean.clone() + (base - mean) * k;
-        }
-        let tinted = base * gain;
-        mixed * eligible.clone().neg().add_scalar(1.0) + tinted * eligible
+        c0 * mask.clone().neg().add_scalar(1.0) + shuffled * mask
     }
 }
 
@@ -145,7 +101,6 @@ mod tests {
             fraction: 0.25,
             seed: 3,
             seen_only: false,
-            tint: 0.0,
         };
         let (sources, replaced) = shuffle.sources(m);
         let share = replaced.iter().filter(|&&r| r).count() as f32 / m as f32;
@@ -174,7 +129,6 @@ mod tests {
             fraction: 0.0,
             seed: 3,
             seen_only: false,
-            tint: 0.0,
         }
         .sources(m)
         .1;
@@ -183,7 +137,6 @@ mod tests {
             fraction: 1.0,
             seed: 3,
             seen_only: false,
-            tint: 0.0,
         }
         .sources(m)
         .1;
@@ -214,7 +167,6 @@ mod tests {
             fraction: 1.0,
             seed: 11,
             seen_only: true,
-            tint: 0.0,
         };
         let (sources, _) = shuffle.sources(m);
         let out = shuffle
@@ -232,46 +184,6 @@ mod tests {
     }
 
     #[test]
-    fn a_tint_scales_every_seen_points_c0_by_one_gain_and_leaves_the_rest() {
-        let device = Device::ndarray();
-        let (m, padded) = (60, 64);
-        let c0: Vec<f32> = (0..padded * 3).map(|i| 0.1 + (i % 7) as f32 * 0.1).collect();
-        let c0 = Tensor::<2>::from_data(TensorData::new(c0.clone(), [padded, 3]), &device);
-        // One view; even points seen (0.9), odd ones not (0.2).
-        let o: Vec<f32> = (0..padded).map(|i| if i % 2 == 0 { 0.9 } else { 0.2 }).collect();
-        let visibility = Tensor::<2>::from_data(TensorData::new(o, [1, padded]), &device);
-        let tint = C0Shuffle {
-            fraction: 0.0,
-            seed: 9,
-            seen_only: true,
-            tint: 0.3,
-        };
-        let gain = tint.gain();
-        assert!(gain.iter().all(|g| (0.7..=1.3).contains(g)), "{gain:?}");
-        assert!(gain.iter().any(|g| (g - 1.0).abs() > 1e-3), "{gain:?}");
-        assert_eq!(gain, tint.gain(), "deterministic in the seed");
-        assert_eq!(C0Shuffle { tint: 0.0, ..tint }.gain(), [1.0; 3]);
-        let input = c0.clone().into_data().try_to_vec::<f32>().unwrap();
-        let out = tint
-            .apply(c0, visibility, m)
-            .into_data()
-            .try_to_vec::<f32>()
-            .unwrap();
-        for i in 0..padded {
-            for c in 0..3 {
-                let k = 3 * i + c;
-                // Seen points tinted; unseen points and padding rows as they were.
-                let want = if i % 2 == 0 && i < m {
-                    input[k] * gain[c]
-                } else {
-                    input[k]
-                };
-                assert!((out[k] - want).abs() < 1e-6, "row {i} channel {c}");
-            }
-        }
-    }
-
-    #[test]
     fn padding_rows_keep_their_own_colour_and_the_points_draw_the_same_donors() {
         let device = Device::ndarray();
         let (m, padded) = (300, 384);
@@ -283,7 +195,6 @@ mod tests {
             fraction: 0.5,
             seed: 5,
             seen_only: false,
-            tint: 0.0,
         };
         let values = |len: usize| rows[..len * 3].to_vec();
         let run = |rows: usize, points: usize| {

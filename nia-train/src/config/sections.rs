@@ -157,16 +157,6 @@ pub struct TrainSection {
     /// (false: every point may be shuffled; see `nia_model::ibr::c0_shuffle`).
     #[serde(default)]
     pub c0_shuffle_seen_only: bool,
-    /// Half-width t of the per-scene, per-channel gain in [1 - t, 1 + t] on the c0 that F_B
-    /// blends at the points shuffling may touch (0: off; see `nia_model::ibr::c0_shuffle`).
-    #[serde(default)]
-    pub c0_tint: f32,
-    /// Training subjects whose scenes train F_B alone, and F_B only on them (empty: every
-    /// scene trains every network, the paper's). On these people F_c0 and F_sigma are as on
-    /// an unseen person, so F_B learns how far to trust c0 where c0 has not memorised the
-    /// person; they are not shuffled or tinted (`nia_train::train_loop`'s docs).
-    #[serde(default)]
-    pub blend_subjects: Vec<String>,
     /// Per-channel gain of the target, relative, that the loss ignores (0: off, the paper's
     /// loss; see `nia_model::loss::colour_matched_target`).
     #[serde(default)]

@@ -66,37 +66,3 @@ impl ModuleVisitor for Scale<'_> {
 pub(super) fn scale_gradients(model: &NiaModel, grads: &mut GradientsParams, factor: f32) {
     model.visit(&mut Scale { grads, factor });
 }
-
-/// Moves the gradients of one module's parameters from `from` into `to`.
-struct Take<'a> {
-    from: &'a mut GradientsParams,
-    to: &'a mut GradientsParams,
-}
-
-impl ModuleVisitor for Take<'_> {
-    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        if let Some(g) = self.from.remove::<D>(param.id) {
-            self.to.register(param.id, g);
-        }
-    }
-}
-
-/// `train.blend_subjects`: a blend subject's scene keeps only F_B's gradients; every other
-/// scene keeps all but F_B's.
-pub(super) fn split_blend_gradients(
-    model: &NiaModel,
-    grads: GradientsParams,
-    blend_subject: bool,
-) -> GradientsParams {
-    let mut rest = grads;
-    let mut blender = GradientsParams::new();
-    model.blender.visit(&mut Take {
-        from: &mut rest,
-        to: &mut blender,
-    });
-    if blend_subject {
-        blender
-    } else {
-        rest
-    }
-}

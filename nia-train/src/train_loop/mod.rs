@@ -62,8 +62,6 @@ pub enum TrainError {
     Backend(#[from] nia_model::device::BackendUnavailable),
     #[error("train.devices: {0}")]
     Device(#[from] nia_model::device::DeviceError),
-    #[error("train.blend_subjects: `{name}` is not a training subject (training subjects: {train})")]
-    BlendSubject { name: String, train: String },
     /// The model failed on a training scene (boxed: the largest error, it would make every
     /// `Result` of the loop carry its size).
     #[error("step {step} ({subject}, frame {frame}): {source}")]
@@ -142,13 +140,6 @@ pub fn train(
         generated: data.generated,
     });
     let t = &config.train;
-    let train_names = data.train_subject_names();
-    if let Some(name) = t.blend_subjects.iter().find(|n| !train_names.contains(n)) {
-        return Err(TrainError::BlendSubject {
-            name: name.clone(),
-            train: train_names.join(", "),
-        });
-    }
     let devices = training_devices(config)?;
     let k = devices.len() as u64;
     let device = devices[0].clone();

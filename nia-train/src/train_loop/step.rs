@@ -18,7 +18,7 @@ use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::{ModelError, NiaModel};
 
-use super::gradients::{global_norm, scale_gradients, split_blend_gradients, Merge};
+use super::gradients::{global_norm, scale_gradients, Merge};
 use super::TrainError;
 use crate::config::TrainConfig;
 
@@ -212,16 +212,13 @@ fn scene_gradients(
         source: Box::new(source),
     };
     let input = SceneInput::from_loaded(scene, faces);
-    let blend_subject = config.train.blend_subjects.contains(&scene.subject);
-    let augments = config.train.c0_shuffle > 0.0 || config.train.c0_tint > 0.0;
-    let c0_shuffle = (augments && !blend_subject).then(|| C0Shuffle {
+    let c0_shuffle = (config.train.c0_shuffle > 0.0).then(|| C0Shuffle {
         fraction: config.train.c0_shuffle,
         seed: Rng::new(config.train.seed)
             .fork(index)
             .fork(C0_SHUFFLE_STREAM)
             .next_u64(),
         seen_only: config.train.c0_shuffle_seen_only,
-        tint: config.train.c0_tint,
     });
     let encoded = model
         .encode(&input, None, device, None)
@@ -272,8 +269,7 @@ fn scene_gradients(
         },
     );
     let grads = match result {
-        Ok(grads) if config.train.blend_subjects.is_empty() => grads,
-        Ok(grads) => split_blend_gradients(model, grads, blend_subject),
+        Ok(grads) => grads,
         Err(ChunkStop::Skip(reason)) => return Ok(SceneOutcome::Skipped(reason)),
         Err(ChunkStop::Model(source)) => return Err(model_err(source)),
     };
