@@ -18,6 +18,10 @@
 //! point no view sees keeps its true c0, the one colour it has, so F_B learns to hand such
 //! points to c0 (the paper's "c0 takes over where no source sees") however strongly the seen
 //! points are shuffled.
+//!
+//! That memorisation is what F_B learns its trust from is doubtful: trained only on a person
+//! F_c0 never fitted, F_B gives c0 as large a share (docs/robustness.md, "What teaches F_B to
+//! hedge"). Shuffling stays for what it measured (docs/results.md, "The quickstart's switches").
 
 use burn::prelude::*;
 use nia_data::rng::Rng;
