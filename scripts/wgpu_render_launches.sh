@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Kernel launches and seconds of one `nia-infer render --backend wgpu` with warm caches: a first
+# Kernel launches, readbacks and seconds of one `nia-infer render --backend wgpu` with warm
+# caches: a first
 # render fills cubecl's autotune cache (and the driver's shader cache), a second is timed (the
 # seconds of each image from its render.json), a third runs with cubecl's profiling log on
 # ("minimal": one line per kernel that runs) and counts the launches of the whole process
@@ -38,8 +39,10 @@ report = json.load(open(f"{out}/timed/render.json"))
 launches = sum(1 for _ in open(f"{out}/launches.log"))
 images = report["images"]
 print(f"chunk {report['chunk']} rays: {launches} kernel launches (whole process), "
-      f"command wall {wall:.1f} s, encoding {report['encode_seconds']:.1f} s")
-print("| view | rays | network points | seconds |\n|---|---:|---:|---:|")
+      f"command wall {wall:.1f} s, encoding {report['encode_seconds']:.1f} s "
+      f"({report.get('encode_readbacks', '-')} readbacks)")
+print("| view | rays | network points | readbacks | seconds |\n|---|---:|---:|---:|---:|")
 for im in images:
-    print(f"| {im['target_view']} | {im['rays']} | {im['point_evaluations']} | {im['seconds']:.2f} |")
+    print(f"| {im['target_view']} | {im['rays']} | {im['point_evaluations']} | "
+          f"{im.get('readbacks', '-')} | {im['seconds']:.2f} |")
 PY

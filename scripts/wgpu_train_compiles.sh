@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Kernel compilations and time per training step on wgpu: runs the quickstart config on the
-# wgpu backend for STEPS steps with cubecl's compilation log on, and prints per step its seconds
-# and the kernels compiled during it. Steps that keep compiling after the first few point at
+# Kernel compilations, time and readbacks per training step on wgpu: runs the quickstart config
+# on the wgpu backend for STEPS steps with cubecl's compilation log on, and prints per step its
+# seconds, the kernels compiled during it and its tensor reads (the log's `readbacks`: each one
+# a wait for the device). Steps that keep compiling after the first few point at
 # tensor shapes that change from step to step (docs/speed.md, "Training on a GPU").
 #
 #   scripts/wgpu_train_compiles.sh STEPS OUT_DIR [more nia-train arguments]
@@ -50,10 +51,10 @@ for line in open(f"{out}/watch.txt"):
         seen.setdefault(int(parts[1]), int(parts[2]))
 total = sum(1 for _ in open(f"{out}/compile.log"))
 print(f"wall {end - start:.1f} s, {len(steps)} steps, {total} kernel compilations")
-print("| step | seconds | compilations during it (1 s resolution) |\n|---:|---:|---:|")
+print("| step | seconds | compilations during it (1 s resolution) | readbacks |\n|---:|---:|---:|---:|")
 for k, s in enumerate(steps):
     rays = s.get("rays_per_s") or 0
     secs = rays_per_step / rays if rays else float("nan")
     a, b = seen.get(k, 0), seen.get(k + 1, total)
-    print(f"| {s['step']} | {secs:.1f} | {b - a} |")
+    print(f"| {s['step']} | {secs:.1f} | {b - a} | {s.get('readbacks', '-')} |")
 PY

@@ -11,12 +11,12 @@ use common::{assert_close, device, scene, values};
 use glam::{Vec2, Vec3};
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::rays::{pixel_ray, Aabb, Ray, RayBundle};
-use nia_data::scene::{PointInputs, SceneInput, RAY_BOX_PADDING_M};
+use nia_data::scene::{projection_grid, PointInputs, SceneInput, RAY_BOX_PADDING_M};
 use nia_model::config::SourceColoursAt;
 use nia_model::field::PointTensors;
 use nia_model::ibr::c0_weight_scale::rescale_c0_weight;
 use nia_model::ibr::fetch_source_colours;
-use nia_model::ibr::surface::{surface_colours, SURFACE_ACC_FLOOR};
+use nia_model::ibr::surface::{surface_colours, surface_grid, surface_points, SURFACE_ACC_FLOOR};
 use nia_model::renderer::image::{render_image, ImageRenderOptions, RenderedImage};
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::SceneEncoding;
@@ -51,7 +51,11 @@ fn rays_through_view_0(input: &SceneInput) -> RayBundle {
 /// Three views of `SIZE` px encoded by the tiny network on the CPU: (device, scene, network,
 /// encoding).
 fn tiny_encoded() -> (Device, SceneInput, NiaModel, SceneEncoding) {
-    let dev = device();
+    tiny_encoded_on(device())
+}
+
+/// [`tiny_encoded`] on `dev` (e.g. its autodiff form).
+fn tiny_encoded_on(dev: Device) -> (Device, SceneInput, NiaModel, SceneEncoding) {
     let input = scene(3, SIZE);
     let model = ModelConfig::tiny().init(&dev);
     let encoded = model.encode(&input, None, &dev, None).unwrap();
@@ -234,15 +238,52 @@ fn the_surface_form_reads_every_view_once_at_the_expected_surface_point() {
     assert_close(&ibr, &mean, VALUE_TOL, "IBR-only = acc mean_n I_n(x_s)");
 }
 
+/// Training's surface grid (`surface_grid`, on the device, no read back) is the host's
+/// projection (`projection_grid`) of the host's surface points (`surface_points`): rays with
+/// opacity at a depth inside, before and beyond their interval (clamped), rays under the
+/// opacity floor and a NaN depth (the interval's middle).
+#[test]
+fn the_training_surface_grid_is_the_hosts_projection_of_the_surface_point() {
+    let (ad, input, _, encoded) = tiny_encoded_on(device().autodiff());
+    let rays = rays_through_view_0(&input);
+    let r = rays.len();
+    let (mut depth, mut acc) = (Vec::with_capacity(r), Vec::with_capacity(r));
+    for i in 0..r {
+        let (near, far) = (rays.near[i], rays.far[i]);
+        let (t, a) = match i % 6 {
+            0 => (near + 0.37 * (far - near), 0.8),
+            1 => (near - 0.5, 0.5),
+            2 => (far + 0.5, 1.0),
+            3 => (near + 0.6 * (far - near), SURFACE_ACC_FLOOR * 0.5),
+            4 => (f32::NAN, 0.7),
+            _ => (near + 0.9 * (far - near), 0.3),
+        };
+        depth.push(t * a);
+        acc.push(a);
+    }
+    let tensor = |v: &[f32]| Tensor::<1>::from_data(TensorData::new(v.to_vec(), [r]), &ad);
+    let grid = values(surface_grid(&encoded, &rays, tensor(&depth), tensor(&acc)).unwrap());
+    let host = projection_grid(&encoded.geometry, &surface_points(&rays, &depth, &acc));
+    assert!(
+        grid.iter().all(|g| g.is_finite()),
+        "a NaN depth reads the middle"
+    );
+    assert_close(&grid, &host, 1e-4, "device surface grid = host projection");
+    // Some grid points land inside the images: the comparison is not of padding alone.
+    assert!(
+        grid.chunks(2)
+            .filter(|g| g[0].abs() < 1.0 && g[1].abs() < 1.0)
+            .count()
+            > r
+    );
+}
+
 /// The surface read is differentiable in the expected depth: d/dt of the colours read at
-/// x_s = o + d t (autodiff through the linearised projection and the bilinear fetch) matches
-/// a central finite difference of the colours read at t +- h, ray by ray.
+/// x_s = o + d t (autodiff through the device projection and the bilinear fetch) matches a
+/// central finite difference of the colours read at t +- h, ray by ray.
 #[test]
 fn the_surface_read_has_the_finite_difference_gradient_in_depth() {
-    let ad = device().autodiff();
-    let input = scene(3, SIZE);
-    let model = ModelConfig::tiny().init(&ad);
-    let encoded = model.encode(&input, None, &ad, None).unwrap();
+    let (ad, input, _, encoded) = tiny_encoded_on(device().autodiff());
     let rays = rays_through_view_0(&input);
     let r = rays.len();
     // Depths off the middle of each ray's box interval (the middle of a central ray lies on the

@@ -180,6 +180,7 @@ mod tests {
                 psnr: 20.0,
                 rays_per_s: 1.0,
                 lr: 1e-3,
+                readbacks: 1,
             })
         };
         let c = RunCurves::of(&[step(0, 1.0), step(1, 0.9), step(1, 0.8), step(2, 0.7)]);

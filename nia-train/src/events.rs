@@ -91,6 +91,11 @@ pub struct StepReport {
     pub psnr: f64,
     pub rays_per_s: f64,
     pub lr: f64,
+    /// Tensor reads the step made, Adam's update included (on a GPU each is a wait for the
+    /// device; `nia_model::kernels::readback::readbacks`): one on one device, the losses with
+    /// the gradient norm. 0 in logs written before it was counted.
+    #[serde(default)]
+    pub readbacks: u64,
 }
 
 /// A long phase of a run besides the training steps.

@@ -73,6 +73,8 @@ fn trains_two_steps_end_to_end_on_ndarray() {
         assert!((mse + mse0 - loss).abs() < 1e-5, "loss = mse + mse0");
         assert!(s["psnr"].as_f64().unwrap().is_finite());
         assert!(s["rays_per_s"].as_f64().unwrap() > 0.0);
+        // One device: the losses and the gradient norm in one read, nothing else.
+        assert_eq!(s["readbacks"], 1, "reads of step {i}");
     }
     // lr * 0.1^(1/1000) at step 1.
     let lr1 = steps[1]["lr"].as_f64().unwrap();

@@ -8,7 +8,8 @@ pub mod source_masks;
 pub mod visual_hull;
 
 pub use point_inputs::{
-    projection_grid, view_direction_feature, InputsFor, PointInputs, VIEW_DIR_FEATURE_DIM,
+    projection_grid, view_direction_feature, InputsFor, PointInputs, OUTSIDE_GRID,
+    VIEW_DIR_FEATURE_DIM,
 };
 pub use source_masks::{masks_with_body, MaskError, SourceMasks};
 pub use visual_hull::VisualHull;

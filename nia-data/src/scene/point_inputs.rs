@@ -18,7 +18,7 @@ pub const VIEW_DIR_FEATURE_DIM: usize = 4;
 
 /// Normalised grid coordinate of a point behind a camera: far outside [-1, 1], so
 /// `grid_sample` with zero padding returns zeros.
-const OUTSIDE_GRID: f32 = -4.0;
+pub const OUTSIDE_GRID: f32 = -4.0;
 
 /// Where the body volume is read: the geometry of its scales and the points
 /// where it is sampled (`[M]`, SMPL frame of the volume's body).

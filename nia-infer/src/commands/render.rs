@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use nia_eval::pictures::{blend_weight_maps, grey8, rgb8, save_png};
+use nia_model::kernels::readback::readbacks;
 use nia_model::render_options::RenderOptions;
 use nia_model::timing::StageTimes;
 use serde::Serialize;
@@ -44,6 +45,9 @@ pub struct ImageReport {
     /// Of those, the points whose colour was evaluated (colour culling skips the rest).
     pub colour_evaluations: u64,
     pub seconds: f64,
+    /// Tensor reads of this image's render (on a GPU each is a wait for the device;
+    /// `nia_model::kernels::readback::readbacks`).
+    pub readbacks: u64,
     /// Milliseconds per stage (this image's rendering; the scene's encoding is reported once);
     /// empty with `--no-stage-times`.
     pub stage_ms: BTreeMap<String, f64>,
@@ -60,6 +64,8 @@ struct Report {
     stage_times: bool,
     /// Per-scene work (encoder, body volume), done once for all targets.
     encode_seconds: f64,
+    /// Tensor reads of the encoding.
+    encode_readbacks: u64,
     encode_stage_ms: BTreeMap<String, f64>,
     images: Vec<ImageReport>,
 }
@@ -74,16 +80,19 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
 
     let started = std::time::Instant::now();
+    let encode_reads_before = readbacks();
     let timed = session.timed;
     let mut encode_times = StageTimes::default();
     let encoding = session.prepare(&scene, timed.then_some(&mut encode_times))?;
     let encode_seconds = started.elapsed().as_secs_f64();
+    let encode_readbacks = readbacks() - encode_reads_before;
 
     let mut images = Vec::new();
     for &target in &targets {
         let camera = opened.camera(target);
         let bar = progress_bar(0, &format!("view {target:>2}"));
         let t0 = std::time::Instant::now();
+        let reads_before = readbacks();
         let img = session.render(
             &encoding,
             &camera,
@@ -96,6 +105,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         )?;
         bar.finish_and_clear();
         let seconds = t0.elapsed().as_secs_f64();
+        let reads = readbacks() - reads_before;
         let stem = format!("frame{:04}_view{target:02}", args.frame);
         let (w, h) = (img.width, img.height);
         save_png(&args.out.join(format!("{stem}.png")), &rgb8(&img.rgb, w, h))?;
@@ -125,6 +135,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             point_evaluations: img.point_evaluations,
             colour_evaluations: img.colour_evaluations,
             seconds,
+            readbacks: reads,
             stage_ms: img.times.milliseconds(),
         });
     }
@@ -135,6 +146,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         adaptive: session.options,
         stage_times: timed,
         encode_seconds,
+        encode_readbacks,
         encode_stage_ms: encode_times.milliseconds(),
         images,
     };

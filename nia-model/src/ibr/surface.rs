@@ -26,12 +26,14 @@
 
 use burn::prelude::*;
 use glam::Vec3;
+use nia_data::geometry::camera::PROJECT_MIN_DEPTH_M;
 use nia_data::geometry::rays::RayBundle;
-use nia_data::scene::projection_grid;
+use nia_data::scene::{projection_grid, OUTSIDE_GRID};
 
 use super::blend_host::IBR_ONLY_FLOOR;
 use super::fetch_source_colours_from;
 use crate::error::ModelError;
+use crate::kernels::readback::host_values;
 use crate::scene_encoding::SceneEncoding;
 
 /// Opacity below which a ray has no surface point of its own (x_s = middle of the interval).
@@ -56,25 +58,18 @@ pub fn surface_points(rays: &RayBundle, depth: &[f32], acc: &[f32]) -> Vec<Vec3>
         .collect()
 }
 
-/// Step along the ray of the finite difference that gives d grid / d t, metres (a tenth of the
-/// finest voxel; the projection is smooth at this scale).
-pub const SURFACE_GRID_STEP_M: f32 = 5e-4;
-
-/// Grid coordinates beyond this magnitude mark a projection outside the image (the reader
-/// writes -4 there); such a view gets no gradient along the ray.
-const GRID_INSIDE_BOUND: f32 = 2.0;
-
 /// The source colours c_n(x_s) of the rays' expected surface points, read where the model reads
 /// them for samples (at x_s itself, or at its image in the source pose when the scene renders
 /// another pose).
 ///
-/// The read is differentiable in the surface depth t_s = depth / acc: the projection grid is
-/// linearised along each ray, `grid(t_s) = grid(t0) + J (t_s - t0)` with t0 the detached value
-/// and `J = d grid / d t` by a finite difference of [`SURFACE_GRID_STEP_M`] (exact values
-/// forward; the slope of the source images at the projection pulls the expected depth towards
-/// where the views agree with the target pixel). Rays without a surface point
-/// (acc < [`SURFACE_ACC_FLOOR`]) and views whose projection leaves the image get J = 0. Off an
-/// autodiff device (inference) the slope is not computed.
+/// In training (an autodiff device) the read is differentiable in the surface depth
+/// t_s = depth / acc: the projection is computed on the device ([`surface_grid`]), exactly and
+/// without reading the depth back, so the slope of the source images at the projection pulls
+/// the expected depth towards where the views agree with the target pixel. Rays without a
+/// surface point (acc < [`SURFACE_ACC_FLOOR`]) read at the middle of their interval, with no
+/// gradient. Off an autodiff device (inference) the depth is read back once and x_s projected
+/// on the host, through the reposing where the scene renders another pose; a differentiable
+/// read of a reposed scene is refused (training never reposes).
 ///
 /// # Shapes
 /// - `depth`, `acc`: `[R]` (sum_i w_i t_i and sum_i w_i, with their gradients)
@@ -85,63 +80,124 @@ pub fn surface_colours(
     depth: Tensor<1>,
     acc: Tensor<1>,
 ) -> Result<Tensor<3>, ModelError> {
-    let read = |x: &Tensor<1>| -> Result<Vec<f32>, ModelError> {
-        x.clone()
-            .detach()
-            .into_data()
-            .try_to_vec::<f32>()
-            .map_err(|e| ModelError::Input(format!("reading depth: {e:?}")))
-    };
-    let (depth_v, acc_v) = (read(&depth)?, read(&acc)?);
-    let points = surface_points(rays, &depth_v, &acc_v);
-    let to_grid = |points: Vec<Vec3>| -> Result<Vec<f32>, ModelError> {
-        let points = match &scene.reposer {
-            None => points,
-            Some(reposer) => {
-                reposer
-                    .map_points(&points, &rays.dirs)
-                    .map_err(|e| ModelError::Input(format!("reposing: {e}")))?
-                    .points
-            }
-        };
-        Ok(projection_grid(&scene.geometry, &points))
-    };
-    let n = scene.num_views();
-    let r = points.len();
-    let device = scene.images.device();
-    if !depth.is_autodiff() {
-        // No gradient can flow (inference): the read alone, without the slope's second
-        // projection (and reposing) of every ray.
-        let grid = Tensor::<3>::from_data(TensorData::new(to_grid(points)?, [n, r, 2]), &device);
+    check_per_ray("surface colours", rays, &depth, &acc)?;
+    if depth.is_autodiff() {
+        if scene.reposer.is_some() {
+            return Err(ModelError::Input(
+                "surface colours: a differentiable read of a reposed scene (training renders \
+                 the scene's own pose)"
+                    .into(),
+            ));
+        }
+        let grid = surface_grid(scene, rays, depth, acc)?;
         return Ok(fetch_source_colours_from(&scene.image_rows, grid)?);
     }
-    let stepped: Vec<Vec3> = points
-        .iter()
-        .zip(&rays.dirs)
-        .map(|(&p, &d)| p + d * SURFACE_GRID_STEP_M)
-        .collect();
-    let (grid, grid_stepped) = (to_grid(points)?, to_grid(stepped)?);
-    let inside = |g: &[f32]| g.iter().all(|v| v.abs() < GRID_INSIDE_BOUND);
-    let mut slope = vec![0.0f32; n * r * 2];
-    for view in 0..n {
-        for (ray, &acc) in acc_v[..r].iter().enumerate() {
-            let i = (view * r + ray) * 2;
-            let (g0, g1) = (&grid[i..i + 2], &grid_stepped[i..i + 2]);
-            if acc >= SURFACE_ACC_FLOOR && inside(g0) && inside(g1) {
-                slope[i] = (g1[0] - g0[0]) / SURFACE_GRID_STEP_M;
-                slope[i + 1] = (g1[1] - g0[1]) / SURFACE_GRID_STEP_M;
-            }
+    // One read of both (on a GPU each read waits for the device).
+    let r = rays.len();
+    let mut depth_v = host_values(Tensor::cat(vec![depth.detach(), acc.detach()], 0))
+        .map_err(|e| ModelError::Input(format!("reading depth and opacity: {e}")))?;
+    let acc_v = depth_v.split_off(r);
+    let points = surface_points(rays, &depth_v, &acc_v);
+    let points = match &scene.reposer {
+        None => points,
+        Some(reposer) => {
+            reposer
+                .map_points(&points, &rays.dirs)
+                .map_err(|e| ModelError::Input(format!("reposing: {e}")))?
+                .points
         }
+    };
+    let grid = projection_grid(&scene.geometry, &points);
+    let grid = Tensor::<3>::from_data(
+        TensorData::new(grid, [scene.num_views(), r, 2]),
+        &scene.images.device(),
+    );
+    Ok(fetch_source_colours_from(&scene.image_rows, grid)?)
+}
+
+/// The source-image grid of each ray's expected surface point x_s, computed on the device: the
+/// training form of [`surface_colours`]'s projection, with no read back (on a GPU a read waits
+/// for the device) and the exact derivative in the expected depth.
+///
+/// In each view's camera frame the ray is the line `a + b t` (`a = R o + T`, `b = R d`, made
+/// on the host from the rays alone); `t_s = clamp(depth / acc, near, far)`, or the middle of
+/// the interval where `acc < SURFACE_ACC_FLOOR` (or the quotient is NaN), as
+/// [`surface_points`]; the pinhole projection of `a + b t_s` and the pixel-to-grid map follow
+/// `Camera::project` and `projection_grid` (a point behind a camera reads `OUTSIDE_GRID`).
+///
+/// # Shapes
+/// - `depth`, `acc`: `[R]`
+/// - output: `[N, R, 2]` grid coordinates in `[-1, 1]` inside the images
+pub fn surface_grid(
+    scene: &SceneEncoding,
+    rays: &RayBundle,
+    depth: Tensor<1>,
+    acc: Tensor<1>,
+) -> Result<Tensor<3>, ModelError> {
+    check_per_ray("surface grid", rays, &depth, &acc)?;
+    let r = rays.len();
+    let geometry = &scene.geometry;
+    let n = geometry.num_views();
+    let [h, w] = geometry.image_hw;
+    let device = depth.device();
+    let mut line = Vec::with_capacity(n * r * 6);
+    let mut affine = Vec::with_capacity(n * 5);
+    for camera in &geometry.cameras {
+        for (&o, &d) in rays.origins.iter().zip(&rays.dirs) {
+            let (a, b) = (camera.world_to_camera(o), camera.r * d);
+            line.extend_from_slice(&[a.x, a.y, a.z, b.x, b.y, b.z]);
+        }
+        // grid = (2 pixel + 1) / size - 1, pixel = (fx nx + skew ny + cx, fy ny + cy).
+        let (sx, sy) = (2.0 / w as f32, 2.0 / h as f32);
+        affine.extend_from_slice(&[
+            sx * camera.fx(),
+            sx * camera.skew(),
+            sx * camera.cx() + 1.0 / w as f32 - 1.0,
+            sy * camera.fy(),
+            sy * camera.cy() + 1.0 / h as f32 - 1.0,
+        ]);
     }
-    let grid = Tensor::<3>::from_data(TensorData::new(grid, [n, r, 2]), &device);
-    let slope = Tensor::<3>::from_data(TensorData::new(slope, [n, r, 2]), &device);
-    // t_s - t0: zero forward, the gradient of t_s backward.
-    let t_s = depth / acc.clamp_min(SURFACE_ACC_FLOOR);
-    let dt = (t_s.clone() - t_s.detach()).reshape([1, r, 1]);
-    Ok(fetch_source_colours_from(
-        &scene.image_rows,
-        grid + slope * dt,
-    )?)
+    let line = Tensor::<3>::from_data(TensorData::new(line, [n, r, 6]), &device);
+    let affine = Tensor::<3>::from_data(TensorData::new(affine, [n, 1, 5]), &device);
+    let per_ray = |v: Vec<f32>| Tensor::<1>::from_data(TensorData::new(v, [r]), &device);
+    let (near, far) = (per_ray(rays.near.clone()), per_ray(rays.far.clone()));
+    let middle = (near.clone() + far.clone()).mul_scalar(0.5);
+    let t = (depth / acc.clone().clamp_min(SURFACE_ACC_FLOOR))
+        .max_pair(near)
+        .min_pair(far);
+    let t = middle
+        .clone()
+        .mask_where(acc.greater_equal_elem(SURFACE_ACC_FLOOR), t);
+    let t = t.clone().mask_where(t.is_nan(), middle).reshape([1, r, 1]);
+    let c = line.clone().slice(s![.., .., 0..3]) + line.slice(s![.., .., 3..6]) * t; // [N, R, 3]
+    let z = c.clone().slice(s![.., .., 2..3]);
+    let behind = z.clone().lower_equal_elem(PROJECT_MIN_DEPTH_M); // [N, R, 1]
+    let z = z.clamp_min(PROJECT_MIN_DEPTH_M);
+    let nx = c.clone().slice(s![.., .., 0..1]) / z.clone();
+    let ny = c.slice(s![.., .., 1..2]) / z;
+    let coefficient = |i: usize| affine.clone().slice(s![.., .., i..i + 1]); // [N, 1, 1]
+    let gx = nx * coefficient(0) + ny.clone() * coefficient(1) + coefficient(2);
+    let gy = ny * coefficient(3) + coefficient(4);
+    let grid = Tensor::cat(vec![gx, gy], 2); // [N, R, 2]
+    Ok(grid.mask_fill(behind.repeat_dim(2, 2), OUTSIDE_GRID))
+}
+
+/// Refuses `depth` and `acc` unless both are `[R]` for the `R` rays of `rays`.
+fn check_per_ray(
+    what: &str,
+    rays: &RayBundle,
+    depth: &Tensor<1>,
+    acc: &Tensor<1>,
+) -> Result<(), ModelError> {
+    let r = rays.len();
+    if depth.dims() != [r] || acc.dims() != [r] {
+        return Err(ModelError::Input(format!(
+            "{what}: depth {:?} and opacity {:?} for {r} rays",
+            depth.dims(),
+            acc.dims()
+        )));
+    }
+    Ok(())
 }
 
 /// The surface form of the colour and of the IBR-only composite.

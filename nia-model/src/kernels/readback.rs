@@ -8,13 +8,28 @@
 //! storage: [`HostValues`] borrows it without a copy, [`host_values`] copies it once.
 //! Every other tensor (wgpu, ndarray, autodiff, strided views, other dtypes) goes through
 //! `into_data`.
+//!
+//! Every read is counted ([`readbacks`]): on a GPU each one is a wait for the device, so the
+//! count per training step or per image is what a device run pays in synchronisations
+//! (docs/speed.md, "Readbacks"). A read of a flex tensor counts too, as the same read of a GPU
+//! tensor would. The training step and the renderers read through this module only.
 
 use burn::backend::tensor::FloatTensor;
 use burn::backend::Flex;
 use burn::prelude::*;
 use burn::tensor::DType;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::shape::ShapeError;
+
+/// Reads made through this module since the process started.
+static READBACKS: AtomicU64 = AtomicU64::new(0);
+
+/// How many tensor reads this process has made through this module ([`HostValues::read`] and
+/// the functions built on it), on every thread.
+pub fn readbacks() -> u64 {
+    READBACKS.load(Ordering::Relaxed)
+}
 
 /// The values of `tensor` as f32, row-major. The error is burn's, as text, for the caller to
 /// wrap with what it was reading.
@@ -52,6 +67,7 @@ enum Storage {
 impl HostValues {
     /// The values of `tensor`. The error is burn's, as text.
     pub fn read<const D: usize>(tensor: Tensor<D>) -> Result<Self, String> {
+        READBACKS.fetch_add(1, Ordering::Relaxed);
         if let Some(values) = Self::borrow(&tensor) {
             return Ok(values);
         }
@@ -137,6 +153,17 @@ mod tests {
             assert_eq!(host_values(shared).unwrap(), values(12));
             assert_eq!(HostValues::read(t).unwrap().iter().sum::<f32>(), -3.0);
         }
+    }
+
+    #[test]
+    fn every_read_is_counted() {
+        let before = readbacks();
+        let t = Tensor::<1>::from_data(TensorData::new(values(4), [4]), &flex());
+        host_values(t.clone()).unwrap();
+        host_values_of("t", t.clone() * 2.0).unwrap();
+        host_view_of("t", t).unwrap();
+        // Other tests of this binary read on other threads at the same time: at least ours.
+        assert!(readbacks() >= before + 3);
     }
 
     #[test]

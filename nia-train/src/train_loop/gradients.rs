@@ -22,7 +22,7 @@ impl ModuleVisitor for Merge<'_> {
     }
 }
 
-/// Sum of squares of every parameter gradient, as one tensor read.
+/// Sum of squares of every parameter gradient, as one tensor.
 struct SquaredNorm<'a> {
     grads: &'a GradientsParams,
     total: Option<Tensor<1>>,
@@ -40,14 +40,12 @@ impl ModuleVisitor for SquaredNorm<'_> {
     }
 }
 
-/// The global L2 norm of the gradient (NaN or infinite when any entry is).
-pub(super) fn global_norm(model: &NiaModel, grads: &GradientsParams) -> f64 {
+/// The squared global L2 norm of the gradient, on the gradients' device, unread (NaN or
+/// infinite when any entry is); `None` without gradients.
+pub(super) fn squared_norm(model: &NiaModel, grads: &GradientsParams) -> Option<Tensor<1>> {
     let mut v = SquaredNorm { grads, total: None };
     model.visit(&mut v);
-    match v.total {
-        Some(t) => (t.into_scalar::<f32>() as f64).sqrt(),
-        None => 0.0,
-    }
+    v.total
 }
 
 struct Scale<'a> {

@@ -30,6 +30,7 @@ use nia_eval::eval::{
 use nia_eval::pictures::{comparison_grid, save_evaluated};
 use nia_model::body_volume::NUM_SCALES;
 use nia_model::kernels::host_op::runs_on_host;
+use nia_model::kernels::readback::readbacks;
 use nia_model::loss::psnr_from_mse;
 use nia_model::lpips::Lpips;
 use nia_model::renderer::call_size::rays_per_chunk;
@@ -187,6 +188,7 @@ pub fn train(
             .take(devices.len())
             .collect::<Result<Vec<_>, _>>()?;
         let started = Instant::now();
+        let reads_before = readbacks();
         let lr = config.optim.lr_at(step);
         let outcome = train_step(
             &model,
@@ -220,6 +222,7 @@ pub fn train(
                     psnr: psnr_from_mse(mse),
                     rays_per_s: rays as f64 / seconds,
                     lr,
+                    readbacks: readbacks() - reads_before,
                 }));
             }
         }

@@ -11,6 +11,7 @@ use nia_data::dataset::sampling::TrainRays;
 use nia_data::rng::Rng;
 use nia_data::scene::SceneInput;
 use nia_model::ibr::c0_shuffle::C0Shuffle;
+use nia_model::kernels::readback::host_values_of;
 use nia_model::loss::{
     colour_matched_target, distortion_loss, mask_loss, patch_ssim_loss, render_loss, RenderLoss,
 };
@@ -18,7 +19,7 @@ use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::{ModelError, NiaModel};
 
-use super::gradients::{global_norm, scale_gradients, Merge};
+use super::gradients::{scale_gradients, squared_norm, Merge};
 use super::TrainError;
 use crate::config::TrainConfig;
 
@@ -93,7 +94,7 @@ pub(super) fn train_step(
     // Several: one thread per device, each on its replica of the model (forked to it; the first
     // is the model itself), all at once. A panic on a device's thread is passed on unchanged,
     // as the same panic on one thread would be.
-    let outcomes: Vec<Result<SceneOutcome, TrainError>> = std::thread::scope(|threads| {
+    let outcomes: Vec<Result<ScenePart, TrainError>> = std::thread::scope(|threads| {
         let handles: Vec<_> = scenes
             .iter()
             .zip(devices)
@@ -123,35 +124,33 @@ pub(super) fn train_step(
     combine(model, outcomes, devices, config)
 }
 
-/// The step of the devices' `outcomes`: skipped if any scene was, else the summed, clipped
-/// gradient and the scenes' mean losses.
+/// The step of the devices' `outcomes`: the summed, clipped gradient and the scenes' mean
+/// losses, or skipped where a loss or the gradient norm is not finite.
+///
+/// The losses stay on their devices until here, and the first device's are read together with
+/// the gradient's squared norm: one read back per step on one device (one more per further
+/// device), which the loss log needs anyway (docs/speed.md, "Readbacks").
 fn combine(
     model: &NiaModel,
-    outcomes: Vec<Result<SceneOutcome, TrainError>>,
+    outcomes: Vec<Result<ScenePart, TrainError>>,
     devices: &[Device],
     config: &TrainConfig,
 ) -> Result<StepOutcome, TrainError> {
     let main = &devices[0];
-    let mut parts = Vec::with_capacity(outcomes.len());
-    for (outcome, device) in outcomes.into_iter().zip(devices) {
-        match outcome? {
-            SceneOutcome::Skipped(reason) => return Ok(StepOutcome::Skipped(reason)),
-            SceneOutcome::Taken(part) => parts.push((part, device.clone())),
-        }
+    let parts = outcomes.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let rays = parts.iter().map(|p| p.rays).sum();
+    let mut losses = Vec::with_capacity(parts.len());
+    let mut per_device = Vec::with_capacity(parts.len());
+    for (part, device) in parts.into_iter().zip(devices) {
+        losses.push(part.losses);
+        per_device.push((part.grads, device.clone()));
     }
-    let n = parts.len() as f64;
-    let loss = parts.iter().map(|(p, _)| p.loss).sum::<f64>() / n;
-    let mse = parts.iter().map(|(p, _)| p.mse).sum::<f64>() / n;
-    let mse0 = parts.iter().map(|(p, _)| p.mse0).sum::<f64>() / n;
-    let rays = parts.iter().map(|(p, _)| p.rays).sum();
     // The gradient of the summed loss: burn's MultiGradientsParams adds each parameter's
     // gradients from every device; the sum is moved to the model's device.
-    let mut grads = if parts.len() == 1 {
-        parts.pop().expect("one part").0.grads
+    let mut grads = if per_device.len() == 1 {
+        per_device.pop().expect("one device").0
     } else {
-        let mut multi = MultiGradientsParams {
-            grads: parts.into_iter().map(|(p, d)| (p.grads, d)).collect(),
-        };
+        let mut multi = MultiGradientsParams { grads: per_device };
         let mut merge = Merge {
             multi: &mut multi,
             out: GradientsParams::new(),
@@ -160,7 +159,38 @@ fn combine(
         model.visit(&mut merge);
         merge.out
     };
-    let norm = global_norm(model, &grads);
+    let squared = squared_norm(model, &grads).unwrap_or_else(|| Tensor::zeros([1], main));
+    let mut losses = losses.into_iter();
+    let first = Tensor::cat(
+        vec![losses.next().expect("one device at least"), squared],
+        0,
+    );
+    let Ok(first) = host_values_of("the step's losses and gradient norm", first) else {
+        return Ok(StepOutcome::Skipped("the loss could not be read".into()));
+    };
+    let mut read = vec![first];
+    for other in losses {
+        match host_values_of("a device's losses", other) {
+            Ok(values) => read.push(values),
+            Err(_) => return Ok(StepOutcome::Skipped("the loss could not be read".into())),
+        }
+    }
+    if read[0].len() != 4 || read[1..].iter().any(|values| values.len() != 3) {
+        return Ok(StepOutcome::Skipped("the loss could not be read".into()));
+    }
+    let mut sums = [0.0f64; 3];
+    for values in &read {
+        let total = f64::from(values[0]);
+        if !total.is_finite() {
+            return Ok(StepOutcome::Skipped(format!("loss is {total}")));
+        }
+        for (s, v) in sums.iter_mut().zip(&values[..3]) {
+            *s += f64::from(*v);
+        }
+    }
+    let n = read.len() as f64;
+    let [loss, mse, mse0] = sums.map(|s| s / n);
+    let norm = f64::from(read[0][3]).sqrt();
     if !norm.is_finite() {
         return Ok(StepOutcome::Skipped(format!("gradient norm is {norm}")));
     }
@@ -180,15 +210,10 @@ fn combine(
 /// One scene's share of a step.
 struct ScenePart {
     grads: GradientsParams,
-    loss: f64,
-    mse: f64,
-    mse0: f64,
+    /// `[3]` the weighted sums over the chunks of the total loss, the MSE and the MSE of c0,
+    /// on the scene's device (read in [`combine`]).
+    losses: Tensor<1>,
     rays: usize,
-}
-
-enum SceneOutcome {
-    Taken(ScenePart),
-    Skipped(String),
 }
 
 /// The loss of one scene on `device` (the model's replica there) and its raw gradients.
@@ -201,7 +226,7 @@ fn scene_gradients(
     step: u64,
     index: u64,
     device: &Device,
-) -> Result<SceneOutcome, TrainError> {
+) -> Result<ScenePart, TrainError> {
     let SceneTarget::Rays(rays) = &scene.target else {
         return Err(TrainError::NoRays(step));
     };
@@ -230,9 +255,10 @@ fn scene_gradients(
         .map(|_| jitter_rng.uniform())
         .collect();
     let n = rays.len() as f32;
-    // Each chunk's [total, mse, mse0] weighted by its share of the rays.
-    let mut sums = [0.0f64; 3];
-    let result = chunked_gradients(
+    // [total, mse, mse0], each chunk's weighted by its share of the rays, kept on the device:
+    // the step reads them once, with the gradient norm ([`combine`]).
+    let mut losses: Option<Tensor<1>> = None;
+    let grads = chunked_gradients(
         model,
         &encoded,
         &rays.rays,
@@ -250,49 +276,22 @@ fn scene_gradients(
                 ],
                 0,
             )
-            .into_data()
-            .convert::<f32>()
-            .try_to_vec::<f32>()
-            .unwrap_or_default();
-            let [total, mse, mse0] = match values.as_slice() {
-                [a, b, c] => [*a as f64, *b as f64, *c as f64],
-                _ => return Err(ChunkStop::Skip("the loss could not be read".into())),
-            };
-            if !total.is_finite() {
-                return Err(ChunkStop::Skip(format!("loss is {total}")));
-            }
-            for (s, v) in sums.iter_mut().zip([total, mse, mse0]) {
-                *s += v * f64::from(share);
-            }
+            .mul_scalar(share);
+            losses = Some(match losses.take() {
+                Some(sum) => sum + values,
+                None => values,
+            });
             // Without chunks the share is 1, and x * 1 is x exactly.
             Ok(loss.total.mul_scalar(share))
         },
-    );
-    let grads = match result {
-        Ok(grads) => grads,
-        Err(ChunkStop::Skip(reason)) => return Ok(SceneOutcome::Skipped(reason)),
-        Err(ChunkStop::Model(source)) => return Err(model_err(source)),
-    };
-    let [total, mse, mse0] = sums;
-    Ok(SceneOutcome::Taken(ScenePart {
+    )
+    .map_err(model_err)?;
+    let losses = losses.ok_or(TrainError::NoRays(step))?;
+    Ok(ScenePart {
         grads,
-        loss: total,
-        mse,
-        mse0,
+        losses,
         rays: rays.len(),
-    }))
-}
-
-/// Why a chunk ended the step's pass: a model error, or a loss that cannot be used.
-enum ChunkStop {
-    Model(ModelError),
-    Skip(String),
-}
-
-impl From<ModelError> for ChunkStop {
-    fn from(e: ModelError) -> Self {
-        Self::Model(e)
-    }
+    })
 }
 
 /// The loss of one chunk of a scene's rays (`range` of `rays`; all of them without chunking):
@@ -303,8 +302,8 @@ fn chunk_loss(
     range: Range<usize>,
     config: &TrainConfig,
     device: &Device,
-) -> Result<RenderLoss, ChunkStop> {
-    let shape = |e| ChunkStop::Model(ModelError::Shape(e));
+) -> Result<RenderLoss, ModelError> {
+    let shape = ModelError::Shape;
     let r = range.len();
     let gt: Vec<f32> = rays.rgb[range.clone()].iter().flatten().copied().collect();
     let gt = Tensor::<2>::from_data(TensorData::new(gt, [r, 3]), device);
