@@ -40,7 +40,7 @@ pub struct ModelArgs {
     /// Rays rendered together (sampled, walked front to back, composited); the network sees
     /// their points in calls of at most 65,536 whatever the chunk. Default: on the CPU as many
     /// as keep a depth segment within 16,384 points (4096 rays of 32 samples with early
-    /// termination, 1024 without); on a GPU 2^22 samples (65,536 rays of 64 samples):
+    /// termination, 16,384 of 8, 1024 without); on a GPU 2^22 samples (65,536 rays of 64 samples):
     /// fewer, fuller calls.
     #[arg(long)]
     pub chunk: Option<usize>,

@@ -78,8 +78,10 @@ pub struct RenderSession {
     pub options: RenderOptions,
     /// Samples per ray.
     pub samples: usize,
-    /// Rays per network call.
+    /// Rays per chunk at [`Self::samples`].
     pub chunk: usize,
+    /// `--chunk`, when given (else each sample count gets the device's default).
+    chunk_arg: Option<usize>,
     /// Whether the commands time their stages (not with `--no-stage-times`).
     pub timed: bool,
 }
@@ -95,11 +97,21 @@ impl RenderSession {
         Ok(RenderSession {
             samples,
             chunk: loaded.chunk(&args.model, samples, &options),
+            chunk_arg: args.model.chunk,
             loaded,
             opened,
             views,
             options,
             timed: args.stage_times.timed(),
+        })
+    }
+
+    /// Rays per chunk at `samples` samples per ray with `options`: `--chunk`, else the
+    /// device's default ([`nia_model::renderer::call_size::rays_per_chunk`]; on the CPU more
+    /// rays at fewer samples, as in a viewer's drag frames).
+    pub fn chunk_for(&self, samples: usize, options: &RenderOptions) -> usize {
+        self.chunk_arg.unwrap_or_else(|| {
+            nia_model::renderer::call_size::rays_per_chunk(&self.loaded.device, samples, options)
         })
     }
 

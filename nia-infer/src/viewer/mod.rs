@@ -261,6 +261,7 @@ impl ViewerScene {
                 .target_view(&camera, &body_box, self.session.timed, Some(cancelled));
         if request.fast {
             view.image.samples = fast_samples(view.image.samples);
+            view.image.chunk = self.session.chunk_for(view.image.samples, &options);
         }
         let Some(img) = self
             .session

@@ -12,10 +12,13 @@
 //! host's point inputs and the host MLPs split into rayon tasks (threads woken and joined per
 //! pass), tensor allocations and the read-backs; with early termination a call covers one
 //! depth segment, so 1024 rays of 32 samples left a few hundred to a thousand points a call
-//! after skipping. There a chunk of up to [`CPU_POINTS_PER_CALL`] points a segment, at most
-//! [`CPU_MAX_RAYS_PER_CHUNK`] rays, rendered the main command's images in 0.79-0.84x the time
-//! of 1024 rays, the same PNGs to every byte, and evaluated a held-out set in 0.80x
-//! (docs/speed.md, "Larger calls on the CPU"). Without termination a chunk's samples are one
+//! after skipping. There a chunk of up to [`CPU_POINTS_PER_CALL`] points a segment rendered the
+//! main command's images in 0.79-0.84x the time of 1024 rays, the same PNGs to every byte, and
+//! evaluated a held-out set in 0.80x (docs/speed.md, "Larger calls on the CPU"). The budget
+//! counts every sample of a segment, where skipping keeps about a third, so a segment's calls
+//! stay small at few samples per ray: the cap of [`CPU_MAX_RAYS_PER_CHUNK`] rays lets the
+//! viewer's drag frames (8 samples) take 16,384 rays a chunk, 0.82x the time of 4096 with the
+//! same PNG bytes (a 512x512 image of the tiny network). Without termination a chunk's samples are one
 //! call, and the floor of [`MIN_RAYS_PER_CHUNK`] rays keeps the worst case of before, 1024
 //! rays x 64 samples.
 //!
@@ -47,8 +50,8 @@ pub const MIN_RAYS_PER_CHUNK: usize = 1024;
 /// The most points one depth segment of a CPU chunk may hold (module docs).
 pub const CPU_POINTS_PER_CALL: usize = 16_384;
 
-/// The most rays per chunk on the CPU backends.
-pub const CPU_MAX_RAYS_PER_CHUNK: usize = 4096;
+/// The most rays per chunk on the CPU backends (16,384 at 8 samples a ray, 4096 at 32).
+pub const CPU_MAX_RAYS_PER_CHUNK: usize = 16_384;
 
 /// The samples (rays x samples per ray) of a chunk on a GPU: bounds the per-sample tensors of
 /// sampling and compositing (14 f32 columns of 2^22 rows, 235 MB, at the paper's 3 views).
@@ -120,7 +123,10 @@ mod tests {
         // The paper's 64: 2048 rays of 8 bins.
         assert_eq!(cpu_rays_per_chunk(64, true), 2048);
         // 12 samples do not split evenly: 2 bins in the widest segment.
-        assert_eq!(cpu_rays_per_chunk(12, true), 4096);
+        assert_eq!(cpu_rays_per_chunk(12, true), 8192);
+        // The viewer's drag frames, 8 samples: one bin a segment, the cap.
+        assert_eq!(cpu_rays_per_chunk(8, true), CPU_MAX_RAYS_PER_CHUNK);
+        assert_eq!(cpu_rays_per_chunk(8, true), CPU_POINTS_PER_CALL);
         // Without termination the floor: 1024 rays x 64 samples, one call as before.
         assert_eq!(cpu_rays_per_chunk(64, false), MIN_RAYS_PER_CHUNK);
         assert_eq!(MIN_RAYS_PER_CHUNK * 64, MAX_POINTS_PER_CALL);
