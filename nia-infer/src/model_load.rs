@@ -322,8 +322,17 @@ impl LoadedModel {
     /// Rays per chunk: `--chunk`, or the device's default for `samples` samples per ray and
     /// the `render` options ([`rays_per_chunk`]: more on a GPU).
     pub fn chunk(&self, args: &ModelArgs, samples: usize, render: &RenderOptions) -> usize {
-        args.chunk
-            .unwrap_or_else(|| rays_per_chunk(&self.device, samples, render))
+        self.chunk_or_default(args.chunk, samples, render)
+    }
+
+    /// [`Self::chunk`] with the `--chunk` value `chunk` itself.
+    pub fn chunk_or_default(
+        &self,
+        chunk: Option<usize>,
+        samples: usize,
+        render: &RenderOptions,
+    ) -> usize {
+        chunk.unwrap_or_else(|| rays_per_chunk(&self.device, samples, render))
     }
 
     /// The run's `[data]` section, at `root` and with the SMPL model `smpl` when given.

@@ -78,9 +78,7 @@ pub struct RenderSession {
     pub options: RenderOptions,
     /// Samples per ray.
     pub samples: usize,
-    /// Rays per chunk at [`Self::samples`].
-    pub chunk: usize,
-    /// `--chunk`, when given (else each sample count gets the device's default).
+    /// `--chunk`, when given (else each sample count gets the device's default: [`Self::chunk`]).
     chunk_arg: Option<usize>,
     /// Whether the commands time their stages (not with `--no-stage-times`).
     pub timed: bool,
@@ -96,7 +94,6 @@ impl RenderSession {
         let samples = loaded.samples(&args.model);
         Ok(RenderSession {
             samples,
-            chunk: loaded.chunk(&args.model, samples, &options),
             chunk_arg: args.model.chunk,
             loaded,
             opened,
@@ -106,13 +103,17 @@ impl RenderSession {
         })
     }
 
+    /// Rays per chunk at the session's samples and options ([`Self::chunk_for`]).
+    pub fn chunk(&self) -> usize {
+        self.chunk_for(self.samples, &self.options)
+    }
+
     /// Rays per chunk at `samples` samples per ray with `options`: `--chunk`, else the
-    /// device's default ([`nia_model::renderer::call_size::rays_per_chunk`]; on the CPU more
-    /// rays at fewer samples, as in a viewer's drag frames).
+    /// device's default ([`LoadedModel::chunk`]; on the CPU more rays at fewer samples, as in
+    /// a viewer's drag frames).
     pub fn chunk_for(&self, samples: usize, options: &RenderOptions) -> usize {
-        self.chunk_arg.unwrap_or_else(|| {
-            nia_model::renderer::call_size::rays_per_chunk(&self.loaded.device, samples, options)
-        })
+        self.loaded
+            .chunk_or_default(self.chunk_arg, samples, options)
     }
 
     /// The scene of `frame` from the session's source views.
@@ -186,7 +187,7 @@ impl RenderSession {
             pixels: None,
             image: ImageRenderOptions {
                 samples: self.samples,
-                chunk: self.chunk,
+                chunk: self.chunk(),
                 timed,
             },
             cancelled,

@@ -142,7 +142,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let report = Report {
         session: session.report(),
         frame: args.frame,
-        chunk: session.chunk,
+        chunk: session.chunk(),
         adaptive: session.options,
         stage_times: timed,
         encode_seconds,

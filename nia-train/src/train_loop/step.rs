@@ -165,19 +165,18 @@ fn combine(
         vec![losses.next().expect("one device at least"), squared],
         0,
     );
-    let Ok(first) = host_values_of("the step's losses and gradient norm", first) else {
+    // [total, mse, mse0, |g|^2] of the first device, then [total, mse, mse0] of each other.
+    let read = std::iter::once(("the step's losses and gradient norm", first, 4))
+        .chain(losses.map(|other| ("a device's losses", other, 3)))
+        .map(|(what, values, len)| {
+            host_values_of(what, values)
+                .ok()
+                .filter(|values| values.len() == len)
+        })
+        .collect::<Option<Vec<_>>>();
+    let Some(read) = read else {
         return Ok(StepOutcome::Skipped("the loss could not be read".into()));
     };
-    let mut read = vec![first];
-    for other in losses {
-        match host_values_of("a device's losses", other) {
-            Ok(values) => read.push(values),
-            Err(_) => return Ok(StepOutcome::Skipped("the loss could not be read".into())),
-        }
-    }
-    if read[0].len() != 4 || read[1..].iter().any(|values| values.len() != 3) {
-        return Ok(StepOutcome::Skipped("the loss could not be read".into()));
-    }
     let mut sums = [0.0f64; 3];
     for values in &read {
         let total = f64::from(values[0]);
