@@ -239,13 +239,6 @@ impl TrainConfig {
                 t.c0_shuffle.to_string(),
             ));
         }
-        if !(0.0..=1.0).contains(&t.source_holes) {
-            return Err(bad(
-                "train.source_holes",
-                "a probability in [0, 1]",
-                t.source_holes.to_string(),
-            ));
-        }
         if !(t.mask_loss_weight.is_finite() && t.mask_loss_weight >= 0.0) {
             return Err(bad(
                 "train.mask_loss_weight",

@@ -157,11 +157,6 @@ pub struct TrainSection {
     /// (false: every point may be shuffled; see `nia_model::ibr::c0_shuffle`).
     #[serde(default)]
     pub c0_shuffle_seen_only: bool,
-    /// Probability that a training scene's source view gets black holes where it shows the
-    /// person, the target left as it is (0: off, the paper's training; see
-    /// `train_loop::source_holes`).
-    #[serde(default)]
-    pub source_holes: f32,
     /// Per-channel gain of the target, relative, that the loss ignores (0: off, the paper's
     /// loss; see `nia_model::loss::colour_matched_target`).
     #[serde(default)]

@@ -43,7 +43,6 @@ use crate::data::{DataError, TrainData};
 use crate::events::{Phase, StepReport, TrainEvent};
 
 mod gradients;
-pub mod source_holes;
 mod step;
 
 use step::{train_step, StepOutcome};

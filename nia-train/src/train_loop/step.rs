@@ -20,7 +20,6 @@ use nia_model::scene_encoding::cut::chunked_gradients;
 use nia_model::{ModelError, NiaModel};
 
 use super::gradients::{scale_gradients, squared_norm, Merge};
-use super::source_holes::SourceHoles;
 use super::TrainError;
 use crate::config::TrainConfig;
 
@@ -28,8 +27,6 @@ use crate::config::TrainConfig;
 const JITTER_STREAM: u64 = 1;
 /// Label of the c0-shuffling stream forked from a step's RNG (`train.c0_shuffle`).
 const C0_SHUFFLE_STREAM: u64 = 2;
-/// Label of the source-holes stream forked from a step's RNG (`train.source_holes`).
-const SOURCE_HOLES_STREAM: u64 = 3;
 
 pub(super) enum StepOutcome {
     Taken {
@@ -238,17 +235,7 @@ fn scene_gradients(
         frame: scene.frame,
         source: Box::new(source),
     };
-    let mut input = SceneInput::from_loaded(scene, faces);
-    if config.train.source_holes > 0.0 {
-        SourceHoles {
-            probability: config.train.source_holes,
-            seed: Rng::new(config.train.seed)
-                .fork(index)
-                .fork(SOURCE_HOLES_STREAM)
-                .next_u64(),
-        }
-        .apply(&mut input.views);
-    }
+    let input = SceneInput::from_loaded(scene, faces);
     let c0_shuffle = (config.train.c0_shuffle > 0.0).then(|| C0Shuffle {
         fraction: config.train.c0_shuffle,
         seed: Rng::new(config.train.seed)
