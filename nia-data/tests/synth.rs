@@ -421,6 +421,65 @@ fn the_zju_reader_opens_a_synthetic_subject() {
     assert!(view.mask_coverage() > 0.02);
 }
 
+/// Intersection over union of a mask and the pixels a mesh covers at their centres.
+fn coverage_iou(mask: &image::GrayImage, frags: &nia_data::geometry::raster::Fragments) -> f32 {
+    let (mut both, mut either) = (0usize, 0usize);
+    for (p, m) in mask.pixels().enumerate() {
+        let (a, b) = (m.0[0] == 255, frags.depth[p].is_finite());
+        both += (a && b) as usize;
+        either += (a || b) as usize;
+    }
+    both as f32 / either.max(1) as f32
+}
+
+#[test]
+fn the_clothed_surface_is_what_the_masks_show_and_the_reader_finds_it() {
+    use nia_data::dataset::subject::Subject;
+    use nia_data::dataset::DatasetConfig;
+    use nia_data::geometry::raster::rasterize;
+    let data = dataset();
+    let body = BodyModel::load(&data.dir.join(BODY_MODEL_FILE)).unwrap();
+    let root = data.dir.join("CoreView_500");
+    let annots = load_any(&root.join("annots.npy")).unwrap();
+    let subject = Subject::open(&root, &DatasetConfig::zju()).unwrap();
+    for i in 0..2 {
+        let clothed = load_vertices(&root.join(format!("clothed_vertices/{i}.npy")));
+        let naked = load_vertices(&root.join(format!("vertices/{i}.npy")));
+        assert_eq!(clothed.len(), naked.len(), "the same mesh, SMPL's vertices");
+        assert_eq!(
+            subject.load_clothed_vertices(i).unwrap(),
+            Some(clothed.clone())
+        );
+        for c in 0..3 {
+            let cam = annots_camera(&annots, c, 80);
+            let mask = load_mask(&root.join(format!("mask/Camera_B{}/{i:06}.png", c + 1)));
+            let on_clothes = coverage_iou(&mask, &rasterize(&cam, &clothed, &body.faces).unwrap());
+            let on_body = coverage_iou(&mask, &rasterize(&cam, &naked, &body.faces).unwrap());
+            // Only silhouette pixels may differ (the mask keeps pixels covered at least half
+            // at 2 x 2 samples; the raster tests the pixel's centre).
+            assert!(on_clothes > 0.9, "frame {i} camera {c}: IoU {on_clothes}");
+            assert!(
+                on_clothes > on_body,
+                "frame {i} camera {c}: the clothed surface ({on_clothes}) explains the mask \
+                 better than the naked body ({on_body})"
+            );
+        }
+    }
+    // Real datasets have no such folder: the reader says so with None.
+    let bare = scratch_dir("no-clothed");
+    std::fs::create_dir_all(&bare).unwrap();
+    for entry in std::fs::read_dir(&root).unwrap() {
+        let entry = entry.unwrap();
+        if entry.file_name() != "clothed_vertices" {
+            let to = bare.join(entry.file_name());
+            std::os::unix::fs::symlink(entry.path(), to).unwrap();
+        }
+    }
+    let subject = Subject::open(&bare, &DatasetConfig::zju()).unwrap();
+    assert_eq!(subject.load_clothed_vertices(0).unwrap(), None);
+    let _ = std::fs::remove_dir_all(&bare);
+}
+
 #[test]
 fn clothes_stand_off_the_body_and_skin_does_not() {
     use nia_data::body::{ProceduralBody, ProceduralSpec};
@@ -605,8 +664,8 @@ fn numpy_loads_every_file_with_the_same_values() {
     paths.sort();
     assert_eq!(
         paths.len(),
-        1 + 2 * (1 + 2 + 2),
-        "body model + per subject annots, params, vertices"
+        1 + 2 * (1 + 2 + 2 + 2),
+        "body model + per subject annots, params, vertices, clothed vertices"
     );
     let out = std::process::Command::new("python3")
         .arg("-c")

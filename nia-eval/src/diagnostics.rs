@@ -12,6 +12,10 @@
 //!   `mask_at_box` region as the image's PSNR.
 //! - `depth_error_m`: mean |z(expected depth) - z(rasterised mesh)| over person pixels the mesh
 //!   covers and the render makes opaque (acc > 0.5); camera depth, metres.
+//! - `depth_error_true_m` (only where the data holds the true surface: synthetic sets write the
+//!   clothed surface their images show, `clothed_vertices/`): the same mean against that surface
+//!   rasterised, over the opaque person pixels it covers. Beside `depth_error_m` it says whether
+//!   the density sits on the person or on the fitted body where hair and clothes leave it.
 //! - `opacity_outside` / `opacity_inside`: mean accumulated opacity over scored pixels off the
 //!   person's mask and on it (ideally 0 and 1).
 //! - `psnr_silhouette` / `psnr_interior`: the image's PSNR split in two: over the scored pixels
@@ -26,8 +30,8 @@
 use glam::Vec3;
 use nia_data::dataset::loader::Scene;
 use nia_data::geometry::camera::Camera;
-use nia_data::geometry::raster::{rasterize, EMPTY_FACE};
-use nia_data::geometry::rays::image_rays;
+use nia_data::geometry::raster::{rasterize, Fragments, EMPTY_FACE};
+use nia_data::geometry::rays::{image_rays, Ray};
 use nia_data::metrics::{evaluate, psnr_masked, ImageView, MetricsError, SsimOptions};
 use nia_model::renderer::image::RenderedImage;
 use serde::Serialize;
@@ -45,6 +49,8 @@ pub struct BlendDiagnostics {
     pub psnr_nerf: f64,
     pub psnr_ibr: f64,
     pub depth_error_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub depth_error_true_m: Option<f64>,
     pub opacity_outside: Option<f64>,
     pub opacity_inside: Option<f64>,
     pub psnr_silhouette: Option<f64>,
@@ -145,6 +151,9 @@ pub struct DiagnosticsInput<'a> {
     pub sources: &'a Scene,
     /// [H * W * 3] the truth set's image of the target view ([`crate::truth::TruthData`]).
     pub truth: Option<&'a [f32]>,
+    /// [V] the true (clothed) surface of the target frame, world metres, with `faces`
+    /// (synthetic sets' `clothed_vertices/`); `None` for real data.
+    pub true_surface: Option<&'a [Vec3]>,
 }
 
 fn mean(sum: f64, count: usize) -> Option<f64> {
@@ -208,11 +217,7 @@ impl BlendDiagnostics {
                     .any(|s| s.visibility.get(v).is_some_and(|&x| x > 0)),
             )
         };
-        // The ray through each pixel's centre: the expected depth along it gives the point.
-        let centre_rays = frags.as_ref().map(|_| image_rays(input.camera));
-
         let (mut seen_sum, mut seen_n, mut unseen_sum, mut unseen_n) = (0.0, 0, 0.0, 0);
-        let (mut depth_sum, mut depth_n) = (0.0, 0);
         let (mut out_sum, mut out_n, mut in_sum, mut in_n) = (0.0, 0, 0.0, 0);
         for p in 0..w * h {
             if !input.mask_at_box[p] {
@@ -241,24 +246,26 @@ impl BlendDiagnostics {
                     None => {}
                 }
             }
-            if let (Some(frags), Some(rays), true) = (&frags, &centre_rays, acc > OPAQUE) {
-                let z_mesh = frags.depth[p];
-                if z_mesh.is_finite() {
-                    let t = r.depth[p] / acc;
-                    let point = rays[p].origin + rays[p].dir * t;
-                    let z = (input.camera.r * point + input.camera.t).z;
-                    depth_sum += (z - z_mesh).abs() as f64;
-                    depth_n += 1;
-                }
-            }
         }
+        // Opaque person pixels: where the expected depth is compared with a surface.
+        let opaque = |p: usize| input.mask_at_box[p] && input.person_mask[p] && r.acc[p] > OPAQUE;
+        let rays = image_rays(input.camera);
+        let depth_error = |surface: Option<&[Vec3]>| {
+            let frags = rasterize(input.camera, surface?, input.faces).ok()?;
+            mean_depth_error(input.camera, &rays, &r.depth, &r.acc, &frags, &opaque)
+        };
+        let depth_error_m = frags
+            .as_ref()
+            .and_then(|f| mean_depth_error(input.camera, &rays, &r.depth, &r.acc, f, &opaque));
+        let depth_error_true_m = depth_error(input.true_surface);
         Ok(BlendDiagnostics {
             c0_weight_seen: mean(seen_sum, seen_n),
             c0_weight_unseen: mean(unseen_sum, unseen_n),
             seen_fraction: mean(seen_n as f64, seen_n + unseen_n),
             psnr_nerf,
             psnr_ibr,
-            depth_error_m: mean(depth_sum, depth_n),
+            depth_error_m,
+            depth_error_true_m,
             opacity_outside: mean(out_sum, out_n),
             opacity_inside: mean(in_sum, in_n),
             psnr_silhouette,
@@ -282,6 +289,7 @@ impl BlendDiagnostics {
             psnr_nerf: avg(&|d| Some(d.psnr_nerf)).unwrap_or(f64::NAN),
             psnr_ibr: avg(&|d| Some(d.psnr_ibr)).unwrap_or(f64::NAN),
             depth_error_m: avg(&|d| d.depth_error_m),
+            depth_error_true_m: avg(&|d| d.depth_error_true_m),
             opacity_outside: avg(&|d| d.opacity_outside),
             opacity_inside: avg(&|d| d.opacity_inside),
             psnr_silhouette: avg(&|d| d.psnr_silhouette),
@@ -293,22 +301,50 @@ impl BlendDiagnostics {
     }
 }
 
+/// Mean |z(expected depth) - z(surface)| over the pixels `counted` where `surface` (rasterised
+/// into `camera`) covers the pixel; `None` where no pixel counts. The expected depth of pixel p
+/// is `depth[p] / acc[p]` along the ray through its centre; camera depth, metres.
+///
+/// # Shapes
+/// - `rays`, `depth`, `acc`: `[H * W]` ([`image_rays`] of `camera`, the render's sums)
+pub fn mean_depth_error(
+    camera: &Camera,
+    rays: &[Ray],
+    depth: &[f32],
+    acc: &[f32],
+    surface: &Fragments,
+    counted: &dyn Fn(usize) -> bool,
+) -> Option<f64> {
+    let (mut sum, mut n) = (0.0, 0);
+    for (p, ray) in rays.iter().enumerate() {
+        let z_surface = surface.depth[p];
+        if !counted(p) || !z_surface.is_finite() {
+            continue;
+        }
+        let point = ray.origin + ray.dir * (depth[p] / acc[p]);
+        sum += ((camera.r * point + camera.t).z - z_surface).abs() as f64;
+        n += 1;
+    }
+    mean(sum, n)
+}
+
 /// A markdown table of the instruments, one row per `(name, means)`, with a legend.
 pub fn diagnostics_table(rows: &[(String, BlendDiagnostics)]) -> String {
     let opt =
         |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
     let mut md = String::from(
-        "| subject | c0 share, seen | c0 share, unseen | seen | PSNR NeRF-only | PSNR IBR-only | depth error (cm) | opacity off person | opacity on person | PSNR silhouette | PSNR interior |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "| subject | c0 share, seen | c0 share, unseen | seen | PSNR NeRF-only | PSNR IBR-only | depth error (cm) | true-surface depth error (cm) | opacity off person | opacity on person | PSNR silhouette | PSNR interior |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for (name, d) in rows {
         md.push_str(&format!(
-            "| {name} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} |\n",
+            "| {name} | {} | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} |\n",
             opt(d.c0_weight_seen, 3),
             opt(d.c0_weight_unseen, 3),
             opt(d.seen_fraction, 2),
             d.psnr_nerf,
             d.psnr_ibr,
             opt(d.depth_error_m.map(|m| 100.0 * m), 2),
+            opt(d.depth_error_true_m.map(|m| 100.0 * m), 2),
             opt(d.opacity_outside, 3),
             opt(d.opacity_inside, 3),
             opt(d.psnr_silhouette, 2),
@@ -316,7 +352,7 @@ pub fn diagnostics_table(rows: &[(String, BlendDiagnostics)]) -> String {
         ));
     }
     md.push_str(
-        "\nInstruments of the hybrid (`nia_eval::diagnostics`): c0 share = mean NeRF-colour weight of the blend on person pixels whose surface some source view sees (seen) or none sees (unseen); seen = share of person pixels seen; PSNR of the NeRF-only and IBR-only composites on the scored region; depth error = mean |expected depth - rasterised SMPL depth| on opaque person pixels; mean opacity off and on the person's mask; the image's PSNR on the scored pixels next to the person mask's boundary (either side, 8-neighbourhood) and on the rest.\n",
+        "\nInstruments of the hybrid (`nia_eval::diagnostics`): c0 share = mean NeRF-colour weight of the blend on person pixels whose surface some source view sees (seen) or none sees (unseen); seen = share of person pixels seen; PSNR of the NeRF-only and IBR-only composites on the scored region; depth error = mean |expected depth - rasterised SMPL depth| on opaque person pixels, and the same against the true clothed surface where the data holds it (synthetic sets); mean opacity off and on the person's mask; the image's PSNR on the scored pixels next to the person mask's boundary (either side, 8-neighbourhood) and on the rest.\n",
     );
     md
 }
@@ -324,6 +360,58 @@ pub fn diagnostics_table(rows: &[(String, BlendDiagnostics)]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The expected depth of every pixel 0.1 m behind a plane at z = 2 m, seen head-on from
+    /// the origin: the mean error is 0.1 m whatever the opacity, over the counted pixels the
+    /// plane covers; none counted, or no surface in view: `None`.
+    #[test]
+    fn depth_error_is_measured_against_the_rasterised_surface() {
+        use glam::{Mat3, Vec3};
+        let (w, h) = (16u32, 12u32);
+        let camera = Camera::new(
+            Mat3::from_cols_array(&[40.0, 0.0, 0.0, 0.0, 40.0, 0.0, 8.0, 6.0, 1.0]),
+            Mat3::IDENTITY,
+            Vec3::ZERO,
+            [0.0; 5],
+            w,
+            h,
+        )
+        .unwrap();
+        let plane = |z: f32| {
+            let v = vec![
+                Vec3::new(-1.0, -1.0, z),
+                Vec3::new(1.0, -1.0, z),
+                Vec3::new(1.0, 1.0, z),
+                Vec3::new(-1.0, 1.0, z),
+            ];
+            (v, vec![[0u32, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]])
+        };
+        let rays = image_rays(&camera);
+        let n = (w * h) as usize;
+        let acc: Vec<f32> = (0..n).map(|p| 0.6 + 0.3 * (p % 3) as f32 / 2.0).collect();
+        // depth = acc * t with the ray's point at camera z = 2.1.
+        let depth: Vec<f32> = (0..n).map(|p| acc[p] * 2.1 / rays[p].dir.z).collect();
+        let (v, f) = plane(2.0);
+        let frags = rasterize(&camera, &v, &f).unwrap();
+        let all = |_: usize| true;
+        let e = mean_depth_error(&camera, &rays, &depth, &acc, &frags, &all).unwrap();
+        assert!((e - 0.1).abs() < 1e-4, "{e}");
+        let odd = |p: usize| p % 2 == 1;
+        let e = mean_depth_error(&camera, &rays, &depth, &acc, &frags, &odd).unwrap();
+        assert!((e - 0.1).abs() < 1e-4, "{e}");
+        let none = |_: usize| false;
+        assert_eq!(
+            mean_depth_error(&camera, &rays, &depth, &acc, &frags, &none),
+            None
+        );
+        // The plane behind the camera: nothing covered.
+        let (v, f) = plane(-2.0);
+        let behind = rasterize(&camera, &v, &f).unwrap();
+        assert_eq!(
+            mean_depth_error(&camera, &rays, &depth, &acc, &behind, &all),
+            None
+        );
+    }
 
     /// A 6x5 mask with a 2x2 square at (2..4, 1..3).
     fn square() -> (Vec<bool>, usize, usize) {

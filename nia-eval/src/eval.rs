@@ -473,6 +473,16 @@ fn evaluate_image(
         )?),
         None => None,
     };
+    // The clothed surface the target image shows, where the data holds it (synthetic sets).
+    let true_surface = data
+        .source
+        .subjects
+        .iter()
+        .find(|s| s.name == scene.subject)
+        .map(|s| s.load_clothed_vertices(scene.frame))
+        .transpose()
+        .map_err(|e| eval_err(e.to_string()))?
+        .flatten();
     let diagnostics = BlendDiagnostics::measure(&DiagnosticsInput {
         rendered: &rendered,
         camera: &image.camera,
@@ -486,6 +496,7 @@ fn evaluate_image(
         faces: &data.source.faces,
         sources,
         truth: truth.as_ref().map(|t| t.image.as_slice()),
+        true_surface: true_surface.as_deref(),
     })
     .map_err(metrics_err)?;
     let result = ImageResult {

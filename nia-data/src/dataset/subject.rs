@@ -260,6 +260,18 @@ impl Subject {
         zju::read_vertices(&self.vertices_path(frame)?)
     }
 
+    /// [V] world vertices of the clothed surface a synthetic set's images show
+    /// (`<root>/clothed_vertices/<number>.npy`, written by `nia-train synth`); `None` when the
+    /// subject has no such folder (every real dataset).
+    pub fn load_clothed_vertices(&self, frame: usize) -> Result<Option<Vec<Vec3>>, DatasetError> {
+        let f = self.check_frame(frame)?;
+        let dir = self.root.join(crate::synth::writer::CLOTHED_VERTICES_DIR);
+        if !dir.is_dir() {
+            return Ok(None);
+        }
+        zju::read_vertices(&dir.join(format!("{}.npy", f.number))).map(Some)
+    }
+
     /// The mask files of a frame's view that exist (at least one, else an error).
     pub fn mask_paths(&self, frame: usize, view: usize) -> Result<Vec<PathBuf>, DatasetError> {
         self.check_view(view)?;

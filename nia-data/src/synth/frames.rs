@@ -184,6 +184,7 @@ impl FrameWriter<'_> {
             .loose
             .clothing_offsets_m(&subject.offsets_m, frame as f32 / spec.fps);
         let clothed = clothe(&body_posed.vertices, &body_normals, &offsets);
+        writer::write_clothed_vertices(dir, frame, &clothed)?;
         let normals = vertex_normals(&clothed, &body.faces);
         let extremities = EXTREMITY_JOINTS
             .iter()

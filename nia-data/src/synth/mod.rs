@@ -11,6 +11,7 @@
 //! OUT/body_model.npz                  the body model every subject uses (SMPL key set)
 //! OUT/synth.json                      the spec and a suggested train / test subject split
 //! OUT/CoreView_<id>/annots.npy, params/, vertices/, Camera_B<k>/, mask/Camera_B<k>/
+//! OUT/CoreView_<id>/clothed_vertices/<frame>.npy   the clothed surface the images show (not ZJU's)
 //! OUT/CoreView_<id>/keypoints/Camera_B<k>/<frame:06>_keypoints.json   with `keypoints` only
 //! ```
 //!

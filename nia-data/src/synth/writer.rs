@@ -65,9 +65,26 @@ pub fn vertices_path(subject_dir: &Path, frame: usize) -> PathBuf {
     subject_dir.join("vertices").join(format!("{frame}.npy"))
 }
 
-/// Create the subject's directories (`params`, `vertices`, `Camera_B*`, `mask/Camera_B*`).
+/// Folder of the clothed surface the images show, one `<frame>.npy` per frame ([V, 3] world
+/// metres, SMPL's triangles): not in ZJU-MoCap, written for studies of where the density sits
+/// (`nia_eval::diagnostics`, `depth_error_true_m`).
+pub const CLOTHED_VERTICES_DIR: &str = "clothed_vertices";
+
+/// `<subject>/clothed_vertices/<frame>.npy`.
+pub fn clothed_vertices_path(subject_dir: &Path, frame: usize) -> PathBuf {
+    subject_dir
+        .join(CLOTHED_VERTICES_DIR)
+        .join(format!("{frame}.npy"))
+}
+
+/// Create the subject's directories (`params`, `vertices`, `clothed_vertices`, `Camera_B*`,
+/// `mask/Camera_B*`).
 pub fn create_subject_dirs(subject_dir: &Path, cameras: usize) -> Result<(), SynthError> {
-    let mut dirs = vec![subject_dir.join("params"), subject_dir.join("vertices")];
+    let mut dirs = vec![
+        subject_dir.join("params"),
+        subject_dir.join("vertices"),
+        subject_dir.join(CLOTHED_VERTICES_DIR),
+    ];
     for c in 0..cameras {
         dirs.push(subject_dir.join(camera_dir_name(c)));
         dirs.push(subject_dir.join("mask").join(camera_dir_name(c)));
@@ -178,9 +195,22 @@ pub fn write_vertices(
     frame: usize,
     vertices: &[Vec3],
 ) -> Result<(), SynthError> {
+    write_vertex_array(&vertices_path(subject_dir, frame), vertices)
+}
+
+/// Writes the clothed surface of a frame ([`CLOTHED_VERTICES_DIR`]), float32 `[V, 3]`.
+pub fn write_clothed_vertices(
+    subject_dir: &Path,
+    frame: usize,
+    vertices: &[Vec3],
+) -> Result<(), SynthError> {
+    write_vertex_array(&clothed_vertices_path(subject_dir, frame), vertices)
+}
+
+fn write_vertex_array(path: &Path, vertices: &[Vec3]) -> Result<(), SynthError> {
     let data = vertices.iter().flat_map(|v| v.to_array()).collect();
     let array = NdArray::new(vec![vertices.len(), 3], ArrayData::F32(data));
-    npy::write_array(&vertices_path(subject_dir, frame), &array)?;
+    npy::write_array(path, &array)?;
     Ok(())
 }
 
