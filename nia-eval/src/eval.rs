@@ -475,11 +475,8 @@ fn evaluate_image(
     };
     // The clothed surface the target image shows, where the data holds it (synthetic sets).
     let true_surface = data
-        .source
-        .subjects
-        .iter()
-        .find(|s| s.name == scene.subject)
-        .map(|s| s.load_clothed_vertices(scene.frame))
+        .subject_index(&scene.subject)
+        .map(|i| data.source.subjects[i].load_clothed_vertices(scene.frame))
         .transpose()
         .map_err(|e| eval_err(e.to_string()))?
         .flatten();

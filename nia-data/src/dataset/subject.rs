@@ -264,12 +264,12 @@ impl Subject {
     /// (`<root>/clothed_vertices/<number>.npy`, written by `nia-train synth`); `None` when the
     /// subject has no such folder (every real dataset).
     pub fn load_clothed_vertices(&self, frame: usize) -> Result<Option<Vec<Vec3>>, DatasetError> {
+        use crate::synth::writer::{clothed_vertices_path, CLOTHED_VERTICES_DIR};
         let f = self.check_frame(frame)?;
-        let dir = self.root.join(crate::synth::writer::CLOTHED_VERTICES_DIR);
-        if !dir.is_dir() {
+        if !self.root.join(CLOTHED_VERTICES_DIR).is_dir() {
             return Ok(None);
         }
-        zju::read_vertices(&dir.join(format!("{}.npy", f.number))).map(Some)
+        zju::read_vertices(&clothed_vertices_path(&self.root, f.number)).map(Some)
     }
 
     /// The mask files of a frame's view that exist (at least one, else an error).
