@@ -64,6 +64,11 @@ pub struct ModelArgs {
     /// `[render]` setting, 0).
     #[arg(long)]
     pub colour_points: Option<usize>,
+    /// The density baked once per pose on a grid of this node spacing (metres), read at every
+    /// view's samples (0: F_sigma at every sample, the paper's; default: the model's
+    /// `[render]` setting, 0).
+    #[arg(long)]
+    pub density_grid_m: Option<f32>,
     /// Visual-hull carving with the source views' person masks: on or off (default: the
     /// model's `[render]` setting; off where it has none).
     #[arg(long, value_parser = parse_switch)]
@@ -139,6 +144,7 @@ impl ModelArgs {
             ("early_termination", self.early_termination.is_some()),
             ("colour_culling", self.colour_culling.is_some()),
             ("colour_points", self.colour_points.is_some()),
+            ("density_grid_m", self.density_grid_m.is_some()),
             ("visual_hull", self.visual_hull.is_some()),
             ("hull_body_erode_px", self.hull_body_erode_px.is_some()),
             ("supersample", self.supersample.is_some()),
@@ -158,6 +164,9 @@ impl ModelArgs {
         }
         if let Some(k) = self.colour_points {
             options.colour_points = k;
+        }
+        if let Some(m) = self.density_grid_m {
+            options.density_grid_m = m;
         }
         if let Some(on) = self.visual_hull {
             options.visual_hull = on;

@@ -608,12 +608,12 @@ fn render_and_animate_write_pictures() {
 fn sweep_writes_the_table_and_the_plot() {
     let out_dir = scratch("sweep");
     let axes =
-        "--sample-counts 8 --view-counts 1,3 --ratios 1.0 --supersamples 1,2 --colour-point-counts 0,1";
+        "--sample-counts 8 --view-counts 1,3 --ratios 1.0 --supersamples 1,2 --colour-point-counts 0,1 --density-grids 0,0.02";
     ok(&on_model("sweep", axes, &["--limit", "1"], &out_dir));
     let csv = std::fs::read_to_string(out_dir.join("sweep.csv")).unwrap();
     // 1 sample count x 2 view counts x 1 ratio x 2 supersamplings x 2 colour-point counts x
-    // skipping on/off, plus the header.
-    assert_eq!(csv.lines().count(), 1 + 16, "{csv}");
+    // (skipping on/off without the baked density, on with it), plus the header.
+    assert_eq!(csv.lines().count(), 1 + 16 + 8, "{csv}");
     let rows: Vec<Vec<&str>> = csv
         .lines()
         .skip(1)
@@ -629,7 +629,9 @@ fn sweep_writes_the_table_and_the_plot() {
     }
     let evals = |supersample: &str, skip: &str| -> f64 {
         rows.iter()
-            .find(|r| r[1] == "3" && r[3] == supersample && r[4] == skip && r[11] == "0")
+            .find(|r| {
+                r[1] == "3" && r[3] == supersample && r[4] == skip && r[11] == "0" && r[12] == "0"
+            })
             .unwrap()[9]
             .parse()
             .unwrap()
@@ -642,15 +644,29 @@ fn sweep_writes_the_table_and_the_plot() {
     assert!((4.0..4.5).contains(&ratio), "{ratio}");
     let svg = std::fs::read_to_string(out_dir.join("sweep.svg")).unwrap();
     assert!(svg.starts_with("<svg"));
-    // Every setting is a labelled dot (once with skipping on, once off), and the legend
-    // names both series and the front.
+    // The baked density: the network runs at the coloured points only, fewer than the
+    // density walk's at the same setting.
+    let baked = |k: &str| -> f64 {
+        rows.iter()
+            .find(|r| r[1] == "3" && r[3] == "1" && r[11] == k && r[12] == "0.02")
+            .unwrap()[9]
+            .parse()
+            .unwrap()
+    };
+    assert!(baked("1") < evals("1", "true"));
+    // Every setting is a labelled dot (once with skipping on, once off; the baked density's
+    // with skipping on only), and the legend names both series and the front.
     for r in &rows {
         let mut label = format!("r{} v{} s{} x{}", r[2], r[1], r[0], r[3]);
         if r[11] != "0" {
             label += &format!(" c{}", r[11]);
         }
+        let grid = r[12] != "0";
+        if grid {
+            label += &format!(" g{}", r[12]);
+        }
         let drawn = svg.lines().filter(|l| l.trim() == label).count();
-        assert_eq!(drawn, 2, "{label}");
+        assert_eq!(drawn, if grid { 1 } else { 2 }, "{label}");
     }
     for name in ["skipping on", "skipping off", "Pareto front"] {
         assert!(svg.contains(name), "{name}");

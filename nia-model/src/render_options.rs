@@ -48,6 +48,10 @@ pub const MAX_HULL_BODY_ERODE_PX: usize = 256;
 pub const DEFAULT_SUPERSAMPLE: usize = 1;
 /// Largest [`RenderOptions::colour_points`] accepted (more is the paper's every sample).
 pub const MAX_COLOUR_POINTS: usize = 16;
+/// Smallest [`RenderOptions::density_grid_m`] accepted, metres.
+pub const MIN_DENSITY_GRID_M: f32 = 0.002;
+/// Largest [`RenderOptions::density_grid_m`] accepted, metres.
+pub const MAX_DENSITY_GRID_M: f32 = 0.1;
 /// Largest [`RenderOptions::supersample`] accepted (64 rays per pixel).
 pub const MAX_SUPERSAMPLE: usize = 8;
 
@@ -85,6 +89,12 @@ pub struct RenderOptions {
     /// weights, composited with the ray's opacity (colour culling then does not apply). 0,
     /// the default, colours every sample (the paper's).
     pub colour_points: usize,
+    /// The density baked per pose (not in the paper; `renderer::density_grid`): F_sigma run
+    /// once per pose at the nodes of a grid of this spacing (metres) and read by trilinear
+    /// interpolation at every sample of every view; the colour is then evaluated where
+    /// `colour_points` or colour culling say. 0, the default, runs F_sigma at every sample
+    /// (the paper's).
+    pub density_grid_m: f32,
     /// Visual-hull carving (not in the paper; `nia_data::scene::visual_hull`): the density is
     /// zero wherever a source view's person mask says empty space, and with skipping those
     /// samples are not evaluated. Off (the default) gives the paper's density.
@@ -114,6 +124,7 @@ impl Default for RenderOptions {
             early_termination: DEFAULT_TERMINATION,
             colour_culling: DEFAULT_COLOUR_CULLING,
             colour_points: 0,
+            density_grid_m: 0.0,
             visual_hull: false,
             hull_body_erode_px: None,
             supersample: DEFAULT_SUPERSAMPLE,
@@ -194,6 +205,16 @@ impl RenderOptions {
                 self.colour_points.to_string(),
             );
         }
+        let grid = self.density_grid_m;
+        if grid != 0.0 && !(MIN_DENSITY_GRID_M..=MAX_DENSITY_GRID_M).contains(&grid) {
+            return bad(
+                "density_grid_m",
+                &format!(
+                    "0 (off) or a node spacing of {MIN_DENSITY_GRID_M} to {MAX_DENSITY_GRID_M} (metres)"
+                ),
+                grid.to_string(),
+            );
+        }
         if !(1..=MAX_SUPERSAMPLE).contains(&self.supersample) {
             return bad(
                 "supersample",
@@ -220,6 +241,12 @@ impl RenderOptions {
     /// sample is (the paper's).
     pub fn colour_points(&self) -> Option<usize> {
         (self.colour_points > 0).then_some(self.colour_points)
+    }
+
+    /// The baked density's node spacing (`renderer::density_grid`); `None` when F_sigma runs
+    /// at the samples (the paper's).
+    pub fn density_grid(&self) -> Option<f32> {
+        (self.density_grid_m > 0.0).then_some(self.density_grid_m)
     }
 
     /// c0's blend-weight scale (`SceneEncoding::with_c0_weight_scale`); `None` at 1, the

@@ -1,5 +1,6 @@
 //! `nia-infer sweep`: what accuracy costs in time. Over samples per ray, source views,
-//! resolution ratio, rays per pixel (supersampling) and empty-space skipping, the protocol's
+//! resolution ratio, rays per pixel (supersampling), colour points, the baked density and
+//! empty-space skipping, the protocol's
 //! PSNR and SSIM with milliseconds and network point evaluations per image: `sweep.csv`,
 //! `sweep.md` and `sweep.svg` (PSNR against time, Pareto front marked).
 
@@ -42,6 +43,12 @@ pub struct SweepArgs {
     /// paper's; K colours the K samples with the largest weights; default: the model's own).
     #[arg(long, value_delimiter = ',')]
     pub colour_point_counts: Vec<usize>,
+    /// Baked-density node spacings to try, metres (`[render] density_grid_m`,
+    /// `--density-grid-m`: 0 runs F_sigma at every sample, the paper's; default: the model's
+    /// own). Swept with skipping on only (the bake covers what the occupancy grid keeps); every
+    /// image is a scene of its own, so a row's time includes one bake per image.
+    #[arg(long, value_delimiter = ',')]
+    pub density_grids: Vec<f32>,
     /// Images per setting (the first N of the unseen-subject split).
     #[arg(long, default_value_t = 6)]
     pub limit: usize,
@@ -58,6 +65,7 @@ struct Row {
     supersample: usize,
     skip_empty_space: bool,
     colour_points: usize,
+    density_grid_m: f32,
     images: usize,
     psnr: f64,
     ssim: f64,
@@ -112,6 +120,15 @@ fn check_render_axes(args: &SweepArgs, base_adaptive: &RenderOptions) -> anyhow:
             anyhow::bail!("--supersamples {supersample}: expected {}", e.expected);
         }
     }
+    for &density_grid_m in &args.density_grids {
+        let options = RenderOptions {
+            density_grid_m,
+            ..*base_adaptive
+        };
+        if let Err(e) = options.check() {
+            anyhow::bail!("--density-grids {density_grid_m}: expected {}", e.expected);
+        }
+    }
     for &colour_points in &args.colour_point_counts {
         let options = RenderOptions {
             colour_points,
@@ -140,12 +157,25 @@ fn measure(
     } else {
         args.colour_point_counts.clone()
     };
+    let grids = if args.density_grids.is_empty() {
+        vec![base_adaptive.density_grid_m]
+    } else {
+        args.density_grids.clone()
+    };
+    // Skipping off and on without a baked density, on only with one.
+    let passes: Vec<(f32, bool)> = grids
+        .iter()
+        .flat_map(|&g| match g > 0.0 {
+            true => vec![(g, true)],
+            false => vec![(g, false), (g, true)],
+        })
+        .collect();
     let total = args.ratios.len()
         * args.view_counts.len()
         * args.sample_counts.len()
         * args.supersamples.len()
         * colour_points.len()
-        * 2;
+        * passes.len();
     let bar = progress_bar(total as u64, "sweep");
     let mut rows = Vec::new();
     for &ratio in &args.ratios {
@@ -157,23 +187,24 @@ fn measure(
         let items = eval_items(&data, split, EvalTask::NovelView, Some(args.limit))?;
         for &views in &args.view_counts {
             let items = first_views(&items, views)?;
-            for (&samples, &supersample, &points, skip) in args
+            for (&samples, &supersample, &points, &(grid, skip)) in args
                 .sample_counts
                 .iter()
                 .flat_map(|s| args.supersamples.iter().map(move |x| (s, x)))
                 .flat_map(|(s, x)| colour_points.iter().map(move |k| (s, x, k)))
-                .flat_map(|(s, x, k)| [false, true].map(|skip| (s, x, k, skip)))
+                .flat_map(|(s, x, k)| passes.iter().map(move |p| (s, x, k, p)))
             {
                 let skipping = if skip { "on" } else { "off" };
                 bar.set_message(format!(
                     "ratio {ratio}, {views} views, {samples} samples, \
                      {supersample}x{supersample} rays per pixel, {points} colour points, \
-                     skipping {skipping}"
+                     baked density {grid} m, skipping {skipping}"
                 ));
                 let render = RenderOptions {
                     skip_empty_space: skip,
                     supersample,
                     colour_points: points,
+                    density_grid_m: grid,
                     ..*base_adaptive
                 };
                 let results = loaded.evaluate(
@@ -200,6 +231,7 @@ fn measure(
                     supersample,
                     skip_empty_space: skip,
                     colour_points: points,
+                    density_grid_m: grid,
                     images: summary.images,
                     psnr: summary.psnr,
                     ssim: summary.ssim,
@@ -240,12 +272,12 @@ fn first_views(items: &[EvalItem], views: usize) -> anyhow::Result<Vec<EvalItem>
 /// `sweep.csv`: one line per row.
 fn csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "samples,views,ratio,supersample,skip_empty_space,images,psnr,ssim,ms_per_image,point_evaluations_per_image,pareto,colour_points\n",
+        "samples,views,ratio,supersample,skip_empty_space,images,psnr,ssim,ms_per_image,point_evaluations_per_image,pareto,colour_points,density_grid_m\n",
     );
     for r in rows {
         let _ = writeln!(
             csv,
-            "{},{},{},{},{},{},{:.4},{:.5},{:.2},{:.0},{},{}",
+            "{},{},{},{},{},{},{:.4},{:.5},{:.2},{:.0},{},{},{}",
             r.samples,
             r.views,
             r.ratio,
@@ -257,7 +289,8 @@ fn csv(rows: &[Row]) -> String {
             r.ms_per_image,
             r.point_evaluations_per_image,
             r.pareto,
-            r.colour_points
+            r.colour_points,
+            r.density_grid_m
         );
     }
     csv
@@ -266,7 +299,7 @@ fn csv(rows: &[Row]) -> String {
 /// `sweep.md`: the rows as a table, under what was swept.
 fn markdown(args: &SweepArgs, loaded: &LoadedModel, rows: &[Row]) -> String {
     let mut md = format!(
-        "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | rays / pixel | colour points | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
+        "# What accuracy costs in time\n\nModel `{}` (step {}), unseen subjects of `{}`, {} images per setting, backend {}.\n\n| ratio | views | samples | rays / pixel | colour points | baked density | skipping | PSNR (dB) | SSIM | ms / image | network points / image | Pareto |\n|---:|---:|---:|---:|---:|---:|:---:|---:|---:|---:|---:|:---:|\n",
         loaded.path.display(),
         loaded.step,
         args.data.as_ref().unwrap_or(&loaded.run.data.root).display(),
@@ -276,7 +309,7 @@ fn markdown(args: &SweepArgs, loaded: &LoadedModel, rows: &[Row]) -> String {
     for r in rows {
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {} | {:.2} | {:.4} | {:.0} | {:.0} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {:.2} | {:.4} | {:.0} | {:.0} | {} |",
             r.ratio,
             r.views,
             r.samples,
@@ -285,6 +318,11 @@ fn markdown(args: &SweepArgs, loaded: &LoadedModel, rows: &[Row]) -> String {
                 "every sample".to_string()
             } else {
                 r.colour_points.to_string()
+            },
+            if r.density_grid_m > 0.0 {
+                format!("{} cm", r.density_grid_m * 100.0)
+            } else {
+                "-".to_string()
             },
             if r.skip_empty_space { "on" } else { "off" },
             r.psnr,
@@ -297,8 +335,8 @@ fn markdown(args: &SweepArgs, loaded: &LoadedModel, rows: &[Row]) -> String {
     md
 }
 
-/// A row's dot label: `r<ratio> v<views> s<samples> x<supersample>`, and ` c<K>` where colour
-/// is read at K points per ray.
+/// A row's dot label: `r<ratio> v<views> s<samples> x<supersample>`, ` c<K>` where colour
+/// is read at K points per ray, and ` g<metres>` where the density is baked.
 fn label(r: &Row) -> String {
     let mut label = format!(
         "r{} v{} s{} x{}",
@@ -306,6 +344,9 @@ fn label(r: &Row) -> String {
     );
     if r.colour_points > 0 {
         let _ = write!(label, " c{}", r.colour_points);
+    }
+    if r.density_grid_m > 0.0 {
+        let _ = write!(label, " g{}", r.density_grid_m);
     }
     label
 }

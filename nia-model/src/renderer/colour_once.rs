@@ -18,20 +18,24 @@
 //! (the same for c0, the IBR-only colour and the blend maps). Opacity and depth are exact;
 //! `C` equals the paper's where the colour is constant over the ray's weight. A ray that
 //! misses, or whose weights are all (near) zero, gets no colour evaluation and stays black.
-//! It runs as a rescaling of the chosen samples' outputs by `acc / W_K`, so the renderer's
-//! compositing is the paper's quadrature unchanged.
+//! The composite runs on the host over the chosen points only, with the quadrature's weights
+//! ([`NiaModel::render_colour_once`]; no `[R * S]` tensors). The density comes from the walk,
+//! or from the grid baked for the pose ([`crate::renderer::density_grid`]), which also allows
+//! the paper's per-sample colour (every sample colour culling keeps) on the baked density.
 
 use burn::prelude::*;
+use rayon::prelude::*;
 
 use crate::error::ModelError;
 use crate::field::PointOutput;
-use crate::kernels::blocked_rows::scatter_add_rows;
 use crate::kernels::readback::host_values;
 use crate::model::NiaModel;
+use crate::renderer::colour_culling::cull;
+use crate::renderer::quadrature::{RenderOutput, OPTICAL_DEPTH_MAX};
 use crate::renderer::shape_buckets::CallRows;
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;
-use crate::timing::Stopwatch;
+use crate::timing::{Stage, Stopwatch};
 
 /// Weight below which a ray has nothing to colour (its opacity cannot reach a visible level).
 pub const MIN_RAY_WEIGHT: f32 = 1e-6;
@@ -49,18 +53,29 @@ pub struct ColourPoint {
 /// `w = T (1 - exp(-sigma delta))`; `rays` the chunk's ray count. A ray whose weights sum to
 /// less than [`MIN_RAY_WEIGHT`] gets none.
 pub fn colour_points(ray_of: &[usize], weight: &[f32], rays: usize, k: usize) -> Vec<ColourPoint> {
-    let mut per_ray: Vec<Vec<usize>> = vec![Vec::new(); rays];
+    // Each ray's points in one flat list (a counting sort by ray: no list per ray).
+    let mut start = vec![0usize; rays + 1];
+    for &r in ray_of {
+        start[r + 1] += 1;
+    }
+    for r in 0..rays {
+        start[r + 1] += start[r];
+    }
+    let mut next = start.clone();
+    let mut flat = vec![0usize; ray_of.len()];
     for (p, &r) in ray_of.iter().enumerate() {
-        per_ray[r].push(p);
+        flat[next[r]] = p;
+        next[r] += 1;
     }
     let mut chosen = Vec::new();
-    for points in &mut per_ray {
+    for r in 0..rays {
+        let points = &mut flat[start[r]..start[r + 1]];
         let acc: f32 = points.iter().map(|&p| weight[p]).sum();
         if !(acc >= MIN_RAY_WEIGHT) || k == 0 {
             continue;
         }
-        points.sort_by(|&a, &b| weight[b].total_cmp(&weight[a]));
-        points.truncate(k);
+        points.sort_unstable_by(|&a, &b| weight[b].total_cmp(&weight[a]).then(a.cmp(&b)));
+        let points = &points[..k.min(points.len())];
         let top: f32 = points.iter().map(|&p| weight[p]).sum();
         if !(top > 0.0) {
             continue;
@@ -86,51 +101,107 @@ pub fn point_weights(ray_of: &[usize], steps: &[f32], rays: usize) -> Vec<f32> {
         .iter()
         .zip(steps)
         .map(|(&r, &step)| {
-            let (alpha, step) = if step.is_finite() && step >= 0.0 {
-                (1.0 - (-step).exp(), step)
-            } else {
-                (1.0, f32::INFINITY)
+            // The quadrature's optical depth: clamped to [0, OPTICAL_DEPTH_MAX], NaN opaque.
+            let step = match step.is_nan() {
+                true => OPTICAL_DEPTH_MAX,
+                false => step.clamp(0.0, OPTICAL_DEPTH_MAX),
             };
-            let w = (-tau[r]).exp() * alpha;
+            let w = (-tau[r]).exp() * (1.0 - (-step).exp());
             tau[r] += step;
             w
         })
         .collect()
 }
 
+/// What the colour-once pass decided and computed ([`NiaModel::colour_once_pass`]).
+pub(crate) struct OncePass {
+    /// The evaluated points' flat `[R * S]` sample indices, each ray's front to back.
+    index: Vec<usize>,
+    /// Their weights `w_i`, as the quadrature computes them.
+    weights: Vec<f32>,
+    /// The points given a colour (positions in `index`) with their rays' factors.
+    chosen: Vec<ColourPoint>,
+    /// The whole network at the chosen points, `[chosen]` rows; `None` when none was chosen.
+    coloured: Option<PointOutput>,
+}
+
 impl NiaModel {
-    /// The field at the kept samples of `samples` in the colour-once mode (module docs): the
-    /// density walk (with `termination`), then the whole network at the `k` chosen samples of
-    /// each ray. Returns the outputs of the evaluated points (zero colour but at the chosen
-    /// ones, rescaled), their flat `[R * S]` sample indices in the same order, and how many
-    /// got a colour evaluation.
-    pub(crate) fn field_colour_once(
+    /// The colour-once pass over the kept samples of `samples` (module docs): the density walk
+    /// (with `termination`) or the scene's baked density ([`crate::renderer::density_grid`]),
+    /// each ray's weights, then the whole network at the `k` chosen samples of each ray
+    /// (`None`: at every sample with a density that colour culling keeps, the paper's
+    /// per-sample colour).
+    fn colour_once_pass(
         &self,
         scene: &SceneEncoding,
         samples: &RaySamples,
         termination: Option<f32>,
-        k: usize,
+        k: Option<usize>,
         watch: &mut Stopwatch<'_>,
-    ) -> Result<(PointOutput, Vec<usize>, usize), ModelError> {
-        // The density walk: a budget no ray can spend culls every colour evaluation.
-        let (density, index, _) =
-            self.field_front_to_back(scene, samples, termination, Some(f32::INFINITY), watch)?;
+    ) -> Result<OncePass, ModelError> {
         let s = samples.per_ray.max(1);
         let rays = samples.t.len() / s;
+        let (index, sigma) = match &scene.density_grid {
+            // The density baked for this pose, read at every kept sample (`density_grid`).
+            Some(grid) => {
+                let sigma: Vec<f32> = samples
+                    .points
+                    .par_iter()
+                    .map(|&x| grid.sigma_at(x))
+                    .collect();
+                let index: Vec<usize> = match &samples.kept {
+                    Some(kept) => kept.clone(),
+                    None => (0..samples.total()).collect(),
+                };
+                watch.mark(Stage::PointInputs);
+                (index, sigma)
+            }
+            None => {
+                // The density walk: a budget no ray can spend culls every colour evaluation.
+                let (density, index, _) = self.field_front_to_back(
+                    scene,
+                    samples,
+                    termination,
+                    Some(f32::INFINITY),
+                    watch,
+                )?;
+                let sigma = host_values(density.sigma)
+                    .map_err(|e| ModelError::Input(format!("reading densities: {e}")))?;
+                (index, sigma)
+            }
+        };
         // Front to back per ray: the walk returns points segment by segment, each ray's in
-        // order, so its order already is front to back within every ray.
-        let sigma = host_values(density.sigma.clone())
-            .map_err(|e| ModelError::Input(format!("reading densities: {e}")))?;
+        // order, and the kept samples are in flat order, so within every ray the points are
+        // front to back.
         let ray_of: Vec<usize> = index.iter().map(|&f| f / s).collect();
         let steps: Vec<f32> = index
             .iter()
             .zip(&sigma)
-            .map(|(&f, &sigma)| sigma * samples.delta[f])
+            .map(|(&f, &sigma)| sigma * samples.delta[f].max(0.0))
             .collect();
         let weights = point_weights(&ray_of, &steps, rays);
-        let chosen = colour_points(&ray_of, &weights, rays, k);
+        let chosen = match k {
+            Some(k) => colour_points(&ray_of, &weights, rays, k),
+            // Every sample but those colour culling leaves out (all of them without it), each
+            // with its own weight: the paper's per-sample colour on the baked density.
+            None => {
+                let (mut tau, mut spent) = (vec![0.0f32; rays], vec![0.0f32; rays]);
+                let epsilon = scene.colour_culling.unwrap_or(f32::NEG_INFINITY);
+                cull(&ray_of, &steps, &mut tau, &mut spent, epsilon)
+                    .into_iter()
+                    .enumerate()
+                    .filter(|&(p, coloured)| coloured && weights[p] > 0.0)
+                    .map(|(point, _)| ColourPoint { point, factor: 1.0 })
+                    .collect()
+            }
+        };
         if chosen.is_empty() {
-            return Ok((density, index, 0));
+            return Ok(OncePass {
+                index,
+                weights,
+                chosen,
+                coloured: None,
+            });
         }
         // The walk names samples by their flat [R * S] index; the sample points are the kept
         // ones, in the kept list's order.
@@ -164,41 +235,94 @@ impl NiaModel {
         let rows = CallRows::on(&scene.images.device());
         let inputs = self.point_tensors(scene, &points, &dirs, rows, watch)?;
         let coloured = self.query_with(scene, &inputs, watch)?.first(points.len());
+        Ok(OncePass {
+            index,
+            weights,
+            chosen,
+            coloured: Some(coloured),
+        })
+    }
+
+    /// The colour-once pass composited on the host: the rays' colours, NeRF colours, IBR-only
+    /// colours and blend maps summed over their chosen points only (`w_j` times the ray's
+    /// factor), opacity and depth over every evaluated point, with the weights the pass
+    /// computed (the quadrature's). The same output as the pass scattered to `[R * S]` samples
+    /// and composited with [`crate::renderer::render_rays_delta`] (float reordering aside),
+    /// without the `[R * S]` tensors' scatters and products. `point_evaluations` counts the
+    /// network's points (the coloured ones alone with a baked density). Also returns the NeRF
+    /// part of the surface form, `[R, 3]` sum_j w_j b0_j c0_j (`ibr::surface`).
+    pub(crate) fn render_colour_once(
+        &self,
+        scene: &SceneEncoding,
+        samples: &RaySamples,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<(RenderOutput, Tensor<2>), ModelError> {
+        let k = scene.colour_points;
+        let pass = self.colour_once_pass(scene, samples, scene.termination, k, watch)?;
+        let s = samples.per_ray.max(1);
+        let r = samples.t.len() / s;
+        let n1 = scene.num_views() + 1;
+        let mut acc = vec![0.0f32; r];
+        let mut depth = vec![0.0f32; r];
+        let mut weights = vec![0.0f32; r * s];
+        for (&flat, &w) in pass.index.iter().zip(&pass.weights) {
+            acc[flat / s] += w;
+            depth[flat / s] += w * samples.t[flat];
+            weights[flat] = w;
+        }
+        // [R, 3 + 3 + 3 + N + 1 + 3]: colour, c0, IBR-only colour, blend weights, and the
+        // NeRF part of the surface form, sum_j w_j b0_j c0_j.
+        let read = 9 + n1;
+        let width = read + 3;
+        let mut sums = vec![0.0f32; r * width];
+        if let Some(coloured) = pass.coloured {
+            let columns = Tensor::cat(
+                vec![
+                    coloured.colour,
+                    coloured.c0,
+                    coloured.ibr_colour,
+                    coloured.blend_weights,
+                ],
+                1,
+            );
+            let values = host_values(columns)
+                .map_err(|e| ModelError::Input(format!("reading the coloured points: {e}")))?;
+            for (c, row) in pass.chosen.iter().zip(values.chunks_exact(read)) {
+                let ray = pass.index[c.point] / s;
+                let wf = pass.weights[c.point] * c.factor;
+                let to = &mut sums[ray * width..(ray + 1) * width];
+                to.iter_mut().zip(row).for_each(|(t, v)| *t += wf * v);
+                let b0 = row[9];
+                for (t, c0) in to[read..].iter_mut().zip(&row[3..6]) {
+                    *t += wf * b0 * c0;
+                }
+            }
+        }
         let device = scene.images.device();
-        let m = index.len();
-        let factor = Tensor::<1>::from_data(
-            TensorData::new(
-                chosen.iter().map(|c| c.factor).collect::<Vec<_>>(),
-                [chosen.len()],
-            ),
-            &device,
-        )
-        .unsqueeze_dim::<2>(1);
-        let rows = Tensor::<1, Int>::from_data(
-            TensorData::new(
-                chosen.iter().map(|c| c.point as i64).collect::<Vec<_>>(),
-                [chosen.len()],
-            ),
-            &device,
-        );
-        // The chosen rows, rescaled, into zeros of the evaluated points' shape.
-        let place = |values: Tensor<2>| {
-            let width = values.dims()[1];
-            scatter_add_rows(
-                Tensor::<2>::zeros([m, width], &device),
-                rows.clone(),
-                values * factor.clone(),
-            )
+        let tensor2 = |values: Vec<f32>, width: usize| {
+            Tensor::<2>::from_data(TensorData::new(values, [r, width]), &device)
         };
-        let out = PointOutput {
-            sigma: density.sigma,
-            colour: place(coloured.colour),
-            c0: place(coloured.c0),
-            blend_c0: None,
-            blend_weights: place(coloured.blend_weights),
-            ibr_colour: place(coloured.ibr_colour),
+        let columns = tensor2(sums, width);
+        let delta: Vec<f32> = samples.delta.iter().map(|d| d.max(0.0)).collect();
+        let evaluated = match scene.density_grid {
+            Some(_) => pass.chosen.len(),
+            None => pass.index.len(),
         };
-        Ok((out, index, chosen.len()))
+        let nerf_part = columns.clone().slice(s![.., read..width]);
+        let rendered = RenderOutput {
+            rgb: columns.clone().slice(s![.., 0..3]),
+            rgb0: columns.clone().slice(s![.., 3..6]),
+            rgb_ibr: Some(columns.clone().slice(s![.., 6..9])),
+            blend_weights: Some(columns.slice(s![.., 9..read])),
+            acc: Tensor::<1>::from_data(TensorData::new(acc, [r]), &device),
+            depth: Tensor::<1>::from_data(TensorData::new(depth, [r]), &device),
+            weights: tensor2(weights, s),
+            t: tensor2(samples.t.clone(), s),
+            delta: tensor2(delta, s),
+            point_evaluations: evaluated,
+            colour_evaluations: pass.chosen.len(),
+        };
+        Ok((rendered, nerf_part))
     }
 }
 

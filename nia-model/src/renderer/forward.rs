@@ -65,6 +65,31 @@ impl NiaModel {
         let mut watch = Stopwatch::new(times, &device);
         rays.check().map_err(ModelError::Rays)?;
         let ray_samples = sample(scene, rays, samples, jitter)?;
+        // Colour at a few points per ray, or the baked density: composited on the host from
+        // the points that have a colour (`colour_once`); with the source colours read at the
+        // surface, from the composited weights as `composite` does.
+        let once = scene.colour_points.is_some() || scene.density_grid.is_some();
+        if once && jitter.is_none() && ray_samples.evaluated() > 0 {
+            let (mut rendered, nerf_part) =
+                self.render_colour_once(scene, &ray_samples, &mut watch)?;
+            if self.source_colours_at == SourceColoursAt::Surface && self.variant != Variant::NoIbr
+            {
+                let n1 = scene.num_views() + 1;
+                let view_weights = rendered
+                    .blend_weights
+                    .clone()
+                    .map(|b| b.slice(s![.., 1..n1]))
+                    .ok_or_else(|| ModelError::Input("render without blend weights".into()))?;
+                let colours =
+                    surface_colours(scene, rays, rendered.depth.clone(), rendered.acc.clone())?;
+                let (rgb, rgb_ibr) =
+                    surface_composite(nerf_part, view_weights, colours, rendered.acc.clone());
+                rendered.rgb = rgb;
+                rendered.rgb_ibr = Some(rgb_ibr);
+            }
+            watch.mark(Stage::Compositing);
+            return Ok(rendered);
+        }
         let fields = self.evaluate(scene, &ray_samples, jitter, &mut watch)?;
         let rendered = self.composite(scene, rays, &ray_samples, fields)?;
         watch.mark(Stage::Compositing);
@@ -97,22 +122,16 @@ impl NiaModel {
                 colour_evaluated: 0,
             });
         }
-        let adaptive = scene.termination.is_some()
-            || scene.colour_culling.is_some()
-            || scene.colour_points.is_some();
+        // (Colour once and the baked density never come here: `render` composites them.)
+        let adaptive = scene.termination.is_some() || scene.colour_culling.is_some();
         let (out, kept, evaluated, colour_evaluated) = if adaptive && jitter.is_none() {
-            let (out, index, coloured) = match scene.colour_points {
-                Some(k) => {
-                    self.field_colour_once(scene, ray_samples, scene.termination, k, watch)?
-                }
-                None => self.field_front_to_back(
-                    scene,
-                    ray_samples,
-                    scene.termination,
-                    scene.colour_culling,
-                    watch,
-                )?,
-            };
+            let (out, index, coloured) = self.field_front_to_back(
+                scene,
+                ray_samples,
+                scene.termination,
+                scene.colour_culling,
+                watch,
+            )?;
             let all_in_order =
                 index.len() == total && index.iter().enumerate().all(|(i, &f)| i == f);
             let evaluated = index.len();
@@ -248,8 +267,14 @@ fn sample(
     };
     // What the hull carves has density exactly 0 whatever the network says. The kept points
     // read it once more in the field (three projections and bilinear reads each, next to a
-    // network evaluation).
-    if let (Some(_), Some(hull), None) = (&scene.occupancy, &scene.visual_hull, &scene.reposer) {
+    // network evaluation). A baked density already holds the carving (its nodes were carved
+    // when baked), so its samples are not carved again.
+    if let (Some(_), Some(hull), None, None) = (
+        &scene.occupancy,
+        &scene.visual_hull,
+        &scene.reposer,
+        &scene.density_grid,
+    ) {
         let cameras = &scene.geometry.cameras;
         ray_samples.retain(|x| hull.carving(cameras, x) > 0.0);
     }

@@ -6,7 +6,9 @@
 //! prepare_scene   NiaModel::encode -> occupancy grid (skipping) -> termination -> colour
 //!                 culling -> visual hull                                  (once per scene)
 //! prepare_pose    NiaModel::encode_pose -> occupancy grid of the new pose (once per pose)
-//! render_view     rays through the pixel footprints (supersampling) -> render_image
+//! render_view     the per-render options (termination, culling, colour points, c0's scale,
+//!                 the density baked once per pose) -> rays through the pixel footprints
+//!                 (supersampling) -> render_image
 //! ```
 //!
 //! Only the source views of the scene reach the render: a target view's image and mask are
@@ -25,7 +27,7 @@ use crate::error::ModelError;
 use crate::model::NiaModel;
 use crate::render_options::RenderOptions;
 use crate::scene_encoding::SceneEncoding;
-use crate::timing::StageTimes;
+use crate::timing::{StageTimes, Stopwatch};
 
 /// One target view of a prepared scene.
 #[derive(Clone, Copy)]
@@ -99,6 +101,27 @@ pub fn render_view(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RenderedImage, ModelError> {
     let camera = view.camera;
+    // What may change from render to render of one prepared scene (the viewer's drag frames
+    // against its resting frames): termination, culling, colour points, c0's scale and the
+    // baked density, baked on the first render that asks for it.
+    let scene = scene
+        .clone()
+        .with_termination(options.termination())
+        .with_colour_culling(options.culling())
+        .with_colour_points(options.colour_points())
+        .with_c0_weight_scale(options.c0_scale());
+    // The bake's stages are charged to the image that paid for it (timed renders).
+    let mut bake_times = StageTimes::default();
+    let grid = match options.density_grid() {
+        Some(cell) => {
+            let device = scene.images.device();
+            let times = view.image.timed.then_some(&mut bake_times);
+            let mut watch = Stopwatch::new(times, &device);
+            Some(model.baked_density(&scene, view.body_box, cell, &mut watch)?)
+        }
+        None => None,
+    };
+    let scene = scene.with_density_grid(grid);
     let rays = RayBundle::through_pixel_footprints(
         camera,
         view.body_box,
@@ -107,12 +130,16 @@ pub fn render_view(
     );
     render_image_cancellable(
         model,
-        scene,
+        &scene,
         &rays,
         [camera.width as usize, camera.height as usize],
         view.image,
         progress,
         view.cancelled.unwrap_or(&|| false),
     )?
+    .map(|mut image| {
+        image.times.merge(&bake_times);
+        image
+    })
     .ok_or(ModelError::Cancelled)
 }

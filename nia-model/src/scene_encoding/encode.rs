@@ -97,6 +97,8 @@ impl NiaModel {
             visual_hull: None,
             c0_weight_scale: None,
             points_per_call: MAX_POINTS_PER_CALL,
+            density_grid: None,
+            density_memo: Default::default(),
         };
         // Inference on a CPU backend reads the body volume on the host (fused).
         encoding.with_host_reads(self, on_host)
@@ -152,6 +154,8 @@ impl NiaModel {
             visual_hull: scene.visual_hull.clone(),
             c0_weight_scale: scene.c0_weight_scale,
             points_per_call: scene.points_per_call,
+            density_grid: None,
+            density_memo: Default::default(),
         })
     }
 

@@ -21,6 +21,7 @@ use crate::error::ModelError;
 use crate::field::network_host::HostNetwork;
 use crate::ibr::c0_shuffle::C0Shuffle;
 use crate::model::NiaModel;
+use crate::renderer::density_grid::{DensityGrid, DensityMemo};
 
 /// Per-scene tensors and geometry.
 #[derive(Debug, Clone)]
@@ -81,6 +82,12 @@ pub struct SceneEncoding {
     /// chunk without termination) of more is evaluated in several calls. Training's step is one
     /// call whatever this says.
     pub points_per_call: usize,
+    /// The density baked per pose (`renderer::density_grid`) that renders of this encoding
+    /// read instead of running F_sigma at every sample (with colour once per ray). `None` (the
+    /// default) runs the density half at the samples.
+    pub density_grid: Option<Arc<DensityGrid>>,
+    /// The grid baked for this encoding's pose, occupancy and hull, shared by its clones.
+    pub density_memo: DensityMemo,
 }
 
 impl SceneEncoding {
@@ -88,7 +95,7 @@ impl SceneEncoding {
     /// will be rendered: the scene's own for a novel view, the target pose's when reposing).
     pub fn with_occupancy(mut self, grid: Option<Arc<OccupancyGrid>>) -> Self {
         self.occupancy = grid;
-        self
+        self.without_baked_density()
     }
 
     /// This encoding with visual-hull carving from the person masks of `input` (the scene this
@@ -135,7 +142,7 @@ impl SceneEncoding {
                 Some(Arc::new(hull))
             }
         };
-        Ok(self)
+        Ok(self.without_baked_density())
     }
 
     /// This encoding with c0's blend weight rescaled by `scale` at inference (`None`: F_B's
@@ -198,6 +205,20 @@ impl SceneEncoding {
     /// This encoding with c0 shuffling in the blend (training only; `None`: off).
     pub fn with_c0_shuffle(mut self, shuffle: Option<C0Shuffle>) -> Self {
         self.c0_shuffle = shuffle;
+        self
+    }
+
+    /// This encoding with the density baked by [`NiaModel::baked_density`] read at the samples
+    /// (`None`: the density half runs at them).
+    pub fn with_density_grid(mut self, grid: Option<Arc<DensityGrid>>) -> Self {
+        self.density_grid = grid;
+        self
+    }
+
+    /// This encoding with no baked density and a memo of its own (its density changed).
+    fn without_baked_density(mut self) -> Self {
+        self.density_grid = None;
+        self.density_memo = DensityMemo::default();
         self
     }
 
