@@ -102,21 +102,21 @@ pub struct ViewRequest {
     /// Image size relative to the cameras', in [`SCALE_RANGE`].
     pub scale: f32,
     /// A frame of a drag: the fast mode ([`fast_samples`] samples per ray, one ray per
-    /// pixel, the density baked per pose, [`FAST_COLOUR_POINTS`] coloured per ray); otherwise the model's samples and `[render]` settings, the picture the camera
-    /// rests on.
+    /// pixel, the density baked per pose, [`FAST_COLOUR_POINTS`] coloured per ray); otherwise
+    /// the model's samples and `[render]` settings, the picture the camera rests on.
     pub fast: bool,
 }
 
 /// Samples coloured per ray in the frames of a drag (`nia_model::renderer::colour_once`; 0:
-/// every sample, as the model's own settings). At the drag's 8 samples per ray K = 2 costs
-/// 0.00 dB on the quickstart's clean 512-px set (seed 0, the tuning set) and 0.08 dB on report
-/// set seed 61 (`zju_like`, the main recipe's model); at 32 samples it costs 2.1 dB there, so
-/// it goes with [`fast_samples`] (docs/accuracy-time.md).
-pub const FAST_COLOUR_POINTS: usize = 2;
+/// every sample, as the model's own settings). K = 1 costs 0.01 dB at the drag's 8 samples on
+/// the quickstart's clean 512-px set (seed 0) and 0.03 dB at 32 samples on set 61 (`zju_like`,
+/// the main recipe's model), where it was chosen; on report set 62, 0.03 dB at 8 samples
+/// (0.00 with the baked density) (docs/accuracy-time.md).
+pub const FAST_COLOUR_POINTS: usize = 1;
 
 /// The density a drag reads, baked once per pose on a grid of this spacing, metres
 /// (`nia_model::renderer::density_grid`; the picture the camera rests on runs F_sigma at its
-/// samples). 1 cm: -0.1 dB on the clean 512-px tuning set, +-0.02 dB on report set seed 61.
+/// samples). 1 cm: -0.11 dB on the clean 512-px set, +0.04 dB on report set 62.
 pub const FAST_DENSITY_GRID_M: f32 = 0.01;
 
 /// The frames of a drag take the model's samples per ray divided by this ...
