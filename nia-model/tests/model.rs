@@ -216,6 +216,38 @@ fn wgpu_matches_ndarray() {
             );
         }
     }
+    // Colour once per ray on the density baked per pose (the bake's density calls, the
+    // trilinear reads and the host composite), per-sample and surface source colours.
+    let body_box = nia_data::dataset::sampling::BoxPadding::nhp()
+        .body_box(&input.body.vertices)
+        .unwrap();
+    let baked = |m: &nia_model::NiaModel, d: &Device| {
+        let scene = m.encode(&input, None, d, None).unwrap();
+        let grid = m.bake_density(&scene, &body_box, 0.05).unwrap();
+        assert!(grid.evaluated() > 0);
+        let scene = scene
+            .with_density_grid(Some(grid))
+            .with_colour_points(Some(1));
+        let out = m.render(&scene, &rays, SAMPLES, None, None).unwrap();
+        assert!(out.colour_evaluations <= rays.len());
+        [out.rgb, out.rgb0]
+            .map(|t| t.into_data().try_to_vec::<f32>().unwrap())
+            .into_iter()
+            .chain([out.acc.into_data().try_to_vec::<f32>().unwrap()])
+            .collect::<Vec<_>>()
+    };
+    for at in [SourceColoursAt::Samples, SourceColoursAt::Surface] {
+        model.source_colours_at = at;
+        model_gpu.source_colours_at = at;
+        let (a, b) = (baked(&model, &cpu), baked(&model_gpu, &gpu));
+        for (x, y) in a.iter().zip(&b) {
+            let max_diff = max_abs_diff(x, y);
+            assert!(
+                max_diff <= BACKEND_TOLERANCE,
+                "{at:?}, baked density: ndarray vs wgpu max difference {max_diff}"
+            );
+        }
+    }
     // Whole images through `render_image`: on the GPU in its default chunk
     // (`renderer::call_size`, far more rays than the CPU's), on the CPU in chunks of 2 rays;
     // each chunk's columns come back in one read.

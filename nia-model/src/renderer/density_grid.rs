@@ -188,6 +188,19 @@ impl DensityMemo {
 }
 
 impl NiaModel {
+    /// [`Self::baked_density`] without stage timings, for callers outside the renderer (which
+    /// bakes through `renderer::view::render_view`): the grid of `scene`'s pose over `bounds`
+    /// at `cell_m`, to read with [`SceneEncoding::with_density_grid`].
+    pub fn bake_density(
+        &self,
+        scene: &SceneEncoding,
+        bounds: &Aabb,
+        cell_m: f32,
+    ) -> Result<Arc<DensityGrid>, ModelError> {
+        let device = scene.images.device();
+        self.baked_density(scene, bounds, cell_m, &mut Stopwatch::new(None, &device))
+    }
+
     /// The density of `scene`'s pose baked over `bounds` (the body's ray box in that pose) at
     /// `cell_m`, or the grid its memo holds from an earlier call with the same box and cell.
     /// Nodes next to a cell the scene's occupancy grid keeps are evaluated (every node without
