@@ -4,8 +4,8 @@
 //!
 //! NIA's density half (pixel features l_n, body features s_n, attention, F_sigma) does not
 //! read the target direction, so `sigma(x)` of one pose is the same field for every target
-//! view. An orbit or a viewer drag renders many views of one pose; each view today runs the
-//! density half at every kept sample of every ray. This mode runs it once per pose at the
+//! view. An orbit or a viewer drag renders many views of one pose; without this mode each view
+//! runs the density half at every kept sample of every ray. This mode runs it once per pose at the
 //! nodes of a `cell`-metre grid over the body's box (only nodes next to a cell the occupancy
 //! grid keeps, or all of them without skipping), and every view then reads
 //!
@@ -16,25 +16,21 @@
 //! A ray's weights come from the grid's densities; the whole network then runs only where the
 //! colour is wanted ([`crate::renderer::colour_once`]): at the `K` heaviest samples with
 //! `colour_points = K`, else at every sample colour culling keeps (the paper's per-sample
-//! colour). Outside the grid's box the density is 0. The grid is baked on the first render that asks
-//! for it and kept with the encoding ([`DensityMemo`]), for as long as the encoding is.
+//! colour). Outside the grid's box the density is 0. The grid is baked on the first render that
+//! asks for it and kept with the encoding ([`DensityMemo`]), for as long as the encoding is.
+//! What it costs in accuracy (the trilinear blur of a thin density shell) is measured in
+//! docs/accuracy-time.md, "The density baked per pose".
 //!
-//! Cost: one density pass over the nodes per pose (`nodes` points); memory 4 bytes a node
-//! (a 2 m person's box at 1 cm is about 0.8 M nodes, 3 MB).
+//! Cost: one density pass over the nodes per pose (`nodes` points; `renderer::density_bake`);
+//! memory 4 bytes a node (a 2 m person's box at 1 cm is about 0.8 M nodes, 3 MB).
 
 use std::sync::{Arc, Mutex};
 
 use glam::Vec3;
 use nia_data::geometry::rays::Aabb;
-use nia_data::scene::InputsFor;
 use rayon::prelude::*;
 
 use crate::error::ModelError;
-use crate::kernels::readback::host_values;
-use crate::model::NiaModel;
-use crate::renderer::shape_buckets::CallRows;
-use crate::scene_encoding::SceneEncoding;
-use crate::timing::Stopwatch;
 
 /// The most nodes a grid may have (about 64 MB of densities).
 pub const MAX_DENSITY_NODES: usize = 16 << 20;
@@ -117,8 +113,8 @@ impl DensityGrid {
         }
         let mut grid = vec![0.0f32; nx * ny * nz];
         for (&i, &v) in kept.iter().zip(&values) {
-            // A non-finite density is the network's to report, not the grid's to pass on: it
-            // is kept (the colour-once weights make it an opaque sample, as the walk would).
+            // A non-finite density is kept as the network gave it: the weights make a NaN or
+            // infinite sample opaque, as they do in the walk.
             grid[i] = v;
         }
         Ok(DensityGrid {
@@ -168,7 +164,7 @@ impl DensityGrid {
     }
 
     /// Whether this grid was baked over `bounds` at `cell_m`.
-    fn covers(&self, bounds: &Aabb, cell_m: f32) -> bool {
+    pub(crate) fn covers(&self, bounds: &Aabb, cell_m: f32) -> bool {
         matches!(Self::layout(bounds, cell_m), Ok((o, d)) if o == self.origin && d == self.dims)
             && self.cell == cell_m
     }
@@ -178,81 +174,12 @@ impl DensityGrid {
 /// view of an orbit). A new pose, occupancy grid or visual hull starts a new memo
 /// (`SceneEncoding::with_occupancy`, `with_visual_hull`, `NiaModel::encode_pose`).
 #[derive(Debug, Clone, Default)]
-pub struct DensityMemo(Arc<Mutex<Option<Arc<DensityGrid>>>>);
+pub struct DensityMemo(pub(crate) Arc<Mutex<Option<Arc<DensityGrid>>>>);
 
 impl DensityMemo {
     /// The grid baked so far (`None` before the first render that asks for one).
     pub fn baked(&self) -> Option<Arc<DensityGrid>> {
         self.0.lock().ok().and_then(|g| g.clone())
-    }
-}
-
-impl NiaModel {
-    /// [`Self::baked_density`] without stage timings, for callers outside the renderer (which
-    /// bakes through `renderer::view::render_view`): the grid of `scene`'s pose over `bounds`
-    /// at `cell_m`, to read with [`SceneEncoding::with_density_grid`].
-    pub fn bake_density(
-        &self,
-        scene: &SceneEncoding,
-        bounds: &Aabb,
-        cell_m: f32,
-    ) -> Result<Arc<DensityGrid>, ModelError> {
-        let device = scene.images.device();
-        self.baked_density(scene, bounds, cell_m, &mut Stopwatch::new(None, &device))
-    }
-
-    /// The density of `scene`'s pose baked over `bounds` (the body's ray box in that pose) at
-    /// `cell_m`, or the grid its memo holds from an earlier call with the same box and cell.
-    /// Nodes next to a cell the scene's occupancy grid keeps are evaluated (every node without
-    /// skipping); the density half of the network runs on them in calls of the scene's
-    /// `points_per_call`. `watch` charges the point inputs, sampling and MLP stages.
-    pub(crate) fn baked_density(
-        &self,
-        scene: &SceneEncoding,
-        bounds: &Aabb,
-        cell_m: f32,
-        watch: &mut Stopwatch<'_>,
-    ) -> Result<Arc<DensityGrid>, ModelError> {
-        let mut memo = scene.density_memo.0.lock().map_err(|_| {
-            ModelError::Input("density grid: a render panicked while baking".into())
-        })?;
-        if let Some(grid) = memo.as_ref().filter(|g| g.covers(bounds, cell_m)) {
-            return Ok(grid.clone());
-        }
-        let half = 0.5 * cell_m;
-        let wanted = |x: Vec3| match &scene.occupancy {
-            None => true,
-            // A node is read by the 8 cells around it: evaluated if any of them may hold
-            // density (the occupancy grid's cells are tested at the corners' midpoints).
-            Some(occupancy) => (0..8).any(|k| {
-                let corner = Vec3::new(
-                    if k & 1 == 0 { -half } else { half },
-                    if k & 2 == 0 { -half } else { half },
-                    if k & 4 == 0 { -half } else { half },
-                );
-                occupancy.occupied(x + corner)
-            }),
-        };
-        let device = scene.images.device();
-        let rows = CallRows::on(&device);
-        let grid = DensityGrid::bake(bounds, cell_m, wanted, |points| {
-            let call = scene.points_per_call.max(1);
-            let mut sigma = Vec::with_capacity(points.len());
-            for chunk in points.chunks(call) {
-                // The density half reads no direction; any unit vector serves.
-                let dirs = vec![Vec3::Z; chunk.len()];
-                let inputs =
-                    self.point_tensors_for(scene, chunk, &dirs, rows, InputsFor::Density, watch)?;
-                let pass = self.query_density(scene, &inputs, watch)?;
-                let values = host_values(pass.sigma)
-                    .map_err(|e| ModelError::Input(format!("reading baked densities: {e}")))?;
-                sigma.extend_from_slice(&values[..chunk.len()]);
-            }
-            Ok(sigma)
-        })?;
-        let grid = Arc::new(grid);
-        *memo = Some(grid.clone());
-        Ok(grid)
     }
 }
 

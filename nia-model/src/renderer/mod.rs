@@ -5,8 +5,8 @@
 //!   quadrature;
 //! - [`termination`] and [`colour_culling`]: what an inference render may leave out behind an
 //!   opaque front or under a negligible weight; [`colour_once`]: the colour at a few samples
-//!   of each ray only; [`density_grid`]: the density baked once per pose and read at every
-//!   view's samples;
+//!   of each ray only; [`density_grid`]: the density baked once per pose
+//!   ([`density_bake`]) and read at every view's samples;
 //! - [`shape_buckets`]: the point counts of a GPU render's network calls padded to a few shapes;
 //! - [`image`]: whole target images in chunks of rays;
 //! - [`call_size`]: how many rays a chunk holds by default (more on a GPU);
@@ -16,6 +16,7 @@
 pub mod call_size;
 pub mod colour_culling;
 pub mod colour_once;
+pub mod density_bake;
 pub mod density_grid;
 mod forward;
 pub mod image;
