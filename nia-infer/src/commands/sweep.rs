@@ -108,38 +108,33 @@ fn check_counts(args: &SweepArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The swept supersamplings and colour points refused where the `[render]` options refuse
-/// them.
+/// The swept supersamplings, baked-density spacings and colour points refused where the
+/// `[render]` options refuse them.
 fn check_render_axes(args: &SweepArgs, base_adaptive: &RenderOptions) -> anyhow::Result<()> {
+    let check = |flag: &str, value: String, options: RenderOptions| match options.check() {
+        Ok(()) => Ok(()),
+        Err(e) => Err(anyhow::anyhow!("{flag} {value}: expected {}", e.expected)),
+    };
     for &supersample in &args.supersamples {
         let options = RenderOptions {
             supersample,
             ..*base_adaptive
         };
-        if let Err(e) = options.check() {
-            anyhow::bail!("--supersamples {supersample}: expected {}", e.expected);
-        }
+        check("--supersamples", supersample.to_string(), options)?;
     }
     for &density_grid_m in &args.density_grids {
         let options = RenderOptions {
             density_grid_m,
             ..*base_adaptive
         };
-        if let Err(e) = options.check() {
-            anyhow::bail!("--density-grids {density_grid_m}: expected {}", e.expected);
-        }
+        check("--density-grids", density_grid_m.to_string(), options)?;
     }
     for &colour_points in &args.colour_point_counts {
         let options = RenderOptions {
             colour_points,
             ..*base_adaptive
         };
-        if let Err(e) = options.check() {
-            anyhow::bail!(
-                "--colour-point-counts {colour_points}: expected {}",
-                e.expected
-            );
-        }
+        check("--colour-point-counts", colour_points.to_string(), options)?;
     }
     Ok(())
 }

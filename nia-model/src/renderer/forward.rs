@@ -72,20 +72,8 @@ impl NiaModel {
         if once && jitter.is_none() && ray_samples.evaluated() > 0 {
             let (mut rendered, nerf_part) =
                 self.render_colour_once(scene, &ray_samples, &mut watch)?;
-            if self.source_colours_at == SourceColoursAt::Surface && self.variant != Variant::NoIbr
-            {
-                let n1 = scene.num_views() + 1;
-                let view_weights = rendered
-                    .blend_weights
-                    .clone()
-                    .map(|b| b.slice(s![.., 1..n1]))
-                    .ok_or_else(|| ModelError::Input("render without blend weights".into()))?;
-                let colours =
-                    surface_colours(scene, rays, rendered.depth.clone(), rendered.acc.clone())?;
-                let (rgb, rgb_ibr) =
-                    surface_composite(nerf_part, view_weights, colours, rendered.acc.clone());
-                rendered.rgb = rgb;
-                rendered.rgb_ibr = Some(rgb_ibr);
+            if self.reads_source_colours_at_surface() {
+                surface_form(scene, rays, &mut rendered, nerf_part)?;
             }
             watch.mark(Stage::Compositing);
             return Ok(rendered);
@@ -203,9 +191,7 @@ impl NiaModel {
         let n1 = scene.num_views() + 1;
         // The NeRF part of the colour, kept for the surface form (sum_i w_i b0_i c0_i); with
         // c0 shuffling (training) made of the c0 that F_B blended.
-        let surface = self.source_colours_at == SourceColoursAt::Surface
-            && self.variant != Variant::NoIbr
-            && fields.evaluated > 0;
+        let surface = self.reads_source_colours_at_surface() && fields.evaluated > 0;
         let nerf_colour = surface.then(|| {
             fields.blend.clone().slice(s![.., 0..1])
                 * fields.blend_c0.unwrap_or_else(|| fields.c0.clone())
@@ -231,24 +217,43 @@ impl NiaModel {
         match nerf_colour {
             None => rendered.rgb_ibr = Some(composite(fields.ibr)),
             Some(nerf_colour) => {
-                let nerf_part = composite(nerf_colour);
-                let view_weights = rendered
-                    .blend_weights
-                    .clone()
-                    .map(|b| b.slice(s![.., 1..n1]))
-                    .ok_or_else(|| ModelError::Input("render without blend weights".into()))?;
-                let colours =
-                    surface_colours(scene, rays, rendered.depth.clone(), rendered.acc.clone())?;
-                let (rgb, rgb_ibr) =
-                    surface_composite(nerf_part, view_weights, colours, rendered.acc.clone());
-                rendered.rgb = rgb;
-                rendered.rgb_ibr = Some(rgb_ibr);
+                surface_form(scene, rays, &mut rendered, composite(nerf_colour))?;
             }
         }
         rendered.point_evaluations = fields.evaluated;
         rendered.colour_evaluations = fields.colour_evaluated;
         Ok(rendered)
     }
+}
+
+impl NiaModel {
+    /// Whether this model reads the source colours once per ray at the expected surface point
+    /// (`source_colours_at = surface`, a variant with source colours).
+    fn reads_source_colours_at_surface(&self) -> bool {
+        self.source_colours_at == SourceColoursAt::Surface && self.variant != Variant::NoIbr
+    }
+}
+
+/// The surface form of `rendered`'s colour and IBR-only composite (`ibr::surface`): the source
+/// colours read at each ray's expected surface point, blended with its composited view weights
+/// and `nerf_part` (`[R, 3]` sum_i w_i b0_i c0_i).
+fn surface_form(
+    scene: &SceneEncoding,
+    rays: &RayBundle,
+    rendered: &mut RenderOutput,
+    nerf_part: Tensor<2>,
+) -> Result<(), ModelError> {
+    let n1 = scene.num_views() + 1;
+    let view_weights = rendered
+        .blend_weights
+        .clone()
+        .map(|b| b.slice(s![.., 1..n1]))
+        .ok_or_else(|| ModelError::Input("render without blend weights".into()))?;
+    let colours = surface_colours(scene, rays, rendered.depth.clone(), rendered.acc.clone())?;
+    let (rgb, rgb_ibr) = surface_composite(nerf_part, view_weights, colours, rendered.acc.clone());
+    rendered.rgb = rgb;
+    rendered.rgb_ibr = Some(rgb_ibr);
+    Ok(())
 }
 
 /// The samples of `rays` that the scene needs evaluated: stratified (or in the band), less
