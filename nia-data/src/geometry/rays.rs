@@ -47,6 +47,43 @@ pub fn pixel_ray(camera: &Camera, pixel: Vec2) -> Ray {
     ray_with(camera, rt, camera.centre(), pixel)
 }
 
+/// The pixels `[x0, x1) x [y0, y1)` outside which no ray through a pixel's footprint (its
+/// square, centre +- 0.5) can meet `aabb`: the bounding rectangle of the box's projected
+/// corners, one pixel wider on each side, clipped to the image. When a corner is not in front
+/// of the camera (the camera inside or beside the box) the whole image. The projection of a
+/// box in front of a pinhole camera is the convex hull of its projected corners, so a ray
+/// through a pixel outside the rectangle misses the box: only the ray-box tests are saved.
+pub fn box_pixel_bounds(camera: &Camera, aabb: &Aabb) -> ([usize; 2], [usize; 2]) {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let whole = ([0, w], [0, h]);
+    let mut lo = Vec2::splat(f32::INFINITY);
+    let mut hi = Vec2::splat(f32::NEG_INFINITY);
+    for corner in aabb.corners() {
+        let p = camera.world_to_camera(corner);
+        if !(p.z > BOX_BOUNDS_MIN_DEPTH_M) {
+            return whole;
+        }
+        match camera.project_camera(p) {
+            Some(uv) if uv.is_finite() => {
+                lo = lo.min(uv);
+                hi = hi.max(uv);
+            }
+            _ => return whole,
+        }
+    }
+    // Pixel x's footprint spans x + PIXEL_CENTRE_OFFSET +- 0.5; one more pixel of margin.
+    let lo = lo - Vec2::splat(PIXEL_CENTRE_OFFSET + 1.5);
+    let hi = hi - Vec2::splat(PIXEL_CENTRE_OFFSET - 1.5);
+    let clip = |v: f32, n: usize| v.clamp(0.0, n as f32) as usize;
+    let x = [clip(lo.x.floor(), w), clip(hi.x.ceil() + 1.0, w)];
+    let y = [clip(lo.y.floor(), h), clip(hi.y.ceil() + 1.0, h)];
+    (x, y)
+}
+
+/// Depth in front of the camera every corner of the box must have for [`box_pixel_bounds`]
+/// to narrow the pixels, metres.
+const BOX_BOUNDS_MIN_DEPTH_M: f32 = 1e-3;
+
 /// Image coordinate of the centre of pixel `(x, y)` (column, row):
 /// `(x, y) + PIXEL_CENTRE_OFFSET`, i.e. `(x, y)`.
 #[inline]
@@ -141,7 +178,7 @@ impl RayBundle {
         mask: Option<&[bool]>,
         supersample: usize,
     ) -> Self {
-        let (w, h) = (camera.width as usize, camera.height as usize);
+        let w = camera.width as usize;
         let s = supersample.max(1);
         let offsets: Vec<Vec2> = (0..s * s)
             .map(|k| {
@@ -151,7 +188,8 @@ impl RayBundle {
             .collect();
         let mut bundle = RayBundle::default();
         let mut footprint = Vec::with_capacity(s * s);
-        for p in 0..w * h {
+        let ([x0, x1], [y0, y1]) = box_pixel_bounds(camera, aabb);
+        for p in (y0..y1).flat_map(|y| (x0..x1).map(move |x| y * w + x)) {
             if mask.is_some_and(|m| !m.get(p).copied().unwrap_or(false)) {
                 continue;
             }

@@ -72,12 +72,13 @@ pub fn projection_grid(geometry: &SceneGeometry, points: &[Vec3]) -> Vec<f32> {
     grid
 }
 
-/// The inputs only the colour half reads: the view-direction features `[N, M, 4]` and the
-/// visibility `[N, M]` of `image_points`.
+/// The inputs only the colour half reads: the view-direction features `[N, M, 4]` and, with
+/// `what` [`InputsFor::Network`], the visibility `[N, M]` of `image_points`.
 fn colour_inputs(
     geometry: &SceneGeometry,
     image_points: &[Vec3],
     dirs: &[Vec3],
+    what: InputsFor,
     view_dir_features: &mut [f32],
     visibility: &mut [f32],
 ) {
@@ -92,6 +93,9 @@ fn colour_inputs(
                 let d_n = (x - centre).normalize_or_zero();
                 f.copy_from_slice(&view_direction_feature(d, d_n));
             });
+    }
+    if what != InputsFor::Network {
+        return;
     }
     // o_n: one nearest-face query per point serves every view.
     let nearest = geometry.surface.nearest_batch(image_points);
@@ -117,6 +121,9 @@ fn colour_inputs(
 pub enum InputsFor {
     /// The whole network: every input.
     Network,
+    /// The whole network, but the visibility o_n stays zero for the caller to fill (from a
+    /// visibility baked per pose): no nearest-face query.
+    NetworkWithoutVisibility,
     /// The density half alone (the projections, the body volume's corners and the carving):
     /// the view-direction features and the visibility, which only the colour half reads, stay
     /// zero and cost nothing (the nearest-face query is most of the inputs' time).
@@ -150,11 +157,12 @@ impl PointInputs {
         let proj_grid = projection_grid(geometry, image_points);
         let mut view_dir_features = vec![0.0f32; n * m * VIEW_DIR_FEATURE_DIM];
         let mut visibility = vec![0.0f32; n * m];
-        if what == InputsFor::Network {
+        if what != InputsFor::Density {
             colour_inputs(
                 geometry,
                 image_points,
                 dirs,
+                what,
                 &mut view_dir_features,
                 &mut visibility,
             );

@@ -14,7 +14,8 @@ pub(crate) use nia_data::geometry::raster::{
     rasterize, rasterize_into, render_textured, Fragments, MeshError, EMPTY_FACE, NEAR_PLANE_M,
 };
 pub(crate) use nia_data::geometry::rays::{
-    image_rays, mask_at_box, near_far, pixel_centre, pixel_ray, Aabb, Ray, RayBundle,
+    box_pixel_bounds, image_rays, mask_at_box, near_far, pixel_centre, pixel_ray, Aabb, Ray,
+    RayBundle,
 };
 pub(crate) use nia_data::geometry::surface::{
     closest_point_on_triangle, interpolate_scalar, interpolate_weights, SurfaceIndex,

@@ -255,3 +255,75 @@ fn pixel_footprints_cover_the_pixel_square() {
         "rays of outline pixels that miss the box are kept"
     );
 }
+
+/// The footprint bundle tests only the pixels of the box's projected rectangle
+/// (`box_pixel_bounds`): the same rays, in the same order, as testing every pixel, for boxes
+/// inside the image, cut by its edges, off the image, with the camera inside the box, and with
+/// a skewed `K`; supersampled and not.
+#[test]
+fn the_box_rectangle_leaves_out_only_pixels_whose_rays_miss() {
+    let every_pixel = |c: &Camera, aabb: &Aabb, s: usize| {
+        let mut bundle = RayBundle::default();
+        let (w, h) = (c.width as usize, c.height as usize);
+        for p in 0..w * h {
+            let centre = pixel_centre(p % w, p / w);
+            let rays: Vec<_> = (0..s * s)
+                .map(|k| {
+                    let cell = |i: usize| (i as f32 + 0.5) / s as f32 - 0.5;
+                    let ray = pixel_ray(c, centre + Vec2::new(cell(k % s), cell(k / s)));
+                    (ray, near_far(&ray, aabb).filter(|(n, f)| f > n))
+                })
+                .collect();
+            if rays.iter().any(|(_, i)| i.is_some()) {
+                for (ray, i) in rays {
+                    let (n, f) = i.unwrap_or((0.0, 0.0));
+                    bundle.push(ray, n, f, p as u32);
+                }
+            }
+        }
+        bundle
+    };
+    let body = Aabb::new(Vec3::new(-0.3, 0.0, -0.3), Vec3::new(0.3, 1.0, 0.3));
+    let look = |eye: Vec3, target: Vec3| {
+        Camera::look_at(eye, target, Vec3::Y, 60.0, 60.0, 48, 40).unwrap()
+    };
+    let mut skewed = look(Vec3::new(0.4, 0.6, 2.5), Vec3::new(0.0, 0.5, 0.0));
+    skewed.k.y_axis.x = 4.0; // K[0][1], the skew
+    let cases = [
+        (
+            "inside the image",
+            look(Vec3::new(0.0, 0.5, 3.0), Vec3::new(0.0, 0.5, 0.0)),
+            body,
+        ),
+        (
+            "cut by the edges",
+            look(Vec3::new(0.0, 0.5, 1.0), Vec3::new(0.3, 0.9, 0.0)),
+            body,
+        ),
+        (
+            "off the image",
+            look(Vec3::new(0.0, 0.5, 3.0), Vec3::new(3.0, 0.5, 0.0)),
+            body,
+        ),
+        (
+            "camera inside",
+            look(Vec3::new(0.0, 0.5, 0.0), Vec3::new(0.0, 0.5, 1.0)),
+            body,
+        ),
+        ("skewed K", skewed, body),
+    ];
+    for (what, c, aabb) in cases {
+        let ([x0, x1], [y0, y1]) = box_pixel_bounds(&c, &aabb);
+        assert!(x0 <= x1 && x1 <= 48 && y0 <= y1 && y1 <= 40, "{what}");
+        for s in [1, 2] {
+            let fast = RayBundle::through_pixel_footprints(&c, &aabb, None, s);
+            assert_eq!(fast, every_pixel(&c, &aabb, s), "{what}, {s} x {s} rays");
+        }
+        if what == "inside the image" {
+            assert!((x1 - x0) * (y1 - y0) < 48 * 40 / 2, "the rectangle narrows");
+        }
+        if what == "camera inside" {
+            assert_eq!((x0, x1, y0, y1), (0, 48, 0, 40), "the whole image");
+        }
+    }
+}

@@ -233,7 +233,11 @@ impl NiaModel {
         }
         // The whole network at the chosen points, padded to a bucket on a GPU.
         let rows = CallRows::on(&scene.images.device());
-        let inputs = self.point_tensors(scene, &points, &dirs, rows, watch)?;
+        let inputs = match &scene.density_grid {
+            // The visibility baked with the density, read at the points.
+            Some(grid) => self.point_tensors_on_grid(scene, grid, &points, &dirs, rows, watch)?,
+            None => self.point_tensors(scene, &points, &dirs, rows, watch)?,
+        };
         let coloured = self.query_with(scene, &inputs, watch)?.first(points.len());
         Ok(OncePass {
             index,

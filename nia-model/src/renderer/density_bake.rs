@@ -1,6 +1,7 @@
 //! Baking the density of a scene's pose on a [`DensityGrid`] (`renderer::density_grid`):
 //! F_sigma's half of the network at the grid's nodes, in calls of the scene's
-//! `points_per_call`, once per pose and kept in the encoding's
+//! `points_per_call`, with the visibility o_n of every source view there (the nearest-face
+//! visibility the colour half reads), once per pose and kept in the encoding's
 //! [`DensityMemo`](crate::renderer::density_grid::DensityMemo).
 
 use std::sync::Arc;
@@ -8,14 +9,17 @@ use std::sync::Arc;
 use glam::Vec3;
 use nia_data::geometry::rays::Aabb;
 use nia_data::scene::InputsFor;
+use rayon::prelude::*;
 
 use crate::error::ModelError;
+use crate::field::query::upload_point_inputs;
+use crate::field::PointTensors;
 use crate::kernels::readback::host_values;
 use crate::model::NiaModel;
-use crate::renderer::density_grid::DensityGrid;
+use crate::renderer::density_grid::{DensityGrid, NodeValues};
 use crate::renderer::shape_buckets::CallRows;
 use crate::scene_encoding::SceneEncoding;
-use crate::timing::Stopwatch;
+use crate::timing::{Stage, Stopwatch};
 
 impl NiaModel {
     /// [`Self::baked_density`] without stage timings, for callers outside the renderer (which
@@ -65,23 +69,73 @@ impl NiaModel {
         };
         let device = scene.images.device();
         let rows = CallRows::on(&device);
-        let grid = DensityGrid::bake(bounds, cell_m, wanted, |points| {
+        let views = scene.num_views();
+        let grid = DensityGrid::bake(bounds, cell_m, views, wanted, |points| {
             let call = scene.points_per_call.max(1);
-            let mut sigma = Vec::with_capacity(points.len());
-            for chunk in points.chunks(call) {
-                // The density half reads no direction; any unit vector serves.
+            let m = points.len();
+            let mut sigma = Vec::with_capacity(m);
+            // [N, M] view-major, filled chunk by chunk.
+            let mut visibility = vec![0.0f32; views * m];
+            for (c, chunk) in points.chunks(call).enumerate() {
+                // The density half reads no direction; any unit vector serves (the
+                // view-direction features computed with the visibility go unused).
                 let dirs = vec![Vec3::Z; chunk.len()];
-                let inputs =
-                    self.point_tensors_for(scene, chunk, &dirs, rows, InputsFor::Density, watch)?;
-                let pass = self.query_density(scene, &inputs, watch)?;
+                let inputs = self.point_inputs_for(scene, chunk, &dirs, InputsFor::Network)?;
+                let k = chunk.len();
+                for (view, o) in inputs.visibility.chunks_exact(k).enumerate() {
+                    visibility[view * m + c * call..][..k].copy_from_slice(o);
+                }
+                let inputs = inputs.padded(rows.of(k));
+                watch.mark(Stage::PointInputs);
+                let mut tensors = upload_point_inputs(scene, inputs)?;
+                tensors.real_points = k;
+                let pass = self.query_density(scene, &tensors, watch)?;
                 let values = host_values(pass.sigma)
                     .map_err(|e| ModelError::Input(format!("reading baked densities: {e}")))?;
-                sigma.extend_from_slice(&values[..chunk.len()]);
+                sigma.extend_from_slice(&values[..k]);
             }
-            Ok(sigma)
+            Ok(NodeValues { sigma, visibility })
         })?;
         let grid = Arc::new(grid);
         *memo = Some(grid.clone());
         Ok(grid)
+    }
+
+    /// The whole network's inputs at `points` ([M] world, in the rendered pose; `dirs` their
+    /// unit target directions) with the visibility o_n read from `grid`'s baked visibility
+    /// ([`DensityGrid::visibility_at`]) instead of a nearest-face query per point; the
+    /// ordinary inputs ([`Self::point_tensors`]) when the grid holds no visibility of the
+    /// scene's views.
+    pub(crate) fn point_tensors_on_grid(
+        &self,
+        scene: &SceneEncoding,
+        grid: &DensityGrid,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        rows: CallRows,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointTensors, ModelError> {
+        let n = scene.num_views();
+        if grid.visibility_views() != n {
+            return self.point_tensors(scene, points, dirs, rows, watch);
+        }
+        let m = points.len();
+        let mut inputs =
+            self.point_inputs_for(scene, points, dirs, InputsFor::NetworkWithoutVisibility)?;
+        // [M, N] point-major reads, stored [N, M] as the inputs hold o_n.
+        let mut read = vec![0.0f32; m * n];
+        read.par_chunks_mut(n.max(1))
+            .zip(points.par_iter())
+            .for_each(|(o, &x)| grid.visibility_at(x, o));
+        for (view, o) in inputs.visibility.chunks_exact_mut(m.max(1)).enumerate() {
+            o.iter_mut()
+                .zip(read.chunks_exact(n))
+                .for_each(|(o, point)| *o = point[view]);
+        }
+        let inputs = inputs.padded(rows.of(m));
+        watch.mark(Stage::PointInputs);
+        let mut tensors = upload_point_inputs(scene, inputs)?;
+        tensors.real_points = m;
+        Ok(tensors)
     }
 }
