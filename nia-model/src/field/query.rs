@@ -64,13 +64,8 @@ impl NiaModel {
         what: InputsFor,
         watch: &mut Stopwatch<'_>,
     ) -> Result<PointTensors, ModelError> {
-        let inputs = self
-            .point_inputs_for(scene, points, dirs, what)?
-            .padded(rows.of(points.len()));
-        watch.mark(Stage::PointInputs);
-        let mut tensors = upload_point_inputs(scene, inputs)?;
-        tensors.real_points = points.len();
-        Ok(tensors)
+        let inputs = self.point_inputs_for(scene, points, dirs, what)?;
+        upload_padded(scene, inputs, rows, watch)
     }
 
     /// [`Self::point_tensors_for`]' host half: the point inputs of world points (in the
@@ -335,6 +330,23 @@ impl DensityPass {
             dirs: self.dirs.clone().select(0, index),
         }
     }
+}
+
+/// The point inputs of M points padded to `rows.of(M)` rows and uploaded
+/// ([`upload_point_inputs`]), the M points first ([`PointTensors::real_points`] = M); `watch`
+/// charges the host part to [`Stage::PointInputs`].
+pub(crate) fn upload_padded(
+    scene: &SceneEncoding,
+    inputs: PointInputs,
+    rows: CallRows,
+    watch: &mut Stopwatch<'_>,
+) -> Result<PointTensors, ModelError> {
+    let m = inputs.num_points;
+    let inputs = inputs.padded(rows.of(m));
+    watch.mark(Stage::PointInputs);
+    let mut tensors = upload_point_inputs(scene, inputs)?;
+    tensors.real_points = m;
+    Ok(tensors)
 }
 
 /// [`NiaModel::point_tensors`]' upload: `inputs` on the scene's device, with the body volume

@@ -12,14 +12,14 @@ use nia_data::scene::InputsFor;
 use rayon::prelude::*;
 
 use crate::error::ModelError;
-use crate::field::query::upload_point_inputs;
+use crate::field::query::upload_padded;
 use crate::field::PointTensors;
 use crate::kernels::readback::host_values;
 use crate::model::NiaModel;
 use crate::renderer::density_grid::{DensityGrid, NodeValues};
 use crate::renderer::shape_buckets::CallRows;
 use crate::scene_encoding::SceneEncoding;
-use crate::timing::{Stage, Stopwatch};
+use crate::timing::Stopwatch;
 
 impl NiaModel {
     /// [`Self::baked_density`] without stage timings, for callers outside the renderer (which
@@ -85,10 +85,7 @@ impl NiaModel {
                 for (view, o) in inputs.visibility.chunks_exact(k).enumerate() {
                     visibility[view * m + c * call..][..k].copy_from_slice(o);
                 }
-                let inputs = inputs.padded(rows.of(k));
-                watch.mark(Stage::PointInputs);
-                let mut tensors = upload_point_inputs(scene, inputs)?;
-                tensors.real_points = k;
+                let tensors = upload_padded(scene, inputs, rows, watch)?;
                 let pass = self.query_density(scene, &tensors, watch)?;
                 let values = host_values(pass.sigma)
                     .map_err(|e| ModelError::Input(format!("reading baked densities: {e}")))?;
@@ -132,10 +129,6 @@ impl NiaModel {
                 .zip(read.chunks_exact(n))
                 .for_each(|(o, point)| *o = point[view]);
         }
-        let inputs = inputs.padded(rows.of(m));
-        watch.mark(Stage::PointInputs);
-        let mut tensors = upload_point_inputs(scene, inputs)?;
-        tensors.real_points = m;
-        Ok(tensors)
+        upload_padded(scene, inputs, rows, watch)
     }
 }
