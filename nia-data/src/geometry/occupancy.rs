@@ -344,6 +344,119 @@ impl OccupancyGrid {
         self.occupied[self.index(x, y, z)]
     }
 
+    /// The ray `origin + t dir`, `t` in `[near, far]`, cut into runs of marked cells and of
+    /// empty space (outside the grid or unmarked cells), in order, covering the interval,
+    /// adjacent cells of one kind merged: pushed onto `runs` (cleared first) as
+    /// `(t0, t1, marked)`.
+    ///
+    /// Found by walking the cells the ray crosses, one step per cell (a 3D DDA, Amanatides and
+    /// Woo 1987), instead of testing points along it. The bounds carry the walk's rounding
+    /// (a few ulps of the distances along the ray): a caller that needs the exact answer of
+    /// [`Self::occupied`] for a point within a small margin of a bound asks it. A non-finite
+    /// ray or interval gives no runs.
+    pub fn runs_along(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        near: f32,
+        far: f32,
+        runs: &mut Vec<(f32, f32, bool)>,
+    ) {
+        runs.clear();
+        if !(origin.is_finite() && dir.is_finite() && near.is_finite() && far.is_finite())
+            || far <= near
+        {
+            return;
+        }
+        // From `t` on the ray is `marked` (or not): a new run, or the last one goes on.
+        let enter = |runs: &mut Vec<(f32, f32, bool)>, t: f32, marked: bool| match runs.last_mut() {
+            Some(last) if last.2 == marked => {}
+            Some(last) => {
+                last.1 = t;
+                runs.push((t, t, marked));
+            }
+            None => runs.push((t, t, marked)),
+        };
+        // The ray's interval inside the grid's box (slab test).
+        let size = Vec3::new(
+            self.dims[0] as f32,
+            self.dims[1] as f32,
+            self.dims[2] as f32,
+        ) * self.cell;
+        let (mut t_in, mut t_out) = (near, far);
+        for axis in 0..3 {
+            let (o, d, lo) = (origin[axis], dir[axis], self.origin[axis]);
+            let hi = lo + size[axis];
+            if d == 0.0 {
+                if o < lo || o > hi {
+                    t_out = f32::NEG_INFINITY;
+                }
+                continue;
+            }
+            let (a, b) = ((lo - o) / d, (hi - o) / d);
+            t_in = t_in.max(a.min(b));
+            t_out = t_out.min(a.max(b));
+        }
+        if !(t_in < t_out) {
+            runs.push((near, far, false));
+            return;
+        }
+        if t_in > near {
+            enter(runs, near, false);
+        }
+        // The cell where the ray enters, then one cell per step.
+        let mut cell = self.cell_of_clamped(origin + dir * t_in);
+        let mut step = [0isize; 3];
+        let mut t_max = [f32::INFINITY; 3];
+        let mut t_delta = [f32::INFINITY; 3];
+        for axis in 0..3 {
+            let d = dir[axis];
+            if d == 0.0 {
+                continue;
+            }
+            step[axis] = if d > 0.0 { 1 } else { -1 };
+            let boundary = cell[axis] as f32 + if d > 0.0 { 1.0 } else { 0.0 };
+            t_max[axis] = (self.origin[axis] + boundary * self.cell - origin[axis]) / d;
+            t_delta[axis] = self.cell / d.abs();
+        }
+        let mut t = t_in;
+        // Where the walk leaves the grid: at `t_out`, or where a step leaves the cells first.
+        let t_exit = loop {
+            enter(
+                runs,
+                t,
+                self.occupied[self.index(cell[0], cell[1], cell[2])],
+            );
+            let axis = match (
+                t_max[0] <= t_max[1],
+                t_max[0] <= t_max[2],
+                t_max[1] <= t_max[2],
+            ) {
+                (true, true, _) => 0,
+                (false, _, true) => 1,
+                _ => 2,
+            };
+            let next = t_max[axis];
+            if !(next < t_out) {
+                break t_out;
+            }
+            let moved = cell[axis] as isize + step[axis];
+            if moved < 0 || moved as usize >= self.dims[axis] {
+                break next;
+            }
+            t = next;
+            t_max[axis] += t_delta[axis];
+            cell[axis] = moved as usize;
+        };
+        // Past the last cell, empty space up to `far`.
+        if t_exit < far {
+            enter(runs, t_exit, false);
+        }
+        if let Some(last) = runs.last_mut() {
+            last.1 = far;
+        }
+    }
+
     /// Cells along x, y, z.
     pub fn dims(&self) -> [usize; 3] {
         self.dims

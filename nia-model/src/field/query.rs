@@ -78,10 +78,27 @@ impl NiaModel {
         dirs: &[Vec3],
         what: InputsFor,
     ) -> Result<PointInputs, ModelError> {
+        self.point_inputs_with(scene, points, dirs, what, Carving::Scene)
+    }
+
+    /// [`Self::point_inputs_for`] with the scene's visual-hull carving or without it (the
+    /// colour half at a baked density, which holds the carving already).
+    pub(crate) fn point_inputs_with(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        what: InputsFor,
+        carving: Carving,
+    ) -> Result<PointInputs, ModelError> {
         let geometry = &scene.geometry;
         let scales = scene.volume.as_ref().map(|(vg, _)| &vg.levels[1..]);
         // The visual hull is read where the source views are: at x, or x' when reposed.
-        let carve = |inputs: PointInputs, image_points: &[Vec3]| match &scene.visual_hull {
+        let hull = scene
+            .visual_hull
+            .as_ref()
+            .filter(|_| carving == Carving::Scene);
+        let carve = |inputs: PointInputs, image_points: &[Vec3]| match hull {
             Some(hull) => inputs.carved(hull, &geometry.cameras, image_points),
             None => inputs,
         };
@@ -147,6 +164,42 @@ impl NiaModel {
         points: &PointTensors,
         watch: &mut Stopwatch<'_>,
     ) -> Result<DensityPass, ModelError> {
+        let (mean_z, l) = self.shared_features(scene, points, watch)?;
+        let sigma = match scene.host_network.as_deref() {
+            Some(host) if !mean_z.is_autodiff() => host.density(mean_z.clone())?,
+            _ => self.density.forward(mean_z.clone())?,
+        };
+        // Visual-hull carving (a switch): no density where a source mask says empty space.
+        let sigma = match &points.hull {
+            Some(hull) => sigma * hull.clone(),
+            None => sigma,
+        };
+        watch.mark(Stage::Mlps);
+        Ok(DensityPass::at(points, sigma, mean_z, l))
+    }
+
+    /// The colour half of the network alone at M points whose density is known elsewhere (a
+    /// density baked for the pose): [`Self::query_with`] without F_sigma and the carving. The
+    /// output's `sigma` is zero, not a density.
+    pub(crate) fn query_colour_half(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<PointOutput, ModelError> {
+        let (mean_z, l) = self.shared_features(scene, points, watch)?;
+        let sigma = Tensor::zeros([mean_z.dims()[0]], &mean_z.device());
+        self.query_colour(scene, DensityPass::at(points, sigma, mean_z, l), watch)
+    }
+
+    /// What both halves read at M points: the attention's view mean `[M, d]` (of the body
+    /// features s_n and the pixel features l_n) and the pixel features `[N, M, d]` (F_B's p_n).
+    fn shared_features(
+        &self,
+        scene: &SceneEncoding,
+        points: &PointTensors,
+        watch: &mut Stopwatch<'_>,
+    ) -> Result<(Tensor<2>, Tensor<3>), ModelError> {
         // The body volume read (on the host: a layout whose wide scales are already reduced,
         // with the host copy that reads it), then s_n = W_b^T read + b, [N, M, d]. Read before
         // the pixel features: on wgpu, queued after them, its first scale's gathers ran as 23
@@ -197,26 +250,8 @@ impl NiaModel {
             }
             (_, false) => view_mean(l.clone()),
         }; // [M, d]
-        let sigma = match scene.host_network.as_deref() {
-            Some(host) if !mean_z.is_autodiff() => host.density(mean_z.clone())?,
-            _ => self.density.forward(mean_z.clone())?,
-        };
-        // Visual-hull carving (a switch): no density where a source mask says empty space.
-        let sigma = match &points.hull {
-            Some(hull) => sigma * hull.clone(),
-            None => sigma,
-        };
         watch.mark(Stage::Mlps);
-        Ok(DensityPass {
-            sigma,
-            mean_z,
-            l,
-            proj_grid: points.proj_grid.clone(),
-            view_dir_features: points.view_dir_features.clone(),
-            visibility: points.visibility.clone(),
-            dirs: points.dirs.clone(),
-            real_points: points.real_points,
-        })
+        Ok((mean_z, l))
     }
 
     /// The colour half of the network at the points of `density`: source colours c_n, F_c0 and
@@ -293,6 +328,15 @@ impl NiaModel {
     }
 }
 
+/// Whether point inputs carry the scene's visual-hull carving ([`NiaModel::point_inputs_with`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Carving {
+    /// The scene's (none when it has no hull).
+    Scene,
+    /// None: the density comes from where the carving was applied already.
+    None,
+}
+
 /// The density half of the network at M points ([`NiaModel::query_density`]) and the inputs
 /// of the colour half.
 #[derive(Debug, Clone)]
@@ -316,6 +360,20 @@ pub(crate) struct DensityPass {
 }
 
 impl DensityPass {
+    /// The pass at `points` with their density, view mean and pixel features.
+    fn at(points: &PointTensors, sigma: Tensor<1>, mean_z: Tensor<2>, l: Tensor<3>) -> Self {
+        DensityPass {
+            sigma,
+            mean_z,
+            l,
+            proj_grid: points.proj_grid.clone(),
+            view_dir_features: points.view_dir_features.clone(),
+            visibility: points.visibility.clone(),
+            dirs: points.dirs.clone(),
+            real_points: points.real_points,
+        }
+    }
+
     /// The points at `index` ([K] Int, into M), in that order; the first `real_points` of
     /// them are points, the rest shape-bucket padding.
     pub fn select(&self, index: Tensor<1, Int>, real_points: usize) -> Self {

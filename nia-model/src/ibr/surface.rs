@@ -97,7 +97,23 @@ pub fn surface_colours(
     let mut depth_v = host_values(Tensor::cat(vec![depth.detach(), acc.detach()], 0))
         .map_err(|e| ModelError::Input(format!("reading depth and opacity: {e}")))?;
     let acc_v = depth_v.split_off(r);
-    let points = surface_points(rays, &depth_v, &acc_v);
+    surface_colours_of(scene, rays, &depth_v, &acc_v)
+}
+
+/// [`surface_colours`] at inference from host values: the source colours c_n(x_s) of the rays'
+/// expected surface points, through the reposing where the scene renders another pose.
+///
+/// # Shapes
+/// - `depth`, `acc`: `[R]` (sum_i w_i t_i and sum_i w_i)
+/// - output: `[N, R, 3]`
+pub fn surface_colours_of(
+    scene: &SceneEncoding,
+    rays: &RayBundle,
+    depth: &[f32],
+    acc: &[f32],
+) -> Result<Tensor<3>, ModelError> {
+    let r = rays.len();
+    let points = surface_points(rays, depth, acc);
     let points = match &scene.reposer {
         None => points,
         Some(reposer) => {

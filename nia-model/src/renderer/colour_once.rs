@@ -28,6 +28,8 @@ use rayon::prelude::*;
 
 use crate::error::ModelError;
 use crate::field::PointOutput;
+use crate::ibr::blend_host::IBR_ONLY_FLOOR;
+use crate::ibr::surface::surface_colours_of;
 use crate::kernels::readback::host_values;
 use crate::model::NiaModel;
 use crate::renderer::colour_culling::cull;
@@ -36,6 +38,7 @@ use crate::renderer::shape_buckets::CallRows;
 use crate::sampler::RaySamples;
 use crate::scene_encoding::SceneEncoding;
 use crate::timing::{Stage, Stopwatch};
+use nia_data::geometry::rays::RayBundle;
 
 /// Weight below which a ray has nothing to colour (its opacity cannot reach a visible level).
 pub const MIN_RAY_WEIGHT: f32 = 1e-6;
@@ -233,12 +236,20 @@ impl NiaModel {
         }
         // The whole network at the chosen points, padded to a bucket on a GPU.
         let rows = CallRows::on(&scene.images.device());
-        let inputs = match &scene.density_grid {
-            // The visibility baked with the density, read at the points.
-            Some(grid) => self.point_tensors_on_grid(scene, grid, &points, &dirs, rows, watch)?,
-            None => self.point_tensors(scene, &points, &dirs, rows, watch)?,
-        };
-        let coloured = self.query_with(scene, &inputs, watch)?.first(points.len());
+        let coloured = match &scene.density_grid {
+            // The visibility baked with the density, read at the points, and the colour half
+            // alone (the density is the grid's).
+            Some(grid) => {
+                let inputs =
+                    self.point_tensors_on_grid(scene, grid, &points, &dirs, rows, watch)?;
+                self.query_colour_half(scene, &inputs, watch)?
+            }
+            None => {
+                let inputs = self.point_tensors(scene, &points, &dirs, rows, watch)?;
+                self.query_with(scene, &inputs, watch)?
+            }
+        }
+        .first(points.len());
         Ok(OncePass {
             index,
             weights,
@@ -253,14 +264,16 @@ impl NiaModel {
     /// computed (the quadrature's). The same output as the pass scattered to `[R * S]` samples
     /// and composited with [`crate::renderer::render_rays_delta`] (float reordering aside),
     /// without the `[R * S]` tensors' scatters and products. `point_evaluations` counts the
-    /// network's points (the coloured ones alone with a baked density). Also returns the NeRF
-    /// part of the surface form, `[R, 3]` sum_j w_j b0_j c0_j (`ibr::surface`).
+    /// network's points (the coloured ones alone with a baked density). With the source colours
+    /// read at the surface (`ibr::surface`), the surface form too, on the host, for the rays
+    /// with any opacity (a ray without has colour and IBR-only colour zero in that form).
     pub(crate) fn render_colour_once(
         &self,
         scene: &SceneEncoding,
+        rays: &RayBundle,
         samples: &RaySamples,
         watch: &mut Stopwatch<'_>,
-    ) -> Result<(RenderOutput, Tensor<2>), ModelError> {
+    ) -> Result<RenderOutput, ModelError> {
         let k = scene.colour_points;
         let pass = self.colour_once_pass(scene, samples, scene.termination, k, watch)?;
         let s = samples.per_ray.max(1);
@@ -302,6 +315,9 @@ impl NiaModel {
                 }
             }
         }
+        if self.reads_source_colours_at_surface() {
+            surface_form_on_host(scene, rays, &mut sums, width, read, &acc, &depth)?;
+        }
         let device = scene.images.device();
         let tensor2 = |values: Vec<f32>, width: usize| {
             Tensor::<2>::from_data(TensorData::new(values, [r, width]), &device)
@@ -312,7 +328,6 @@ impl NiaModel {
             Some(_) => pass.chosen.len(),
             None => pass.index.len(),
         };
-        let nerf_part = columns.clone().slice(s![.., read..width]);
         let rendered = RenderOutput {
             rgb: columns.clone().slice(s![.., 0..3]),
             rgb0: columns.clone().slice(s![.., 3..6]),
@@ -326,8 +341,61 @@ impl NiaModel {
             point_evaluations: evaluated,
             colour_evaluations: pass.chosen.len(),
         };
-        Ok((rendered, nerf_part))
+        Ok(rendered)
     }
+}
+
+/// The surface form (`ibr::surface`) of the colour-once composite, on the host: for each ray
+/// with any opacity, `C = nerf_part + sum_n W_n c_n(x_s)` and the IBR-only colour
+/// `acc sum_n (W_n + floor) c_n(x_s) / sum_n (W_n + floor)`, written over columns 0..3 and
+/// 6..9 of its row of `sums` (`[R, width]`: colour, c0, IBR-only colour, the blend weights
+/// `W` in `9..read` with c0's first, the NeRF part in `read..read + 3`). A ray without
+/// opacity keeps zero in both, as [`surface_composite`](crate::ibr::surface::surface_composite)
+/// gives it (its `W_n` and NeRF part are zero).
+fn surface_form_on_host(
+    scene: &SceneEncoding,
+    rays: &RayBundle,
+    sums: &mut [f32],
+    width: usize,
+    read: usize,
+    acc: &[f32],
+    depth: &[f32],
+) -> Result<(), ModelError> {
+    let lit: Vec<usize> = (0..acc.len()).filter(|&r| acc[r] > 0.0).collect();
+    if lit.is_empty() {
+        return Ok(());
+    }
+    let pick = |values: &[f32]| lit.iter().map(|&r| values[r]).collect::<Vec<f32>>();
+    let subset = RayBundle {
+        origins: lit.iter().map(|&r| rays.origins[r]).collect(),
+        dirs: lit.iter().map(|&r| rays.dirs[r]).collect(),
+        near: pick(&rays.near),
+        far: pick(&rays.far),
+        pixels: lit.iter().map(|&r| rays.pixels[r]).collect(),
+    };
+    let colours = surface_colours_of(scene, &subset, &pick(depth), &pick(acc))?;
+    let colours = host_values(colours)
+        .map_err(|e| ModelError::Input(format!("reading surface colours: {e}")))?; // [N, L, 3]
+    let (n, l) = (scene.num_views(), lit.len());
+    for (j, &r) in lit.iter().enumerate() {
+        let row = &mut sums[r * width..(r + 1) * width];
+        let (mut rgb, mut ibr, mut total) = ([0.0f32; 3], [0.0f32; 3], 0.0f32);
+        for view in 0..n {
+            let w = row[10 + view];
+            let c = &colours[(view * l + j) * 3..][..3];
+            let w_ibr = w + IBR_ONLY_FLOOR;
+            total += w_ibr;
+            for ch in 0..3 {
+                rgb[ch] += w * c[ch];
+                ibr[ch] += w_ibr * c[ch];
+            }
+        }
+        for ch in 0..3 {
+            row[ch] = row[read + ch] + rgb[ch];
+            row[6 + ch] = ibr[ch] / total * acc[r];
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]

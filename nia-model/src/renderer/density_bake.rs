@@ -12,7 +12,7 @@ use nia_data::scene::InputsFor;
 use rayon::prelude::*;
 
 use crate::error::ModelError;
-use crate::field::query::upload_padded;
+use crate::field::query::{upload_padded, Carving};
 use crate::field::PointTensors;
 use crate::kernels::readback::host_values;
 use crate::model::NiaModel;
@@ -117,8 +117,14 @@ impl NiaModel {
             return self.point_tensors(scene, points, dirs, rows, watch);
         }
         let m = points.len();
-        let mut inputs =
-            self.point_inputs_for(scene, points, dirs, InputsFor::NetworkWithoutVisibility)?;
+        // The baked density holds the carving: the colour half reads none.
+        let mut inputs = self.point_inputs_with(
+            scene,
+            points,
+            dirs,
+            InputsFor::NetworkWithoutVisibility,
+            Carving::None,
+        )?;
         // [M, N] point-major reads, stored [N, M] as the inputs hold o_n.
         let mut read = vec![0.0f32; m * n];
         read.par_chunks_mut(n.max(1))

@@ -70,11 +70,7 @@ impl NiaModel {
         // surface, from the composited weights as `composite` does.
         let once = scene.colour_points.is_some() || scene.density_grid.is_some();
         if once && jitter.is_none() && ray_samples.evaluated() > 0 {
-            let (mut rendered, nerf_part) =
-                self.render_colour_once(scene, &ray_samples, &mut watch)?;
-            if self.reads_source_colours_at_surface() {
-                surface_form(scene, rays, &mut rendered, nerf_part)?;
-            }
+            let rendered = self.render_colour_once(scene, rays, &ray_samples, &mut watch)?;
             watch.mark(Stage::Compositing);
             return Ok(rendered);
         }
@@ -229,7 +225,7 @@ impl NiaModel {
 impl NiaModel {
     /// Whether this model reads the source colours once per ray at the expected surface point
     /// (`source_colours_at = surface`, a variant with source colours).
-    fn reads_source_colours_at_surface(&self) -> bool {
+    pub(crate) fn reads_source_colours_at_surface(&self) -> bool {
         self.source_colours_at == SourceColoursAt::Surface && self.variant != Variant::NoIbr
     }
 }

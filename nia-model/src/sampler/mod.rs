@@ -18,9 +18,12 @@
 //! they keep zero density. The occupancy grid is built from the posed mesh once per frame and
 //! pose (`RenderOptions::occupancy`); [`RaySamples::new`] keeps the samples in occupied cells.
 
+mod band_march;
 mod ray_sampler;
 
 pub use ray_sampler::{RaySampler, DEFAULT_BAND_MARGIN_M};
+
+use band_march::{band_segments, BandBuffers};
 
 use glam::Vec3;
 use nia_data::geometry::occupancy::OccupancyGrid;
@@ -200,11 +203,11 @@ impl RaySamples {
             .zip(hit.par_iter_mut())
             .enumerate()
             .with_min_len(RAYS_PER_TASK)
-            .for_each_init(Vec::new, |segments, (r, ((t, delta), hit))| {
+            .for_each_init(BandBuffers::default, |buffers, (r, ((t, delta), hit))| {
                 let jitter = jitter.map(|j| &j[r * samples..(r + 1) * samples]);
                 // A ray that misses the band gets S samples at `near` with zero intervals.
-                band_segments(rays, r, step, band, segments);
-                *hit = spread_in_segments(segments, rays.near[r], jitter, t, delta);
+                band_segments(rays, r, step, band, buffers);
+                *hit = spread_in_segments(&buffers.segments, rays.near[r], jitter, t, delta);
             });
         Self::keep_occupied(rays, samples, t, delta, occupancy, Some(&hit))
     }
@@ -296,31 +299,6 @@ impl RaySamples {
 
 /// Rays per rayon task of the band sampler and of the occupancy test.
 const RAYS_PER_TASK: usize = 64;
-
-/// The `(t_in, t_out)` segments of ray `r` of `rays` inside `band`, in order, into `segments`:
-/// the ray's `step`-long steps from near to far whose middle is occupied, adjacent ones
-/// merged.
-fn band_segments(
-    rays: &RayBundle,
-    r: usize,
-    step: f32,
-    band: &OccupancyGrid,
-    segments: &mut Vec<(f32, f32)>,
-) {
-    let (near, far) = (rays.near[r], rays.far[r]);
-    segments.clear();
-    let steps = ((far - near) / step).ceil().max(0.0) as usize;
-    for k in 0..steps {
-        let a = near + k as f32 * step;
-        let b = (a + step).min(far);
-        if band.occupied(rays.origins[r] + rays.dirs[r] * (0.5 * (a + b))) {
-            match segments.last_mut() {
-                Some(last) if last.1 >= a => last.1 = b,
-                _ => segments.push((a, b)),
-            }
-        }
-    }
-}
 
 /// S samples `t` and their intervals `delta` ([S] each) spread evenly over the total length of
 /// `segments`, bin by bin (`jitter` [S] within each bin, its centre when `None`). Returns
