@@ -7,7 +7,7 @@
 mod common;
 
 use burn::prelude::*;
-use common::{assert_close, device, scene, values};
+use common::{assert_close, assert_finite, device, scene, values};
 use glam::{Vec2, Vec3};
 use nia_data::geometry::camera::Camera;
 use nia_data::geometry::rays::{pixel_ray, Aabb, Ray, RayBundle};
@@ -457,6 +457,46 @@ fn the_visual_hull_zeroes_the_density_off_the_person_and_keeps_it_on_the_body() 
                 "carved points have density 0"
             );
         }
+    }
+}
+
+/// The colour half alone (`NiaModel::colour_field`, what a baked density's coloured points run)
+/// gives the whole network's colours to the bit on a scene with a visual hull, points on and
+/// off the body, and no density (zeros: F_sigma does not run).
+#[test]
+fn the_colour_half_alone_gives_the_whole_networks_colours() {
+    let dev = device();
+    let input = scene(3, 64);
+    let model = ModelConfig::tiny().init(&dev);
+    let scene = model
+        .encode(&input, None, &dev, None)
+        .unwrap()
+        .with_visual_hull(&input, true, None)
+        .unwrap();
+    let vertices = &input.body.vertices;
+    let centre = common::body_centre(vertices);
+    let points: Vec<Vec3> = vertices
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| v + (v - centre).normalize_or_zero() * 0.02 * (i % 5) as f32)
+        .collect();
+    let dirs: Vec<Vec3> = points
+        .iter()
+        .map(|&p| (p - Vec3::new(0.0, 0.0, 3.0)).normalize())
+        .collect();
+    let whole = model.field(&scene, &points, &dirs, None).unwrap();
+    let half = model.colour_field(&scene, &points, &dirs, None).unwrap();
+    assert!(values(whole.sigma.clone()).iter().any(|&s| s > 0.0));
+    assert!(values(half.sigma).iter().all(|&s| s == 0.0), "no density");
+    for (what, a, b) in [
+        ("colour", whole.colour, half.colour),
+        ("c0", whole.c0, half.c0),
+        ("blend weights", whole.blend_weights, half.blend_weights),
+        ("IBR-only colour", whole.ibr_colour, half.ibr_colour),
+    ] {
+        let (a, b) = (values(a), values(b));
+        assert_finite(&b, what);
+        assert_eq!(a, b, "{what}");
     }
 }
 

@@ -36,6 +36,25 @@ impl NiaModel {
         self.query_with(scene, &inputs, &mut watch)
     }
 
+    /// [`Self::field`]'s colour half alone, for points whose density is known elsewhere (a
+    /// density baked for the pose): the same colours, NeRF colours, blend weights and
+    /// IBR-only colours, without F_sigma and the visual hull's carving; `sigma` is zero, not a
+    /// density.
+    pub fn colour_field(
+        &self,
+        scene: &SceneEncoding,
+        points: &[Vec3],
+        dirs: &[Vec3],
+        times: Option<&mut StageTimes>,
+    ) -> Result<PointOutput, ModelError> {
+        let device = scene.images.device();
+        let mut watch = Stopwatch::new(times, &device);
+        let inputs =
+            self.point_inputs_with(scene, points, dirs, InputsFor::Network, Carving::None)?;
+        let tensors = upload_padded(scene, inputs, CallRows::Exact, &mut watch)?;
+        self.query_colour_half(scene, &tensors, &mut watch)
+    }
+
     /// The point inputs of world points (in the rendered pose) on the scene's device, reposed
     /// into the scene's pose first when the scene was encoded for another pose, in
     /// `rows.of(M)` rows, the M points first ([`PointTensors::real_points`] = M; with
