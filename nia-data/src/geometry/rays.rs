@@ -222,6 +222,20 @@ impl RayBundle {
         }
     }
 
+    /// Rays `index` (positions in this bundle, in that order) as their own bundle.
+    ///
+    /// # Panics
+    /// When an index is out of range (as slicing does).
+    pub fn select(&self, index: &[usize]) -> RayBundle {
+        RayBundle {
+            origins: index.iter().map(|&r| self.origins[r]).collect(),
+            dirs: index.iter().map(|&r| self.dirs[r]).collect(),
+            near: index.iter().map(|&r| self.near[r]).collect(),
+            far: index.iter().map(|&r| self.far[r]).collect(),
+            pixels: index.iter().map(|&r| self.pixels[r]).collect(),
+        }
+    }
+
     /// Checks that every field holds R values and that R > 0; the message names the fields.
     pub fn check(&self) -> Result<(), String> {
         let r = self.len();

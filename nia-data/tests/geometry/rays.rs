@@ -327,3 +327,37 @@ fn the_box_rectangle_leaves_out_only_pixels_whose_rays_miss() {
         }
     }
 }
+
+/// `RayBundle::select` keeps the named rays in the order named, every field with them, and
+/// agrees with `slice` on a range.
+#[test]
+fn select_keeps_the_named_rays_in_order() {
+    let camera = Camera::look_at(
+        Vec3::new(0.0, 0.5, 3.0),
+        Vec3::new(0.0, 0.5, 0.0),
+        Vec3::Y,
+        60.0,
+        60.0,
+        8,
+        6,
+    )
+    .unwrap();
+    let body = Aabb::new(Vec3::new(-0.3, 0.0, -0.3), Vec3::new(0.3, 1.0, 0.3));
+    let bundle = RayBundle::through_pixels(&camera, &body, None);
+    assert!(bundle.len() > 4, "{} rays", bundle.len());
+    let index = [3, 0, 3, bundle.len() - 1];
+    let picked = bundle.select(&index);
+    assert_eq!(picked.len(), index.len());
+    for (j, &r) in index.iter().enumerate() {
+        assert_eq!(picked.origins[j], bundle.origins[r]);
+        assert_eq!(picked.dirs[j], bundle.dirs[r]);
+        assert_eq!(
+            (picked.near[j], picked.far[j]),
+            (bundle.near[r], bundle.far[r])
+        );
+        assert_eq!(picked.pixels[j], bundle.pixels[r]);
+    }
+    let range: Vec<usize> = (1..4).collect();
+    assert_eq!(bundle.select(&range), bundle.slice(1..4));
+    assert!(bundle.select(&[]).is_empty());
+}

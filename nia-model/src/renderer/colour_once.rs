@@ -366,14 +366,7 @@ fn surface_form_on_host(
         return Ok(());
     }
     let pick = |values: &[f32]| lit.iter().map(|&r| values[r]).collect::<Vec<f32>>();
-    let subset = RayBundle {
-        origins: lit.iter().map(|&r| rays.origins[r]).collect(),
-        dirs: lit.iter().map(|&r| rays.dirs[r]).collect(),
-        near: pick(&rays.near),
-        far: pick(&rays.far),
-        pixels: lit.iter().map(|&r| rays.pixels[r]).collect(),
-    };
-    let colours = surface_colours_of(scene, &subset, &pick(depth), &pick(acc))?;
+    let colours = surface_colours_of(scene, &rays.select(&lit), &pick(depth), &pick(acc))?;
     let colours = host_values(colours)
         .map_err(|e| ModelError::Input(format!("reading surface colours: {e}")))?; // [N, L, 3]
     let (n, l) = (scene.num_views(), lit.len());
