@@ -83,27 +83,6 @@ pub fn colour_matched_target(
     Ok(gt * gain)
 }
 
-/// The colours of the rays inside the target's mask, every other ray's set to black on both
-/// sides (switchable, `train.colour_loss_on_mask_only`; not in the paper): with `rgb`, `rgb0`
-/// and `gt` through this, [`render_loss`]'s terms are `mean m_r |C_r - C_gt,r|^2`, still divided
-/// by every ray, so a ray the target's mask calls background gives no colour gradient. A
-/// segmented mask cuts holes into the person: their target is black where the person is, and a
-/// colour loss there teaches the blend to pass dark colours (a hedge on whatever the sources
-/// show); the mask loss alone then teaches the opacity where the mask is unsure.
-///
-/// # Shapes
-/// - `colours`: `[R, 3]`; `on_body` m: `[R]` in {0, 1}
-/// - output: `[R, 3]`
-pub fn on_mask_only(colours: Tensor<2>, on_body: Tensor<1>) -> Result<Tensor<2>, ShapeError> {
-    let [r] = on_body.dims();
-    ShapeError::check(
-        "mask-only colours [R, 3]",
-        &colours.dims(),
-        &[Some(r), Some(3)],
-    )?;
-    Ok(colours * on_body.unsqueeze_dim::<2>(1))
-}
-
 /// The mask loss (switchable, `train.mask_loss_weight`; not in the paper, whose "RGB only"
 /// means no 3D or depth supervision, while the masks are inputs the reader loads anyway):
 /// `mean (acc - m)^2`, with m = 1 on the person's mask and 0 off it. It pulls the opacity off the

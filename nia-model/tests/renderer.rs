@@ -7,8 +7,7 @@ use burn::prelude::*;
 use common::{assert_close, central_difference, device, tensor, values};
 use nia_data::rng::Rng;
 use nia_model::loss::{
-    colour_matched_target, distortion_loss, on_mask_only, patch_ssim_loss, psnr_from_mse,
-    render_loss,
+    colour_matched_target, distortion_loss, patch_ssim_loss, psnr_from_mse, render_loss,
 };
 use nia_model::renderer::{render_rays, sample_weights};
 use nia_model::sampler::{stratified_t, SamplerError};
@@ -420,47 +419,6 @@ fn loss_and_psnr_hand_values() {
     assert!((psnr_from_mse(0.01) - 20.0).abs() < 1e-12);
     assert!((psnr_from_mse(1.0)).abs() < 1e-12);
     assert_eq!(psnr_from_mse(0.0), f64::INFINITY);
-}
-
-/// The colour loss inside the target's mask by hand: a background ray drops out of both
-/// terms (the mean still over every ray), gets no colour gradient however wrong its colour,
-/// and an on-mask ray's gradient is the plain loss's; a mask of the wrong length is an error.
-#[test]
-fn colour_loss_on_mask_only_hand_values() {
-    let dev = device();
-    let gt = tensor(vec![0.0, 0.5, 1.0, 0.0, 0.0, 0.0], [2, 3], &dev);
-    let rgb = tensor(vec![0.1, 0.5, 1.0, 0.9, 0.8, 0.7], [2, 3], &dev);
-    let rgb0 = tensor(vec![0.0, 0.5, 0.8, 1.0, 1.0, 1.0], [2, 3], &dev);
-    let m = || tensor(vec![1.0, 0.0], [2], &dev);
-    let loss = render_loss(
-        on_mask_only(rgb, m()).unwrap(),
-        on_mask_only(rgb0, m()).unwrap(),
-        on_mask_only(gt, m()).unwrap(),
-    )
-    .unwrap();
-    assert_close(&values(loss.mse), &[0.01 / 6.0], VALUE_TOL, "mse");
-    assert_close(&values(loss.mse0), &[0.04 / 6.0], VALUE_TOL, "mse0");
-    assert!(on_mask_only(Tensor::zeros([3, 3], &dev), m()).is_err());
-
-    let ad = dev.autodiff();
-    let rgb = tensor(vec![0.1, 0.5, 1.0, 0.9, 0.8, 0.7], [2, 3], &ad).require_grad();
-    let gt = tensor(vec![0.0, 0.5, 1.0, 0.0, 0.0, 0.0], [2, 3], &ad);
-    let m = || tensor(vec![1.0, 0.0], [2], &ad);
-    let loss = render_loss(
-        on_mask_only(rgb.clone(), m()).unwrap(),
-        Tensor::zeros([2, 3], &ad),
-        on_mask_only(gt, m()).unwrap(),
-    )
-    .unwrap();
-    let grads = loss.total.backward();
-    let g = values(rgb.grad(&grads).unwrap());
-    // d/d rgb of mean (rgb - gt)^2 over 6 values: 2 (rgb - gt) / 6 on the mask, 0 off it.
-    assert_close(
-        &g,
-        &[2.0 * 0.1 / 6.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-        1e-6,
-        "gradient",
-    );
 }
 
 /// The colour-matched target by hand: a target whose red is the prediction's / 1.1 and whose

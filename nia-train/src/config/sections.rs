@@ -161,11 +161,6 @@ pub struct TrainSection {
     /// loss; see `nia_model::loss::colour_matched_target`).
     #[serde(default)]
     pub colour_gain_tolerance: f32,
-    /// The colour terms (C and C0) count only the rays inside the target's mask; the rays its
-    /// mask calls background train the opacity through the mask loss alone (false: every ray,
-    /// the paper's loss; see `nia_model::loss::on_mask_only`).
-    #[serde(default)]
-    pub colour_loss_on_mask_only: bool,
 }
 
 impl TrainSection {

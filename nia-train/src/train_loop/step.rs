@@ -13,8 +13,7 @@ use nia_data::scene::SceneInput;
 use nia_model::ibr::c0_shuffle::C0Shuffle;
 use nia_model::kernels::readback::host_values_of;
 use nia_model::loss::{
-    colour_matched_target, distortion_loss, mask_loss, on_mask_only, patch_ssim_loss, render_loss,
-    RenderLoss,
+    colour_matched_target, distortion_loss, mask_loss, patch_ssim_loss, render_loss, RenderLoss,
 };
 use nia_model::renderer::RenderOutput;
 use nia_model::scene_encoding::cut::chunked_gradients;
@@ -326,26 +325,16 @@ fn chunk_loss(
     } else {
         None
     };
-    let on_body: Vec<f32> = rays.on_body[range]
-        .iter()
-        .map(|&b| b as u8 as f32)
-        .collect();
-    let on_body = Tensor::<1>::from_data(TensorData::new(on_body, [r]), device);
-    let (rgb, rgb0, gt) = if config.train.colour_loss_on_mask_only {
-        let m = || on_body.clone();
-        (
-            on_mask_only(out.rgb, m()).map_err(shape)?,
-            on_mask_only(out.rgb0, m()).map_err(shape)?,
-            on_mask_only(gt, m()).map_err(shape)?,
-        )
-    } else {
-        (out.rgb, out.rgb0, gt)
-    };
-    let mut loss = render_loss(rgb, rgb0, gt).map_err(shape)?;
+    let mut loss = render_loss(out.rgb, out.rgb0, gt).map_err(shape)?;
     if let Some(ssim) = ssim {
         loss.total = loss.total + ssim.mul_scalar(config.train.ssim_loss_weight);
     }
     if config.train.mask_loss_weight > 0.0 {
+        let on_body: Vec<f32> = rays.on_body[range]
+            .iter()
+            .map(|&b| b as u8 as f32)
+            .collect();
+        let on_body = Tensor::<1>::from_data(TensorData::new(on_body, [r]), device);
         let mask = mask_loss(acc, on_body).map_err(shape)?;
         loss.total = loss.total + mask.mul_scalar(config.train.mask_loss_weight);
     }
