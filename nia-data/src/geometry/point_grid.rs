@@ -97,13 +97,7 @@ impl PointGrid {
                 }
             }
             for y in (qy - r).max(0)..=(qy + r).min(ny - 1) {
-                let on_edge_row = (y - qy).abs() == r;
-                let xs: Box<dyn Iterator<Item = i64>> = if on_edge_row {
-                    Box::new((qx - r).max(0)..=(qx + r).min(nx - 1))
-                } else {
-                    Box::new([qx - r, qx + r].into_iter().filter(|&x| x >= 0 && x < nx))
-                };
-                for x in xs {
+                let mut scan = |x: i64| {
                     let c = (y * nx + x) as usize;
                     for &i in &self.items[self.starts[c] as usize..self.starts[c + 1] as usize] {
                         let d2 = (self.points[i as usize] - q).length_squared();
@@ -111,6 +105,16 @@ impl PointGrid {
                             best = Some((d2, i as usize));
                         }
                     }
+                };
+                if (y - qy).abs() == r {
+                    // The ring's top or bottom row: every cell of it.
+                    ((qx - r).max(0)..=(qx + r).min(nx - 1)).for_each(&mut scan);
+                } else {
+                    // A row between: the ring's left and right cells (r >= 1, so two).
+                    [qx - r, qx + r]
+                        .into_iter()
+                        .filter(|&x| x >= 0 && x < nx)
+                        .for_each(&mut scan);
                 }
             }
         }
