@@ -60,6 +60,12 @@ pub struct ModelConfig {
     /// (not in the paper; `None` or `false`, also what older model files carry, is off; see
     /// `nia_data::scene::colour_balance`).
     pub source_colour_balance: Option<bool>,
+    /// F_B reads the pixel features p_n and F_c0's hidden feature h (the paper; `None`, also
+    /// what older model files carry, is on). Off, its tokens and per-point part hold only what
+    /// is not the person's texture: view directions, visibility, confidence and (with view
+    /// statistics) the colours and their across-view statistics (not in the paper; see
+    /// `ibr::blender`).
+    pub blend_reads_features: Option<bool>,
 }
 
 /// Where the source colours c_n are read (`ibr::surface`).
@@ -178,6 +184,7 @@ impl ModelConfig {
             .with_d_h(self.d_hidden)
             .with_d_hidden(self.d_blend)
             .with_view_statistics(self.blend_view_statistics)
+            .with_reads_features(self.blend_reads_features.unwrap_or(true))
     }
 
     /// A small network for tests and quick CPU runs (same structure, narrow layers).

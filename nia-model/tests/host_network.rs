@@ -16,15 +16,21 @@ use nia_model::variant::Variant;
 
 /// F_sigma, F_c0 and F_B on the host ([`HostNetwork`], the CPU backends' inference path)
 /// against their tensor forms: M across several row tasks with a remainder, and one point;
-/// N of 1 and 3; F_B with and without view statistics; inputs large enough that the ReLUs
-/// switch many units off.
+/// N of 1 and 3; F_B with and without view statistics, with and without features; inputs
+/// large enough that the ReLUs switch many units off.
 #[test]
 fn host_network_matches_the_tensor_heads_and_blender() {
     use nia_model::field::network_host::HostNetwork;
     let dev = device();
     let (d, d_dir, d_hidden) = (12, 27, 24);
     let mut rng = Rng::new(91);
-    for (statistics, n) in [(false, 3usize), (true, 3), (false, 1)] {
+    for (statistics, features, n) in [
+        (false, true, 3usize),
+        (true, true, 3),
+        (false, true, 1),
+        (true, false, 3),
+        (false, false, 1),
+    ] {
         dev.seed(17);
         let density = DensityHeadConfig::new()
             .with_d_input(d)
@@ -40,10 +46,11 @@ fn host_network_matches_the_tensor_heads_and_blender() {
             .with_d_h(d_hidden)
             .with_d_hidden(16)
             .with_view_statistics(statistics)
+            .with_reads_features(features)
             .init(&dev);
         let host = HostNetwork::read(&density, &colour, &blender).unwrap();
         for m in [600usize, 1] {
-            let case = format!("statistics {statistics}, N {n}, M {m}");
+            let case = format!("statistics {statistics}, features {features}, N {n}, M {m}");
             let mean_z = tensor(random(&mut rng, m * d, -3.0, 3.0), [m, d], &dev);
             let gamma = tensor(random(&mut rng, m * d_dir, -1.0, 1.0), [m, d_dir], &dev);
             let sigma = values(host.density(mean_z.clone()).unwrap());
@@ -163,6 +170,70 @@ fn host_network_matches_the_tensor_heads_and_blender() {
             }
         }
     }
+}
+
+/// F_B without features reads neither p_n nor h: its logits, on the tensor path and on the
+/// host, are the same whatever they hold (and whatever their widths), and they still follow
+/// what it does read (a view's colour); its first layer is `d_hat, o, flag, c` wide per token
+/// and `psi, mean c, var c` per point.
+#[test]
+fn blender_without_features_ignores_pixel_features_and_h() {
+    use nia_model::field::heads::ColourHeadConfig;
+    use nia_model::field::network_host::HostNetwork;
+    let dev = device();
+    let (n, m) = (3usize, 40usize);
+    let mut rng = Rng::new(5);
+    dev.seed(3);
+    let blender = BlenderConfig::new()
+        .with_d_pixel(12)
+        .with_d_h(24)
+        .with_d_hidden(16)
+        .with_view_statistics(true)
+        .with_reads_features(false)
+        .init(&dev);
+    assert_eq!(blender.token_input.weight.dims(), [4 + 2 + 3, 16]);
+    assert_eq!(blender.point_input.weight.dims(), [1 + 6, 16]);
+    let density = DensityHeadConfig::new().with_d_input(12).init(&dev);
+    let colour = ColourHeadConfig::new().with_d_input(12).init(&dev);
+    let host = HostNetwork::read(&density, &colour, &blender).unwrap();
+    let inputs = |d: usize, d_h: usize, rng: &mut Rng| BlendInputs {
+        c0: tensor(vec![0.3; m * 3], [m, 3], &dev),
+        confidence: tensor(vec![0.5; m], [m, 1], &dev),
+        h: tensor(random(rng, m * d_h, -5.0, 5.0), [m, d_h], &dev),
+        source_colours: tensor(
+            (0..n * m * 3).map(|i| (i % 7) as f32 / 7.0).collect(),
+            [n, m, 3],
+            &dev,
+        ),
+        pixel_feature: tensor(random(rng, n * m * d, -5.0, 5.0), [n, m, d], &dev),
+        view_dir_features: tensor(
+            (0..n * m * 4).map(|i| (i % 5) as f32 / 5.0).collect(),
+            [n, m, 4],
+            &dev,
+        ),
+        visibility: tensor(vec![1.0; n * m], [n, m], &dev),
+    };
+    let a = inputs(12, 24, &mut rng);
+    let b = inputs(7, 3, &mut rng);
+    let logits = |x: &BlendInputs| values(blender.forward(x).unwrap());
+    let host_weights = |x: &BlendInputs| {
+        values(
+            host.blend_colour(&blender, x.clone(), None)
+                .unwrap()
+                .0
+                .blend_weights,
+        )
+    };
+    assert_eq!(logits(&a), logits(&b));
+    assert_eq!(host_weights(&a), host_weights(&b));
+    assert_finite(&logits(&a), "logits without features");
+    let mut c = a.clone();
+    c.source_colours = c.source_colours.clone().mul_scalar(0.5);
+    assert_ne!(
+        logits(&a),
+        logits(&c),
+        "a view's colour must move the logits"
+    );
 }
 
 /// The IBR-only colour written out: `sum_n v_n c_n / sum_n v_n`, `v_n = w_n + IBR_ONLY_FLOOR`

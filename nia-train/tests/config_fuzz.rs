@@ -62,6 +62,7 @@ const KEYS: &[(&str, &str)] = &[
     ("model", "voxel_size_m"),
     ("model", "box_enlarge"),
     ("model", "source_colours_at"),
+    ("model", "blend_reads_features"),
     ("optim", "lr"),
     ("optim", "beta1"),
     ("optim", "beta2"),
@@ -441,7 +442,7 @@ fn domain(key: &str) -> (&'static [&'static str], &'static [&'static str]) {
             &["\"e\"", "\"Full\""],
         ),
         "backend" => (&["\"ndarray\"", "\"flex\"", "\"wgpu\""], &["\"cuda\""]),
-        "evaluate_at_end" | "skip_empty_space" | "keypoints" => {
+        "evaluate_at_end" | "skip_empty_space" | "keypoints" | "blend_reads_features" => {
             (&["true", "false"], &["1", "\"yes\""])
         }
         "empty_space_m" => (&["0.0", "0.03", "1.0"], &["-0.1", "nan", "inf"]),

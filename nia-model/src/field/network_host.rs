@@ -177,7 +177,7 @@ impl HostNetwork {
         let device = inputs.c0.device();
         let c0 = host_view_of("host F_B c0", inputs.c0.clone())?;
         let c = host_view_of("host F_B c_n", inputs.source_colours.clone())?;
-        let logits = self.blend_logits_token_major(blender.view_statistics, &inputs, &c0, &c)?;
+        let logits = self.blend_logits_token_major(blender, &inputs, &c0, &c)?;
         let out = blend_on_host(&logits, &c0, &c, n, m, c0_weight_scale)?;
         let tensor = |values: Vec<f32>, width: usize| {
             Tensor::<2>::from_data(TensorData::new(values, [m, width]), &device)
@@ -201,22 +201,33 @@ impl HostNetwork {
     /// - output: `[N + 1, M]`, token-major
     pub(crate) fn blend_logits_token_major(
         &self,
-        view_statistics: bool,
+        blender: &Blender,
         inputs: &BlendInputs,
         c0: &[f32],
         c: &[f32],
     ) -> Result<Vec<f32>, ShapeError> {
+        let view_statistics = blender.view_statistics;
         let [n, m, d] = inputs.pixel_feature.dims();
         let t = n + 1;
         if m == 0 {
             return Ok(Vec::new());
         }
         let read = |what: &str, x: Tensor<3>| host_view_of(what, x);
-        let p = read("host F_B p_n", inputs.pixel_feature.clone())?;
         let d_hat = read("host F_B d_hat_n", inputs.view_dir_features.clone())?;
         let o = host_view_of("host F_B o_n", inputs.visibility.clone())?;
-        let h = host_view_of("host F_B h", inputs.h.clone())?;
         let psi = host_view_of("host F_B psi", inputs.confidence.clone())?;
+        // Without features F_B reads neither p_n nor h: both are laid out 0 wide.
+        let (p_values, h_values) = if blender.reads_features {
+            (
+                Some(read("host F_B p_n", inputs.pixel_feature.clone())?),
+                Some(host_view_of("host F_B h", inputs.h.clone())?),
+            )
+        } else {
+            (None, None)
+        };
+        let p: &[f32] = p_values.as_deref().unwrap_or(&[]);
+        let h: &[f32] = h_values.as_deref().unwrap_or(&[]);
+        let d = if blender.reads_features { d } else { 0 };
         let d_h = h.len() / m;
         let colour_dim = if view_statistics { 3 } else { 0 };
         let d_token = d + TOKEN_EXTRA_DIM + colour_dim;
@@ -296,7 +307,7 @@ impl HostNetwork {
                     }
                     let stats = &mut row[d_h + 1..];
                     let (p_stats, c_stats) = stats.split_at_mut(2 * d);
-                    weighted_mean_and_variance(&p, d, m, i, &omega, p_stats);
+                    weighted_mean_and_variance(p, d, m, i, &omega, p_stats);
                     weighted_mean_and_variance(c, 3, m, i, &omega, c_stats);
                 }
             });

@@ -27,6 +27,14 @@
 //! carries its colour (c_n, or c0 for token 0), and the per-point part the across-view mean and
 //! variance of the pixel features and of the source colours, weighted by visibility (IBRNet's
 //! global context): `W_t [p, d_hat, o, flag, c] + b + W_p [h, psi, mean p, var p, mean c, var c]`.
+//!
+//! Without features (switchable, `ModelConfig::blend_reads_features`; not in the paper) F_B
+//! reads neither p_n nor h, nor their statistics: `W_t [d_hat, o, flag (, c)] + b + W_p [psi
+//! (, mean c, var c)]`. p_n and h describe the person's texture and shape, so an F_B that reads
+//! them can fit its trust in each source to the few people it trains on; without them its
+//! trust rests on what carries to a new person: where the views look from, whether they see
+//! the point, and whether their colours agree (docs/results.md, "The learned blend under each
+//! flaw").
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
@@ -63,6 +71,9 @@ pub struct BlenderConfig {
     /// Give the tokens their colours and the across-view statistics (module docs).
     #[config(default = false)]
     pub view_statistics: bool,
+    /// F_B reads p_n and h (module docs).
+    #[config(default = true)]
+    pub reads_features: bool,
 }
 
 /// F_B: N + 1 blend logits per point from per-view tokens and the NeRF token.
@@ -77,23 +88,28 @@ pub struct Blender {
     /// Tokens carry colours and across-view statistics (module docs).
     #[module(skip)]
     pub view_statistics: bool,
+    /// F_B reads p_n and h (module docs).
+    #[module(skip)]
+    pub reads_features: bool,
 }
 
 impl BlenderConfig {
-    /// Width of the per-token part: `[p, d_hat, o, flag]` (+ `c` with statistics).
+    /// Width of the per-token part: `[p, d_hat, o, flag]` (+ `c` with statistics; no p
+    /// without features).
     fn token_part_dim(&self) -> usize {
-        self.d_pixel + TOKEN_EXTRA_DIM + if self.view_statistics { 3 } else { 0 }
+        let p = if self.reads_features { self.d_pixel } else { 0 };
+        p + TOKEN_EXTRA_DIM + if self.view_statistics { 3 } else { 0 }
     }
 
-    /// Width of the per-point part: `[h, psi]` (+ `mean p, var p, mean c, var c`).
+    /// Width of the per-point part: `[h, psi]` (+ `mean p, var p, mean c, var c`; no h, mean p
+    /// or var p without features).
     fn point_part_dim(&self) -> usize {
-        self.d_h
-            + 1
-            + if self.view_statistics {
-                2 * self.d_pixel + 6
-            } else {
-                0
-            }
+        let (p, h) = if self.reads_features {
+            (self.d_pixel, self.d_h)
+        } else {
+            (0, 0)
+        };
+        h + 1 + if self.view_statistics { 2 * p + 6 } else { 0 }
     }
 
     /// A freshly initialised F_B on `device`.
@@ -110,6 +126,7 @@ impl BlenderConfig {
                 .init(device),
             layers,
             view_statistics: self.view_statistics,
+            reads_features: self.reads_features,
         }
     }
 }
@@ -179,7 +196,6 @@ impl Blender {
 
         let visibility = visibility.reshape([n, m, 1]);
         let mut view_parts = vec![
-            pixel_feature.clone(),
             view_dir_features,
             visibility.clone(),
             Tensor::zeros([n, m, 1], &device),
@@ -189,18 +205,25 @@ impl Blender {
                 .reshape([1, 1, 4])
                 .expand([1, m, 4]);
         let mut nerf_parts = vec![
-            pixel_feature.clone().mean_dim(0),
             nerf_dir,
             visibility.clone().mean_dim(0),
             Tensor::ones([1, m, 1], &device),
         ];
-        let mut point_parts = vec![h, confidence];
+        let mut point_parts = vec![confidence];
+        if self.reads_features {
+            view_parts.insert(0, pixel_feature.clone());
+            nerf_parts.insert(0, pixel_feature.clone().mean_dim(0));
+            point_parts.insert(0, h);
+        }
         if self.view_statistics {
             // Visibility-weighted across-view statistics, [M, k] each.
             let omega = view_weights(visibility.clone().reshape([n, m]));
-            let (mean_p, var_p) = mean_and_variance(pixel_feature, omega.clone())?;
+            if self.reads_features {
+                let (mean_p, var_p) = mean_and_variance(pixel_feature, omega.clone())?;
+                point_parts.extend([mean_p, var_p]);
+            }
             let (mean_c, var_c) = mean_and_variance(source_colours.clone(), omega)?;
-            point_parts.extend([mean_p, var_p, mean_c, var_c]);
+            point_parts.extend([mean_c, var_c]);
             view_parts.push(source_colours);
             nerf_parts.push(c0.unsqueeze_dim::<3>(0));
         }
@@ -215,13 +238,20 @@ impl Blender {
     pub fn check_inputs(&self, inputs: &BlendInputs) -> Result<(), ShapeError> {
         let [n, m, d] = inputs.pixel_feature.dims();
         let colour_dim = if self.view_statistics { 3 } else { 0 };
+        // Without features p_n and h may have any width: F_B reads neither.
+        let d_read = if self.reads_features { d } else { 0 };
         let d_token = self.token_input.weight.dims()[0];
-        let d_point =
-            self.point_input.weight.dims()[0] - if self.view_statistics { 2 * d + 6 } else { 0 };
+        let d_point = self.point_input.weight.dims()[0]
+            - if self.view_statistics {
+                2 * d_read + 6
+            } else {
+                0
+            };
+        let features = |width: usize| self.reads_features.then_some(width);
         ShapeError::check(
             "F_B `pixel_feature` [N, M, d]",
             &[n, m, d],
-            &[None, None, Some(d_token - TOKEN_EXTRA_DIM - colour_dim)],
+            &[None, None, features(d_token - TOKEN_EXTRA_DIM - colour_dim)],
         )?;
         if n == 0 {
             return Err(ShapeError::empty("F_B views N"));
@@ -239,7 +269,7 @@ impl Blender {
         ShapeError::check(
             "F_B `h` [M, d_h]",
             &inputs.h.dims(),
-            &[Some(m), Some(d_point - 1)],
+            &[Some(m), features(d_point - 1)],
         )?;
         ShapeError::check(
             "F_B `confidence` [M, 1]",
