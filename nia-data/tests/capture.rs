@@ -230,5 +230,17 @@ fn the_preset_its_overrides_and_a_mismatched_set() {
         "{err}"
     );
     assert!(err.to_string().contains("_level"), "{err}");
+    // The same set asked for with more people (a config that grew): named, with the way out.
+    let more = SynthSpec {
+        subjects: tiny(CaptureFlaws::default()).subjects + 1,
+        ..tiny(CaptureFlaws::default())
+    };
+    let err = data.protocol(Some(&more)).unwrap_err().to_string();
+    assert!(
+        err.contains("synth.json")
+            && err.contains("`synth.subjects`")
+            && err.contains("delete the folder"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -199,7 +199,7 @@ pub enum OpenError {
     Protocol(#[from] ProtocolError),
     #[error("{}: subject `{subject}` is missing (no folder {}: a training subject, or one named by `[data.split]` or `--subjects`)", root.display(), root.join(subject).display())]
     MissingSubject { root: PathBuf, subject: String },
-    #[error("{}: `{key}` is {data} in this dataset, but the config's `[synth]` says {config} (point data.root at the dataset the config describes, or fix the config)", description.display())]
+    #[error("{}: `{key}` is {data} in this dataset, but the config's `[synth]` says {config} (point data.root at the dataset the config describes, fix the config, or delete the folder so that training generates it again)", description.display())]
     SynthMismatch {
         description: PathBuf,
         key: &'static str,

@@ -30,11 +30,11 @@
 //!
 //! Without features (switchable, `ModelConfig::blend_reads_features`; not in the paper) F_B
 //! reads neither p_n nor h, nor their statistics: `W_t [d_hat, o, flag (, c)] + b + W_p [psi
-//! (, mean c, var c)]`. p_n and h describe the person's texture and shape, so an F_B that reads
-//! them can fit its trust in each source to the few people it trains on; without them its
-//! trust rests on what carries to a new person: where the views look from, whether they see
-//! the point, and whether their colours agree (docs/results.md, "The learned blend under each
-//! flaw").
+//! (, mean c, var c)]`. The rationale: p_n and h describe the person's texture and shape, so an
+//! F_B that reads them can fit its trust in each source to the few people it trains on; without
+//! them its trust rests on where the views look from, whether they see the point, and whether
+//! their colours agree. What it measured (a small gain; trained longer, F_B still drifts towards
+//! c0) is in docs/results.md, "The learned blend under each flaw".
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
