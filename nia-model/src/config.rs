@@ -56,10 +56,6 @@ pub struct ModelConfig {
     /// model files and checkpoints written before this switch carry) or once per ray at the
     /// expected surface point (not in the paper; see `ibr::surface`).
     pub source_colours_at: Option<SourceColoursAt>,
-    /// The source images' per-view colour gains made consistent before anything reads them
-    /// (not in the paper; `None` or `false`, also what older model files carry, is off; see
-    /// `nia_data::scene::colour_balance`).
-    pub source_colour_balance: Option<bool>,
     /// F_B reads the pixel features p_n and F_c0's hidden feature h (the paper; `None`, also
     /// what older model files carry, is on). Off, its tokens and per-point part hold only what
     /// is not the person's texture: view directions, visibility, confidence and (with view

@@ -66,10 +66,6 @@ pub struct NiaModel {
     /// Where the source colours are read.
     #[module(skip)]
     pub source_colours_at: SourceColoursAt,
-    /// The source images' colours balanced across the views before encoding
-    /// (`ModelConfig::source_colour_balance`).
-    #[module(skip)]
-    pub source_colour_balance: bool,
 }
 
 impl ModelConfig {
@@ -104,7 +100,6 @@ impl ModelConfig {
             box_enlarge: self.box_enlarge,
             ray_sampler: self.ray_sampler,
             source_colours_at: self.source_colours_at.unwrap_or_default(),
-            source_colour_balance: self.source_colour_balance.unwrap_or(false),
         }
     }
 }

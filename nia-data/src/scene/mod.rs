@@ -2,7 +2,6 @@
 //! the posed body, validated once and turned into the per-scene CPU geometry that every ray
 //! batch reuses (SMPL frame, ray box, nearest-surface index, voxel box).
 
-pub mod colour_balance;
 pub mod point_inputs;
 pub mod source_masks;
 pub mod visual_hull;

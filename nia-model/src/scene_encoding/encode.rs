@@ -6,7 +6,6 @@ use std::sync::Arc;
 use burn::prelude::*;
 use nia_data::body::reposing::Reposer;
 use nia_data::geometry::occupancy::OccupancyGrid;
-use nia_data::scene::colour_balance::balance_source_colours;
 use nia_data::scene::{projection_grid, SceneGeometry, SceneInput};
 
 use super::SceneEncoding;
@@ -35,15 +34,6 @@ impl NiaModel {
         times: Option<&mut StageTimes>,
     ) -> Result<SceneEncoding, ModelError> {
         let mut watch = Stopwatch::new(times, device);
-        let balanced;
-        let input = if self.source_colour_balance {
-            let mut copy = input.clone();
-            balance_source_colours(&mut copy);
-            balanced = copy;
-            &balanced
-        } else {
-            input
-        };
         let geometry = Arc::new(SceneGeometry::new(input, self.voxel_grid())?);
         let n = input.views.len();
         let [h, w] = geometry.image_hw;

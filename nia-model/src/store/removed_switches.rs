@@ -28,7 +28,7 @@ fn zero(v: &Value) -> bool {
     v.as_f64() == Some(0.0)
 }
 
-const REMOVED: [Removed; 4] = [
+const REMOVED: [Removed; 5] = [
     Removed {
         path: &["model", "visibility_masks"],
         neutral: null_or_false,
@@ -38,6 +38,11 @@ const REMOVED: [Removed; 4] = [
         path: &["model", "visibility_depth_tol_m"],
         neutral: null,
         what: "o_n's depth test",
+    },
+    Removed {
+        path: &["model", "source_colour_balance"],
+        neutral: null_or_false,
+        what: "the source views' colour balance",
     },
     Removed {
         path: &["run", "render", "hull_dilate_px"],
@@ -99,7 +104,8 @@ mod tests {
     #[test]
     fn neutral_values_are_dropped_and_others_refused_by_key() {
         let mut doc = json!({
-            "model": { "visibility_masks": false, "visibility_depth_tol_m": null, "d_model": 8 },
+            "model": { "visibility_masks": false, "visibility_depth_tol_m": null,
+                       "source_colour_balance": null, "d_model": 8 },
             "run": { "render": { "hull_dilate_px": 0, "visual_hull": true },
                      "train": { "ibr_loss_weight": 0.0, "steps": 3 } },
         });
@@ -114,6 +120,7 @@ mod tests {
         for (path, value) in [
             (["model", "visibility_masks"], json!(true)),
             (["model", "visibility_depth_tol_m"], json!(0.03)),
+            (["model", "source_colour_balance"], json!(true)),
             (["render", "hull_dilate_px"], json!(2)),
             (["train", "ibr_loss_weight"], json!(0.5)),
         ] {
