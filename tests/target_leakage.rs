@@ -1,7 +1,7 @@
 //! The target view cannot reach the render: a scene is loaded from a synthetic subject on disk
 //! as the main command's evaluation loads it (`configs/quickstart.toml`: its network, its
 //! `[data]` loader with the fitted SMPL aligned and its joints bent onto the source masks, its
-//! `[render]` section with the body in the visual hull, c0's weight rescaled and 2 x 2 rays a
+//! `[render]` section with the body in the visual hull and 2 x 2 rays a
 //! pixel; data with a real capture's flaws), rendered through the one render entry point, then
 //! the target view's image and mask files are overwritten and the scene is loaded and rendered
 //! again: the prediction is bit-identical. Overwriting a source image instead changes it, so
@@ -117,7 +117,7 @@ fn the_target_image_and_mask_never_reach_the_prediction() {
         .expect("the main command aligns the fit");
     assert!(alignment.pose_iterations > 0, "and bends its joints");
     assert!(config.render.visual_hull && config.render.hull_body_erode_px.is_some());
-    assert!(config.render.c0_scale().is_some() && config.render.supersample > 1);
+    assert!(config.render.supersample > 1);
     assert!(config.model.blend_view_statistics);
     let summary = common::one_subject_with("target-leakage", 48, 23, CapturePreset::ZjuLike);
     let body = Arc::new(BodyModel::load(&summary.body_model).unwrap());

@@ -341,6 +341,7 @@ fn wgpu_training_gradients_match_ndarray() {
                 fraction: 0.5,
                 seed: 7,
                 seen_only: false,
+                noise_std: 0.0,
             }));
         let out = model
             .render(&scene, &rays, SAMPLES, Some(&jitter), None)
@@ -720,6 +721,7 @@ fn render_plain_and_shuffled(
         fraction: 1.0,
         seed: 5,
         seen_only: false,
+        noise_std: 0.0,
     }));
     let shuffled = model
         .render(&shuffled_scene, &rays, SAMPLES, Some(&jitter), None)

@@ -137,9 +137,10 @@ fn the_resolved_config_has_every_addition_off() {
             t.mask_loss_weight,
             t.distortion_loss_weight,
             t.c0_shuffle,
+            t.c0_noise_std,
             t.colour_gain_tolerance
         ),
-        (0.0, 0.0, 0.0, 0.0)
+        (0.0, 0.0, 0.0, 0.0, 0.0)
     );
     assert_eq!(config.optim.grad_clip_norm, 0.0);
     assert_eq!((t.rays_per_step, t.samples, t.source_views), (1024, 64, 3));

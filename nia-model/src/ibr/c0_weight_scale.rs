@@ -11,7 +11,10 @@
 //! 0.33; training without the SMPL jitter leaves it at 0.36, without the cameras' colour
 //! responses at 0.40. No single flaw of the training data teaches the hedge, and about half of
 //! it is the training recipe's (the colour-gain loss and the SMPL jitter; docs/robustness.md,
-//! "c0's share of the blend" and "What teaches F_B to hedge").
+//! "c0's share of the blend" and "What teaches F_B to hedge"). Noise on the c0 that F_B blends
+//! in training (`train.c0_noise_std`, `crate::ibr::c0_shuffle`) lowers the share to 0.21-0.27
+//! and makes the rescale unneeded; the quickstart trains with it and renders at `s = 1`. The
+//! rescale stays for models trained without it.
 //!
 //! The rescaling is F_B's own blend with the prior odds of c0 changed: every point's weights
 //! `w` over `[c0, c_1..c_N]` become

@@ -239,6 +239,13 @@ impl TrainConfig {
                 t.c0_shuffle.to_string(),
             ));
         }
+        if !(t.c0_noise_std.is_finite() && t.c0_noise_std >= 0.0) {
+            return Err(bad(
+                "train.c0_noise_std",
+                "a finite value >= 0",
+                t.c0_noise_std.to_string(),
+            ));
+        }
         if !(t.mask_loss_weight.is_finite() && t.mask_loss_weight >= 0.0) {
             return Err(bad(
                 "train.mask_loss_weight",

@@ -157,6 +157,11 @@ pub struct TrainSection {
     /// (false: every point may be shuffled; see `nia_model::ibr::c0_shuffle`).
     #[serde(default)]
     pub c0_shuffle_seen_only: bool,
+    /// Standard deviation of the Gaussian noise on the c0 that F_B blends at the points
+    /// `c0_shuffle_seen_only` lets through, per channel (0: off, the paper's training; see
+    /// `nia_model::ibr::c0_shuffle`).
+    #[serde(default)]
+    pub c0_noise_std: f32,
     /// Per-channel gain of the target, relative, that the loss ignores (0: off, the paper's
     /// loss; see `nia_model::loss::colour_matched_target`).
     #[serde(default)]

@@ -236,13 +236,15 @@ fn scene_gradients(
         source: Box::new(source),
     };
     let input = SceneInput::from_loaded(scene, faces);
-    let c0_shuffle = (config.train.c0_shuffle > 0.0).then(|| C0Shuffle {
+    let augments_c0 = config.train.c0_shuffle > 0.0 || config.train.c0_noise_std > 0.0;
+    let c0_shuffle = augments_c0.then(|| C0Shuffle {
         fraction: config.train.c0_shuffle,
         seed: Rng::new(config.train.seed)
             .fork(index)
             .fork(C0_SHUFFLE_STREAM)
             .next_u64(),
         seen_only: config.train.c0_shuffle_seen_only,
+        noise_std: config.train.c0_noise_std,
     });
     let encoded = model
         .encode(&input, None, device, None)

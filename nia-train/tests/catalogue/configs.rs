@@ -17,6 +17,7 @@ const EDITS: &[(&str, &[&str], &str, &str)] = &[
     ("config_hull_erosion_too_large", &["tiny.toml", "render.hull_body_erode_px", "at most 256", "1000"], "[train]", "[render]\nhull_body_erode_px = 1000\n\n[train]"),
     ("config_supersample_zero", &["tiny.toml", "render.supersample", "1 to 8", "0"], "[train]", "[render]\nsupersample = 0\n\n[train]"),
     ("config_c0_shuffle_out_of_range", &["tiny.toml", "train.c0_shuffle", "[0, 1]", "2"], "samples = 4", "samples = 4\nc0_shuffle = 2.0"),
+    ("config_c0_noise_negative", &["tiny.toml", "train.c0_noise_std", ">= 0", "-0.1"], "samples = 4", "samples = 4\nc0_noise_std = -0.1"),
     ("config_ratio_out_of_range", &["tiny.toml", "data.ratio", "(0, 1]", "1.5"], "ratio = 1.0", "ratio = 1.5"),
     ("config_unknown_backend", &["tiny.toml", "train.backend", "tpu", "ndarray"], "backend = \"ndarray\"", "backend = \"tpu\""),
     ("config_unknown_preset", &["tiny.toml", "model.preset", "huge", "tiny"], "preset = \"tiny\"", "preset = \"huge\""),
