@@ -84,6 +84,8 @@ def main():
         if not files:
             sys.exit(f"{out}: no pictures/*_parts.png (run nia-infer eval without --no-pictures)")
         rows = [r for r in map(scores, files) if r is not None]
+        if not rows:
+            sys.exit(f"{out}: every picture is empty (no truth and no opacity)")
         mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
         ibr = mean["IBR-only"]
         print(f"{out} ({len(rows)} images)")

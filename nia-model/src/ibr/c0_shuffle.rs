@@ -95,12 +95,6 @@ impl C0Shuffle {
         let [m, _] = c0.dims();
         let device = c0.device();
         let points = points.min(m);
-        let (mut sources, mut replaced) = self.sources(points);
-        sources.extend(points as i64..m as i64);
-        replaced.resize(m, false);
-        let index = Tensor::<1, Int>::from_data(TensorData::new(sources, [m]), &device);
-        let mask: Vec<f32> = replaced.iter().map(|&r| r as u8 as f32).collect();
-        let mut mask = Tensor::<2>::from_data(TensorData::new(mask, [m, 1]), &device);
         // [N, M] -> [1, M] -> [M, 1]: 1 where some view sees the point.
         let seen = self.seen_only.then(|| {
             visibility
@@ -110,11 +104,22 @@ impl C0Shuffle {
                 .float()
                 .reshape([m, 1])
         });
-        if let Some(seen) = seen.clone() {
-            mask = mask * seen;
-        }
-        let shuffled = c0.clone().detach().select(0, index);
-        let out = c0 * mask.clone().neg().add_scalar(1.0) + shuffled * mask;
+        // Noise alone (`fraction` 0) swaps nothing: no gather.
+        let out = if self.fraction > 0.0 {
+            let (mut sources, mut replaced) = self.sources(points);
+            sources.extend(points as i64..m as i64);
+            replaced.resize(m, false);
+            let index = Tensor::<1, Int>::from_data(TensorData::new(sources, [m]), &device);
+            let mask: Vec<f32> = replaced.iter().map(|&r| r as u8 as f32).collect();
+            let mut mask = Tensor::<2>::from_data(TensorData::new(mask, [m, 1]), &device);
+            if let Some(seen) = seen.clone() {
+                mask = mask * seen;
+            }
+            let shuffled = c0.clone().detach().select(0, index);
+            c0 * mask.clone().neg().add_scalar(1.0) + shuffled * mask
+        } else {
+            c0
+        };
         if self.noise_std <= 0.0 {
             return out;
         }
